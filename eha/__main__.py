@@ -1,0 +1,3 @@
+from eha.cli import app
+
+app(prog_name="eha")

@@ -1,0 +1,198 @@
+"""Position commands (thesis §4.1, SPEC §4): step, ramp, sine, chirp, mixed, test, array.
+
+A :class:`Command` is a kind plus its parameters; :meth:`Command.sample` evaluates it on a time
+grid (vectorised NumPy, once per simulation, outside the kernels). Presets are named commands
+whose parameters can be overridden (``make_command("chirp_1cm", A0=5e-3)``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+
+class CommandError(ValueError):
+    """Unknown command, unknown command parameter or bad value (message is one line)."""
+
+
+@dataclass(frozen=True)
+class CommandKind:
+    """A command family: its parameters (name -> (default, unit, lo, hi)) and its meaning."""
+
+    name: str
+    params: Mapping[str, tuple[float, str, float, float]]
+    description: str
+
+
+KINDS: dict[str, CommandKind] = {
+    k.name: k
+    for k in (
+        CommandKind("step", {"A": (1e-3, "m", -0.2, 0.2), "t0": (0.0, "s", 0.0, 1e4)},
+                    "A for t >= t0"),
+        CommandKind("ramp", {"slope": (0.01, "m/s", -10.0, 10.0), "t0": (0.0, "s", 0.0, 1e4)},
+                    "slope*(t - t0) for t >= t0"),
+        CommandKind("sine", {"A": (1e-2, "m", 0.0, 0.2), "f": (5.0, "Hz", 0.0, 1e3),
+                             "phase": (0.0, "rad", -10.0, 10.0)},
+                    "A*sin(2*pi*f*t + phase)"),
+        CommandKind("chirp", {"A0": (1e-3, "m", 0.0, 0.2), "f0": (0.5, "Hz", 0.0, 1e3),
+                              "f1": (10.0, "Hz", 0.0, 1e3), "T": (1.0, "s", 1e-3, 1e4)},
+                    "A0*(1 - t/T)*sin(2*pi*(f0*t + (f1 - f0)*t^2/(2T))): amplitude falls, "
+                    "frequency rises linearly"),
+        CommandKind("mixed", {"scale": (1.0, "-", -100.0, 100.0)},
+                    "EHA_Dat.m mixed command: ramp 0.03 m/s to 0.3 s, then two sine arcs"),
+        CommandKind("test", {"scale": (1.0, "-", -100.0, 100.0)},
+                    "EHA_Dat.m prognostic test sequence: steps, ramp, sine"),
+        CommandKind("array", {}, "user samples (t, value), linearly interpolated onto the grid"),
+    )
+}
+
+#: Named presets: (kind, parameter overrides, description).
+PRESETS: dict[str, tuple[str, dict[str, float], str]] = {
+    "step_1mm": ("step", {"A": 1e-3}, "1 mm step at t = 0"),
+    "step_1cm": ("step", {"A": 1e-2}, "1 cm step at t = 0 (saturates the spool)"),
+    "ramp": ("ramp", {"slope": 0.01}, "ramp 0.01 m/s from t = 0"),
+    "sine": ("sine", {"A": 1e-2, "f": 5.0}, "1 cm, 5 Hz sine"),
+    "chirp_1mm": ("chirp", {"A0": 1e-3, "f0": 0.5, "f1": 10.0}, "1 mm chirp 0.5 -> 10 Hz"),
+    "chirp_1cm": ("chirp", {"A0": 1e-2, "f0": 0.1, "f1": 1.5}, "1 cm chirp 0.1 -> 1.5 Hz"),
+    "mixed": ("mixed", {}, "ramp then sine arcs (EHA_Dat.m)"),
+    "test": ("test", {}, "prognostic test sequence (EHA_Dat.m)"),
+}
+
+#: The six nominal commands of thesis chapter 5.
+NOMINAL_COMMANDS = ("step_1mm", "step_1cm", "ramp", "chirp_1mm", "chirp_1cm", "mixed")
+
+
+@dataclass(frozen=True)
+class Command:
+    """A position command.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`KINDS`.
+    params : dict
+        Parameters of the kind (units as declared there); missing ones take their defaults.
+    name : str
+        Label for reports (preset name or kind).
+    samples : tuple of (t, value) arrays, optional
+        Only for ``kind="array"``: times [s] (strictly increasing) and positions [m].
+    """
+
+    kind: str
+    params: dict[str, float] = field(default_factory=dict)
+    name: str = ""
+    samples: tuple[np.ndarray, np.ndarray] | None = None
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """Command value [m] at times ``t`` [s]."""
+        t = np.asarray(t, dtype=np.float64)
+        if self.kind in ("mixed", "test") and np.any(np.diff(t) < 0):
+            raise CommandError(f"command {self.name or self.kind}: times must be non-decreasing")
+        p = {k: v[0] for k, v in KINDS[self.kind].params.items()} | self.params
+        if self.kind == "step":
+            return np.where(t >= p["t0"], p["A"], 0.0)
+        if self.kind == "ramp":
+            return p["slope"] * np.maximum(t - p["t0"], 0.0)
+        if self.kind == "sine":
+            return p["A"] * np.sin(2 * np.pi * p["f"] * t + p["phase"])
+        if self.kind == "chirp":
+            T = p["T"]
+            amp = p["A0"] * np.clip(1.0 - t / T, 0.0, None)
+            return amp * np.sin(2 * np.pi * (p["f0"] * t + (p["f1"] - p["f0"]) * t**2 / (2 * T)))
+        if self.kind == "mixed":
+            return p["scale"] * _mixed(t)
+        if self.kind == "test":
+            return p["scale"] * _test(t)
+        if self.kind == "array":
+            ts, xs = self.samples
+            return np.interp(t, ts, xs)
+        raise CommandError(f"command: unknown kind {self.kind!r}")  # pragma: no cover
+
+    def describe(self) -> dict[str, Any]:
+        return {"name": self.name or self.kind, "kind": self.kind, **self.params}
+
+
+def _piecewise(t: np.ndarray, edges: list[float], pieces: list) -> np.ndarray:
+    """Evaluate ``pieces[i]`` only on ``edges[i-1] < t <= edges[i]`` (sin is the costly part)."""
+    out = np.empty_like(t)
+    bounds = np.searchsorted(t, edges, side="right")
+    start = 0
+    for stop, piece in zip(list(bounds) + [t.size], pieces):
+        if stop > start:
+            out[start:stop] = piece(t[start:stop])
+        start = max(start, stop)
+    return out
+
+
+def _mixed(t: np.ndarray) -> np.ndarray:
+    # EHA_Dat.m, verbatim (SPEC §4); t <= 0.3 is the ramp, t <= 0.65 the first arc.
+    return _piecewise(t, [0.3, 0.65], [
+        lambda s: 0.03 * s,
+        lambda s: 0.005 + 0.004 * np.sin(2 * np.pi / 0.35 * (s - 0.3) + np.pi / 2),
+        lambda s: 0.005 + 0.004 * np.sin(3 * np.pi / 0.35 * (s - 0.65) + np.pi / 2),
+    ])
+
+
+def _test(t: np.ndarray) -> np.ndarray:
+    # 0 until 0.01 s; 3 mm until 0.2 s; 0 until 0.4 s; ramp 0.01 m/s to 0.6 s; then a sine.
+    out = np.zeros_like(t)
+    out[(t >= 0.01) & (t < 0.2)] = 3e-3
+    ramp = (t >= 0.4) & (t < 0.6)
+    out[ramp] = 0.01 * (t[ramp] - 0.4)
+    tail = t >= 0.6
+    out[tail] = 0.003 * np.sin(10 * np.pi * (t[tail] - 0.6) + np.pi / 2)
+    return out
+
+
+def make_command(name: str, **overrides: float) -> Command:
+    """A preset or a kind by name, with its parameters overridden and validated.
+
+    Raises
+    ------
+    CommandError
+        Unknown name, unknown parameter of that kind, or value outside its range.
+    """
+    if name in PRESETS:
+        kind, params, _ = PRESETS[name]
+    elif name in KINDS and name != "array":
+        kind, params = name, {}
+    else:
+        allowed = ", ".join(list(PRESETS) + [k for k in KINDS if k not in PRESETS and k != "array"])
+        raise CommandError(f"command: unknown command {name!r}; allowed: {allowed}")
+    spec = KINDS[kind].params
+    merged = dict(params)
+    for key, value in overrides.items():
+        if key not in spec:
+            allowed = ", ".join(spec) or "none"
+            raise CommandError(f"command {name}: unknown parameter {key!r}; allowed: {allowed}")
+        default, unit, lo, hi = spec[key]
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise CommandError(f"command {name}.{key}: {value!r} is not a number") from None
+        if not math.isfinite(value) or not lo <= value <= hi:
+            raise CommandError(f"command {name}.{key}={value:g} is out of range; "
+                               f"allowed range [{lo:g}, {hi:g}] {unit}")
+        merged[key] = value
+    return Command(kind, merged, name)
+
+
+def array_command(t: np.ndarray, values: np.ndarray, name: str = "array") -> Command:
+    """A command from samples (e.g. a measured-data file); checked finite and increasing."""
+    t = np.asarray(t, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if t.ndim != 1 or t.shape != values.shape or t.size < 2:
+        raise CommandError("array command: t and values must be 1-D, equal length, >= 2 samples")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(values))):
+        raise CommandError("array command: t and values must be finite (no NaN/inf)")
+    if np.any(np.diff(t) <= 0):
+        raise CommandError("array command: t must be strictly increasing")
+    return Command("array", {}, name, (t, values))
+
+
+def as_command(command: "Command | str") -> Command:
+    """Accept a :class:`Command` or a preset/kind name."""
+    return command if isinstance(command, Command) else make_command(command)

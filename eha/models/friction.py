@@ -1,0 +1,88 @@
+"""Friction laws and the play operator, each written once (SPEC §3).
+
+All functions are scalar ``@njit`` helpers inlined into the model kernels. Velocities in m/s,
+forces in N. ``fs`` is the static (break-away) force, ``fd`` the dynamic one.
+"""
+
+from numba import njit
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def play(x, y, half_width):
+    """Play (backlash) operator: output ``y`` follows ``x`` once ``|x - y|`` exceeds the half-width.
+
+    Also the play-type hysteresis of the torque motor (``half_width`` = His).
+    """
+    # branches rather than min/max: they are predictable and stay off the dependency chain
+    if y < x - half_width:
+        return x - half_width
+    if y > x + half_width:
+        return x + half_width
+    return y
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def clamp(x, lo, hi):
+    if x > hi:
+        return hi
+    if x < lo:
+        return lo
+    return x
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def borello_velocity(v, fatt, fd, fs, dt_over_m):
+    """Borello dry friction on a mass: new velocity after one semi-implicit Euler step.
+
+    Stuck (``v == 0``) is an exact state: the body stays at rest while ``|fatt| <= fs``,
+    otherwise it breaks away against ``fd``. A moving body feels ``fd*sign(v)``; when its
+    velocity would change sign in the step, it stops (``v = 0``).
+    """
+    if v == 0.0:
+        if abs(fatt) <= fs:
+            return 0.0
+        return (fatt - fd if fatt > 0.0 else fatt + fd) * dt_over_m
+    v_new = v + (fatt - fd if v > 0.0 else fatt + fd) * dt_over_m
+    if v_new * v <= 0.0:
+        return 0.0
+    return v_new
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def borello_velocity_first_order(v, fatt, fd, fs, inv_c):
+    """Borello dry friction on a first-order (massless, viscous) body: its velocity.
+
+    At rest it breaks away only when ``|fatt| > fs``; once moving it keeps moving while the
+    active force beats ``fd`` in the same direction, and stops otherwise.
+    """
+    if v == 0.0:
+        if abs(fatt) <= fs:
+            return 0.0
+        return (fatt - fd if fatt > 0.0 else fatt + fd) * inv_c
+    if v > 0.0:
+        return (fatt - fd) * inv_c if fatt > fd else 0.0
+    return (fatt + fd) * inv_c if fatt < -fd else 0.0
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def karnopp_velocity(v, fatt, fd, fs, eps, dt_over_m):
+    """Karnopp friction on a mass: new velocity after one step.
+
+    Inside the dead band ``|v| < eps`` the body sticks (``v = 0``) while ``|fatt| <= fs``,
+    else friction is ``fd*sign(fatt)``; outside it friction is ``fd*sign(v)``.
+    """
+    if abs(v) < eps:
+        if abs(fatt) <= fs:
+            return 0.0
+        return v + (fatt - fd if fatt > 0.0 else fatt + fd) * dt_over_m
+    return v + (fatt - fd if v > 0.0 else fatt + fd) * dt_over_m
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def karnopp_velocity_first_order(v, fatt, fd, fs, eps, inv_c):
+    """Karnopp friction on a first-order body: its velocity given the previous one ``v``."""
+    if abs(v) < eps:
+        if abs(fatt) <= fs:
+            return 0.0
+        return (fatt - fd if fatt > 0.0 else fatt + fd) * inv_c
+    return (fatt - fd if v > 0.0 else fatt + fd) * inv_c

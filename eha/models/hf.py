@@ -1,0 +1,140 @@
+"""High-fidelity ("detailed") actuator model, one semi-implicit Euler step per DT (SPEC §2).
+
+Signal flow per step: command -> PID -> torque motor (offset, dither, play hysteresis,
+saturation) -> flapper (2nd order, end stops, feedback-spring ball play) -> spool (1st order,
+Borello friction, end stops, quantizer) -> nonlinear P12 with leakage and chamber-pressure
+limits -> jack (2nd order, Borello friction, loads, end stops) -> output backlash.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from eha.models import O_COM, O_COR, O_DXJ, O_P12, O_T, O_XF, O_XJ, O_XS, O_XU, OUTPUTS
+from eha.models.friction import borello_velocity, borello_velocity_first_order, clamp, play
+from eha.params import HF
+
+#: State variables of the HF model (SI; cor in mA; ierr in m*s).
+STATES = ("xu", "xj", "dxj", "xs", "dxs", "xf", "dxf", "xsb", "cor", "ierr", "er_prev")
+#: Inputs: the position command [m] on the DT grid and the dither current [mA] per output step.
+INPUTS = ("com", "dither")
+
+
+@njit(cache=True, fastmath=True)
+def run_hf(p, com, dither, steps_per_out, out):
+    """Integrate the HF model.
+
+    Parameters
+    ----------
+    p : float64[:]
+        Parameter vector in :class:`eha.params.HFParams` order (index with ``HF``).
+    com : float64[:]
+        Command [m] at every step, ``len = n_out_intervals*steps_per_out + 1``.
+    dither : float64[:]
+        Dither current [mA], one zero-order-held value per output interval.
+    steps_per_out : int
+        Integration steps per recorded sample (1 ms / DT).
+    out : float64[:, :]
+        Recorded outputs, shape ``(n_out, len(OUTPUTS))``; row 0 is the initial state.
+    """
+    # Derived constants, once (SPEC §1); reciprocals so the loop only multiplies.
+    dt = p[HF.DT]
+    gap = p[HF.GAP]; gai = p[HF.GAI]; gad = p[HF.GAD]; erim = p[HF.ErIM]; gas = p[HF.GAS]
+    corm = p[HF.CorM]; his = p[HF.His]; ofs = p[HF.Ofs]; gm = p[HF.GM]
+    kf = p[HF.KF]; ksf = p[HF.KSF]; snf = p[HF.SNF]; zf = p[HF.ZF]
+    mf = (ksf + kf) / (snf * snf)
+    cf = 2.0 * zf * math.sqrt(mf * (ksf + kf))
+    dt_over_mf = dt / mf
+    xfm = p[HF.XFM]; gioco = p[HF.gioco]
+    asv = p[HF.ASV]; gpfe = p[HF.GPF] * (1.0 - p[HF.Kintas])
+    fatt_s_gain = asv * gpfe
+    inv_cs = 1.0 / (p[HF.CSV] + asv * asv * gpfe / p[HF.GQF])
+    xsm = p[HF.XSM]
+    fss = p[HF.FSS]; fds = fss / p[HF.FSDS]
+    q_xs = p[HF.q_xs]
+    inv_q = 1.0 / q_xs if q_xs > 0.0 else 0.0
+    psr = p[HF.PSR]; prv = p[HF.PRV]; pvap = p[HF.PVap]
+    gp = p[HF.GP]; gq = p[HF.GQ]
+    xss = p[HF.PSR0] / gp
+    gpq_xss = gp / gq * xss
+    den0 = gpq_xss * p[HF.Clk]
+    pi0 = 0.5 * (psr + 2.0 * prv)
+    # chamber pressures P1,2 = Pi +- P12/2 within [PVap, PSR + PRV]
+    p12_max = 2.0 * min(psr + prv - pi0, pi0 - pvap)
+    p12_min = -p12_max
+    frc = p[HF.FRC]; frr = p[HF.FRR]; fr_t = p[HF.FR_time]
+    frsa = p[HF.FRSA]; frsf = p[HF.FRSF]; kaer = p[HF.Kaer]
+    aj = p[HF.AJ]; cj = p[HF.CJ]; dt_over_mj = dt / p[HF.MJ]; xjm = p[HF.XJM]
+    fdj = p[HF.FDJ]; fsj = p[HF.FSD] * fdj
+    half_bkl = 0.5 * p[HF.BKL]
+    inv_dt = 1.0 / dt
+
+    xj = p[HF.XJ0]; xu = xj; dxj = 0.0
+    xs = 0.0; dxs = 0.0; xf = 0.0; dxf = 0.0; xsb = 0.0
+    cor = 0.0; ierr = 0.0; er_prev = com[0] - xu
+    p12 = 0.0
+
+    n_out = out.shape[0]
+    out[0, O_T] = 0.0; out[0, O_COM] = com[0]; out[0, O_XU] = xu; out[0, O_XJ] = xj
+    out[0, O_DXJ] = 0.0; out[0, O_XS] = 0.0; out[0, O_XF] = 0.0; out[0, O_P12] = 0.0
+    out[0, O_COR] = 0.0
+    k = 0
+    for i in range(1, n_out):
+        dith = dither[i - 1]
+        for _ in range(steps_per_out):
+            t = k * dt
+            # controller
+            er = com[k] - xu
+            ierr = clamp(ierr + er * dt, -erim, erim)
+            coer = gap * er + gai * ierr + gad * (er - er_prev) * inv_dt - gas * dxj
+            er_prev = er
+            # torque motor
+            cor = clamp(play(coer + ofs + dith, cor, his), -corm, corm)
+            # first stage
+            xsb = play(xs, xsb, gioco)
+            dxf += (gm * cor - cf * dxf - kf * xf - ksf * (xf + xsb)) * dt_over_mf
+            xf += dxf * dt
+            if xf > xfm:
+                xf = xfm; dxf = 0.0
+            elif xf < -xfm:
+                xf = -xfm; dxf = 0.0
+            # second stage
+            dxs = borello_velocity_first_order(dxs, fatt_s_gain * xf, fds, fss, inv_cs)
+            xs += dxs * dt
+            if xs > xsm:
+                xs = xsm; dxs = 0.0
+            elif xs < -xsm:
+                xs = -xsm; dxs = 0.0
+            xsq = xs if q_xs == 0.0 else q_xs * math.floor(xs * inv_q + 0.5)
+            # fluid dynamics
+            p12 = (psr * xsq - gpq_xss * aj * dxj) / (max(abs(xsq), xss) + den0)
+            p12 = clamp(p12, p12_min, p12_max)
+            # jack
+            fr = 0.0
+            if t >= fr_t:
+                fr = frc + frr * (t - fr_t)
+            if frsa != 0.0:
+                fr += frsa * math.sin(frsf * t)
+            fatt = aj * p12 - fr - kaer * xj - cj * dxj
+            dxj = borello_velocity(dxj, fatt, fdj, fsj, dt_over_mj)
+            xj += dxj * dt
+            if xj > xjm:
+                xj = xjm; dxj = 0.0
+            elif xj < -xjm:
+                xj = -xjm; dxj = 0.0
+            xu = play(xj, xu, half_bkl)
+            k += 1
+        out[i, O_T] = k * dt; out[i, O_COM] = com[k]; out[i, O_XU] = xu; out[i, O_XJ] = xj
+        out[i, O_DXJ] = dxj; out[i, O_XS] = xs; out[i, O_XF] = xf; out[i, O_P12] = p12
+        out[i, O_COR] = cor
+
+
+def dither_samples(sigma_ma, n, seed):
+    """Zero-order-held Gaussian dither [mA], one sample per output interval, from ``seed``."""
+    if sigma_ma == 0.0:
+        return np.zeros(n)
+    return np.random.default_rng(seed).normal(0.0, sigma_ma, n)
+
+
+assert len(OUTPUTS) == 9

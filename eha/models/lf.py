@@ -1,0 +1,139 @@
+"""Low-fidelity ("monitoring") model (SPEC §5) with its optional effects as data (SPEC §7).
+
+Proportional controller, static first stage, first-order spool with Karnopp friction, linear
+P12 law, jack with Karnopp friction, output backlash. The optional effects are parameters of
+the same kernel whose "off" value makes them vanish (``orifice_law = 0``, ``Clk = 0``,
+``FRC = 0``, ``Kaer = 0``, ``Ofs = 0``, ``His = 0``, ``SNF = 0`` for a static first stage, ...),
+so any combination runs in the one compiled kernel.
+"""
+
+import math
+
+from numba import njit, prange
+
+from eha.models import O_COM, O_COR, O_DXJ, O_P12, O_T, O_XF, O_XJ, O_XS, O_XU
+from eha.models.friction import (clamp, karnopp_velocity, karnopp_velocity_first_order, play)
+from eha.params import LF
+
+#: State variables of the LF model (SI; cor in mA).
+STATES = ("xu", "xj", "dxj", "xs", "dxs", "xf", "dxf", "xsb", "cor")
+#: Inputs: the position command [m] on the DT grid.
+INPUTS = ("com",)
+
+
+@njit(cache=True, fastmath=True)
+def run_lf(p, com, steps_per_out, out):
+    """Integrate the LF model.
+
+    Parameters
+    ----------
+    p : float64[:]
+        Parameter vector in :class:`eha.params.LFParams` order (index with ``LF``).
+    com : float64[:]
+        Command [m] at every step, ``len = (out.shape[0] - 1)*steps_per_out + 1``.
+    steps_per_out : int
+        Integration steps per recorded sample.
+    out : float64[:, :]
+        Recorded outputs, shape ``(n_out, len(OUTPUTS))``; row 0 is the initial state.
+    """
+    orifice = p[LF.orifice_law] != 0.0
+    dynamic_flapper = p[LF.SNF] > 0.0
+    # One loop per structural switch, so that the hot loop holds no branch on them.
+    if orifice:
+        if dynamic_flapper:
+            _lf_loop(p, com, steps_per_out, out, True, True)
+        else:
+            _lf_loop(p, com, steps_per_out, out, True, False)
+    elif dynamic_flapper:
+        _lf_loop(p, com, steps_per_out, out, False, True)
+    else:
+        _lf_loop(p, com, steps_per_out, out, False, False)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
+    dt = p[LF.DT]
+    gap = p[LF.GAP]; corm = p[LF.CorM]; his = p[LF.His]; ofs = p[LF.Ofs]; gm = p[LF.GM]
+    kf = p[LF.KF]; ksf = p[LF.KSF]
+    inv_kf_ksf = 1.0 / (kf + ksf)
+    snf = p[LF.SNF]
+    mf = (ksf + kf) / (snf * snf) if dynamic_flapper else 1.0
+    cf = 2.0 * p[LF.ZF] * math.sqrt(mf * (ksf + kf))
+    dt_over_mf = dt / mf
+    xfm = p[LF.XFM]; gioco = p[LF.gioco]
+    asv = p[LF.ASV]; gpfe = p[LF.GPF] * (1.0 - p[LF.Kintas])
+    fatt_s_gain = asv * gpfe
+    inv_cs = 1.0 / (p[LF.CSV] + asv * asv * gpfe / p[LF.GQF])
+    xsm = p[LF.XSM]; fss = p[LF.FSS]; fds = fss / p[LF.FSDS]; eps = p[LF.eps]
+    psr = p[LF.PSR]; gp = p[LF.GP]; gq = p[LF.GQ]; clk = p[LF.Clk]
+    xss = p[LF.PSR0] / gp
+    gpq_xss = gp / gq * xss
+    den0 = gpq_xss * clk
+    # linear law with leakage = small-opening limit of the orifice law (docs/model.md)
+    lin_gain = gp / (1.0 + gp / gq * clk)
+    inv_gq = 1.0 / gq
+    if orifice:
+        pi0 = 0.5 * (psr + 2.0 * p[LF.PRV])
+        p12_max = 2.0 * min(psr + p[LF.PRV] - pi0, pi0 - p[LF.PVap])
+    else:
+        p12_max = psr
+    frc = p[LF.FRC]; kaer = p[LF.Kaer]
+    aj = p[LF.AJ]; cj = p[LF.CJ]; dt_over_mj = dt / p[LF.MJ]; xjm = p[LF.XJM]
+    fdj = p[LF.FDJ]; fsj = p[LF.FSD] * fdj
+    half_bkl = 0.5 * p[LF.BKL]
+
+    xj = p[LF.XJ0]; xu = xj; dxj = 0.0
+    xs = 0.0; dxs = 0.0; xf = 0.0; dxf = 0.0; xsb = 0.0; cor = 0.0; p12 = 0.0
+
+    n_out = out.shape[0]
+    out[0, O_T] = 0.0; out[0, O_COM] = com[0]; out[0, O_XU] = xu; out[0, O_XJ] = xj
+    out[0, O_DXJ] = 0.0; out[0, O_XS] = 0.0; out[0, O_XF] = 0.0; out[0, O_P12] = 0.0
+    out[0, O_COR] = 0.0
+    k = 0
+    for i in range(1, n_out):
+        for _ in range(steps_per_out):
+            cor = clamp(play(gap * (com[k] - xu) + ofs, cor, his), -corm, corm)
+            xsb = play(xs, xsb, gioco)
+            if dynamic_flapper:
+                dxf += (gm * cor - cf * dxf - kf * xf - ksf * (xf + xsb)) * dt_over_mf
+                xf += dxf * dt
+            else:
+                xf = (gm * cor - ksf * xsb) * inv_kf_ksf
+            if xf > xfm:
+                xf = xfm; dxf = 0.0
+            elif xf < -xfm:
+                xf = -xfm; dxf = 0.0
+            dxs = karnopp_velocity_first_order(dxs, fatt_s_gain * xf, fds, fss, eps, inv_cs)
+            xs += dxs * dt
+            if xs > xsm:
+                xs = xsm; dxs = 0.0
+            elif xs < -xsm:
+                xs = -xsm; dxs = 0.0
+            qj = aj * dxj
+            if orifice:
+                p12 = (psr * xs - gpq_xss * qj) / (max(abs(xs), xss) + den0)
+            else:
+                p12 = lin_gain * (xs - qj * inv_gq)
+            p12 = clamp(p12, -p12_max, p12_max)
+            fatt = aj * p12 - frc - kaer * xj - cj * dxj
+            dxj = karnopp_velocity(dxj, fatt, fdj, fsj, eps, dt_over_mj)
+            xj += dxj * dt
+            if xj > xjm:
+                xj = xjm; dxj = 0.0
+            elif xj < -xjm:
+                xj = -xjm; dxj = 0.0
+            xu = play(xj, xu, half_bkl)
+            k += 1
+        out[i, O_T] = k * dt; out[i, O_COM] = com[k]; out[i, O_XU] = xu; out[i, O_XJ] = xj
+        out[i, O_DXJ] = dxj; out[i, O_XS] = xs; out[i, O_XF] = xf; out[i, O_P12] = p12
+        out[i, O_COR] = cor
+
+
+@njit(cache=True, parallel=True)
+def run_lf_batch(params, com, steps_per_out, out):
+    """Run the LF model for every row of ``params`` (shape ``(n, n_par)``), in parallel.
+
+    ``out`` has shape ``(n, n_out, len(OUTPUTS))``. One call per GA generation.
+    """
+    for j in prange(params.shape[0]):
+        run_lf(params[j], com, steps_per_out, out[j])
