@@ -56,7 +56,9 @@ def simulate(
         trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
     except _input_errors() as exc:
         fail(str(exc))
-    trace.to_parquet(out)
+    from eha.store import write_trace
+
+    write_trace(trace, out)
     if plot is not None:
         from eha.report import plot_traces
 

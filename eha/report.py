@@ -84,6 +84,7 @@ def nominal_comparison(results: str | Path = "results", t_end: float = 1.0,
     """
     from eha.commands import NOMINAL_COMMANDS
     from eha.simulate import simulate
+    from eha.store import write_trace
 
     results = Path(results)
     rows = []
@@ -91,7 +92,8 @@ def nominal_comparison(results: str | Path = "results", t_end: float = 1.0,
         hf = simulate("hf", name, t_end=t_end, seed=seed)
         lf = simulate("lf", name, t_end=t_end, seed=seed)
         for tr in (hf, lf):
-            tr.to_parquet(results / "traces" / "nominal" / f"{tr.meta['model']}_{name}.parquet")
+            model = tr.meta["model"]
+            write_trace(tr, results / "traces" / "nominal" / f"{model}_{name}.parquet")
         plot_traces([hf, lf], results / "plots" / f"nominal_{name}.png",
                     title=f"Nominal HF vs LF — {name}")
         err = rmse(hf.xu, lf.xu)

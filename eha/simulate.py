@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -70,24 +69,6 @@ class Trace:
         )
         return pa.Table.from_arrays([pa.array(self.data[:, i]) for i in range(len(OUTPUTS))],
                                     schema=schema)
-
-    def to_parquet(self, path: str | Path) -> Path:
-        """Write the trace as Parquet (the metadata under key ``eha``); returns the path."""
-        import pyarrow.parquet as pq
-
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        pq.write_table(self.to_arrow(), path)
-        return path
-
-    @classmethod
-    def from_parquet(cls, path: str | Path) -> "Trace":
-        import pyarrow.parquet as pq
-
-        table = pq.read_table(path)
-        meta_raw = (table.schema.metadata or {}).get(b"eha", b"{}")
-        data = np.column_stack([table.column(n).to_numpy() for n in OUTPUTS])
-        return cls(np.ascontiguousarray(data, dtype=np.float64), json.loads(meta_raw))
 
 
 def _grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
