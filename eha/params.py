@@ -167,10 +167,11 @@ class ModelParams:
         """Float64 vector in kernel order (index it with :data:`HF` or :data:`LF`)."""
         import numpy as np
 
-        return np.array(dataclasses.astuple(self), dtype=np.float64)
+        return np.array([getattr(self, f.name) for f in dataclasses.fields(self)],
+                        dtype=np.float64)
 
     def as_dict(self) -> dict[str, float]:
-        return dataclasses.asdict(self)
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
     def replace(self, **overrides: float) -> "ModelParams":
         """A copy with ``overrides`` applied, validated like :func:`resolve`."""

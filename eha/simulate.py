@@ -103,7 +103,8 @@ def _params(model: str, params: ModelParams | Mapping[str, float] | None) -> Mod
 
 def command_on_grid(command: Command | str, t_steps: np.ndarray) -> np.ndarray:
     """The command sampled at every integration step (contiguous float64)."""
-    return np.ascontiguousarray(as_command(command).sample(t_steps), dtype=np.float64)
+    return np.ascontiguousarray(as_command(command).sample(t_steps, uniform=True),
+                                dtype=np.float64)
 
 
 def simulate(model: str, command: Command | str = "mixed",
