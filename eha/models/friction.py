@@ -13,7 +13,10 @@ def play(x, y, half_width):
 
     Also the play-type hysteresis of the torque motor (``half_width`` = His).
     """
-    # branches rather than min/max: they are predictable and stay off the dependency chain
+    # Branches rather than min/max keep the dependency chain short; the first one is constant
+    # within a run (no play), so it never mispredicts on a signal that changes direction.
+    if half_width == 0.0:
+        return x
     if y < x - half_width:
         return x - half_width
     if y > x + half_width:
