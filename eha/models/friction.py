@@ -89,3 +89,30 @@ def karnopp_velocity_first_order(v, fatt, fd, fs, eps, inv_c):
             return 0.0
         return (fatt - fd if fatt > 0.0 else fatt + fd) * inv_c
     return (fatt - fd if v > 0.0 else fatt + fd) * inv_c
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def end_stop(x, v, limit):
+    """End stop at ``±limit``: position clamped, velocity zeroed (completely inelastic impact)."""
+    # One return point: numba's multiple tuple returns cost ~70 % of the LF loop's speed.
+    if x > limit:
+        x = limit
+        v = 0.0
+    elif x < -limit:
+        x = -limit
+        v = 0.0
+    return x, v
+
+
+@njit(cache=True, inline="always")
+def record(out, i, t, com, xu, xj, dxj, xs, xf, p12, cor):
+    """Write one row of the recorded outputs (column order of ``eha.models.OUTPUTS``)."""
+    out[i, 0] = t
+    out[i, 1] = com
+    out[i, 2] = xu
+    out[i, 3] = xj
+    out[i, 4] = dxj
+    out[i, 5] = xs
+    out[i, 6] = xf
+    out[i, 7] = p12
+    out[i, 8] = cor

@@ -11,8 +11,9 @@ import math
 import numpy as np
 from numba import njit
 
-from eha.models import O_COM, O_COR, O_DXJ, O_P12, O_T, O_XF, O_XJ, O_XS, O_XU, OUTPUTS
-from eha.models.friction import borello_velocity, borello_velocity_first_order, clamp, play
+from eha.models import OUTPUTS
+from eha.models.friction import (borello_velocity, borello_velocity_first_order, clamp,
+                                 end_stop, play, record)
 from eha.params import HF
 
 #: State variables of the HF model (SI; cor in mA; ierr in m*s).
@@ -76,9 +77,7 @@ def run_hf(p, com, dither, steps_per_out, out):
     p12 = 0.0
 
     n_out = out.shape[0]
-    out[0, O_T] = 0.0; out[0, O_COM] = com[0]; out[0, O_XU] = xu; out[0, O_XJ] = xj
-    out[0, O_DXJ] = 0.0; out[0, O_XS] = 0.0; out[0, O_XF] = 0.0; out[0, O_P12] = 0.0
-    out[0, O_COR] = 0.0
+    record(out, 0, 0.0, com[0], xu, xj, 0.0, 0.0, 0.0, 0.0, 0.0)
     k = 0
     for i in range(1, n_out):
         dith = dither[i - 1]
@@ -95,17 +94,11 @@ def run_hf(p, com, dither, steps_per_out, out):
             xsb = play(xs, xsb, gioco)
             dxf += (gm * cor - cf * dxf - kf * xf - ksf * (xf + xsb)) * dt_over_mf
             xf += dxf * dt
-            if xf > xfm:
-                xf = xfm; dxf = 0.0
-            elif xf < -xfm:
-                xf = -xfm; dxf = 0.0
+            xf, dxf = end_stop(xf, dxf, xfm)
             # second stage
             dxs = borello_velocity_first_order(dxs, fatt_s_gain * xf, fds, fss, inv_cs)
             xs += dxs * dt
-            if xs > xsm:
-                xs = xsm; dxs = 0.0
-            elif xs < -xsm:
-                xs = -xsm; dxs = 0.0
+            xs, dxs = end_stop(xs, dxs, xsm)
             xsq = xs if q_xs == 0.0 else q_xs * math.floor(xs * inv_q + 0.5)
             # fluid dynamics
             p12 = (psr * xsq - gpq_xss * aj * dxj) / (max(abs(xsq), xss) + den0)
@@ -119,15 +112,10 @@ def run_hf(p, com, dither, steps_per_out, out):
             fatt = aj * p12 - fr - kaer * xj - cj * dxj
             dxj = borello_velocity(dxj, fatt, fdj, fsj, dt_over_mj)
             xj += dxj * dt
-            if xj > xjm:
-                xj = xjm; dxj = 0.0
-            elif xj < -xjm:
-                xj = -xjm; dxj = 0.0
+            xj, dxj = end_stop(xj, dxj, xjm)
             xu = play(xj, xu, half_bkl)
             k += 1
-        out[i, O_T] = k * dt; out[i, O_COM] = com[k]; out[i, O_XU] = xu; out[i, O_XJ] = xj
-        out[i, O_DXJ] = dxj; out[i, O_XS] = xs; out[i, O_XF] = xf; out[i, O_P12] = p12
-        out[i, O_COR] = cor
+        record(out, i, k * dt, com[k], xu, xj, dxj, xs, xf, p12, cor)
 
 
 def dither_samples(sigma_ma, n, seed):

@@ -11,8 +11,8 @@ import math
 
 from numba import njit, prange
 
-from eha.models import O_COM, O_COR, O_DXJ, O_P12, O_T, O_XF, O_XJ, O_XS, O_XU
-from eha.models.friction import (clamp, karnopp_velocity, karnopp_velocity_first_order, play)
+from eha.models.friction import (clamp, end_stop, karnopp_velocity, karnopp_velocity_first_order,
+                                 play, record)
 from eha.params import LF
 
 #: State variables of the LF model (SI; cor in mA).
@@ -86,9 +86,7 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
     xs = 0.0; dxs = 0.0; xf = 0.0; dxf = 0.0; xsb = 0.0; cor = 0.0; p12 = 0.0
 
     n_out = out.shape[0]
-    out[0, O_T] = 0.0; out[0, O_COM] = com[0]; out[0, O_XU] = xu; out[0, O_XJ] = xj
-    out[0, O_DXJ] = 0.0; out[0, O_XS] = 0.0; out[0, O_XF] = 0.0; out[0, O_P12] = 0.0
-    out[0, O_COR] = 0.0
+    record(out, 0, 0.0, com[0], xu, xj, 0.0, 0.0, 0.0, 0.0, 0.0)
     k = 0
     for i in range(1, n_out):
         for _ in range(steps_per_out):
@@ -99,16 +97,10 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
                 xf += dxf * dt
             else:
                 xf = (gm * cor - ksf * xsb) * inv_kf_ksf
-            if xf > xfm:
-                xf = xfm; dxf = 0.0
-            elif xf < -xfm:
-                xf = -xfm; dxf = 0.0
+            xf, dxf = end_stop(xf, dxf, xfm)
             dxs = karnopp_velocity_first_order(dxs, fatt_s_gain * xf, fds, fss, eps, inv_cs)
             xs += dxs * dt
-            if xs > xsm:
-                xs = xsm; dxs = 0.0
-            elif xs < -xsm:
-                xs = -xsm; dxs = 0.0
+            xs, dxs = end_stop(xs, dxs, xsm)
             qj = aj * dxj
             if orifice:
                 p12 = (psr * xs - gpq_xss * qj) / (max(abs(xs), xss) + den0)
@@ -118,15 +110,10 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
             fatt = aj * p12 - frc - kaer * xj - cj * dxj
             dxj = karnopp_velocity(dxj, fatt, fdj, fsj, eps, dt_over_mj)
             xj += dxj * dt
-            if xj > xjm:
-                xj = xjm; dxj = 0.0
-            elif xj < -xjm:
-                xj = -xjm; dxj = 0.0
+            xj, dxj = end_stop(xj, dxj, xjm)
             xu = play(xj, xu, half_bkl)
             k += 1
-        out[i, O_T] = k * dt; out[i, O_COM] = com[k]; out[i, O_XU] = xu; out[i, O_XJ] = xj
-        out[i, O_DXJ] = dxj; out[i, O_XS] = xs; out[i, O_XF] = xf; out[i, O_P12] = p12
-        out[i, O_COR] = cor
+        record(out, i, k * dt, com[k], xu, xj, dxj, xs, xf, p12, cor)
 
 
 @njit(cache=True, parallel=True)
