@@ -1,0 +1,541 @@
+"""Fault detection and identification (thesis chapter 6, SPEC §6).
+
+Fit chosen LF parameters (by default the faults BKL and FDJ) so that the LF output matches a
+reference trace: an HF run (:func:`hf_reference`) or measured data. Every decision variable is
+normalised to [0, 1] within its bounds (the thesis' own suggestion), and every batch of
+candidates (a GA generation, a pattern-search poll) is simulated in ONE parallel numba call
+(:func:`eha.simulate.simulate_lf_batch`), never one Python call per individual.
+
+Methods (``identify(method=...)``):
+
+``"ga"``
+    The thesis' method: a genetic algorithm (pymoo ``GA``, population 20 or 40) that stops
+    like Matlab's ``ga`` does, when the best objective improved by less than a relative
+    ``ftol`` over ``stall`` generations, or after ``max_gen`` generations.
+``"ga+ps"``
+    Our default: a short GA (global search; stops after fewer stall generations) followed by
+    a batched compass pattern search in the unit cube (all 2k poll points in one batch, step
+    halved on failure until ``xtol``). Chosen by measurement on the 12 thesis cases
+    (docs/fdi.md).
+
+Objectives: ``"rmse"`` (default) ``sqrt(mean((y_LF - y_ref)^2))`` and ``"objfcn"``, the
+thesis' objfcn.m as written, ``mean(sqrt((y_LF - y_ref)^2))`` = mean absolute error.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from eha.commands import Command, as_command
+from eha.params import LF, SPECS, LFParams, ParameterError, check_value, resolve
+from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
+
+#: Identification methods (see the module docstring).
+METHODS = ("ga", "ga+ps")
+#: The default method (chosen by measurement, docs/fdi.md).
+DEFAULT_METHOD = "ga+ps"
+#: Objective functions: name -> one-line meaning.
+OBJECTIVES = {
+    "rmse": "root-mean-square error of xu [m]",
+    "objfcn": "thesis objfcn.m: mean(sqrt((y_LF - y_ref)^2)) = mean absolute error of xu [m]",
+}
+#: Parameters that cannot be fitted: structural switches and the integration grid.
+NOT_FITTABLE = ("DT", "orifice_law")
+#: Default fitted parameters (the two faults of the thesis).
+DEFAULT_FIT = ("BKL", "FDJ")
+
+#: Option defaults of each method. ``max_gen``: generation limit; ``stall``/``ftol``: stop when
+#: the best objective improved by less than ``ftol`` (relative) over ``stall`` generations
+#: (Matlab ``ga``: MaxStallGenerations 50, FunctionTolerance 1e-6, MaxGenerations 100*nvars);
+#: ``xtol``/``step0``: final and initial pattern-search step in the unit cube;
+#: ``max_evals``: evaluation budget of the whole identification. ``max_gen = 0`` means Matlab's
+#: default of 100 generations per fitted variable.
+METHOD_DEFAULTS: dict[str, dict[str, float]] = {
+    "ga": {"max_gen": 0, "stall": 50, "ftol": 1e-6, "max_evals": 20000},
+    "ga+ps": {"max_gen": 40, "stall": 8, "ftol": 1e-3, "step0": 0.02, "xtol": 2e-5,
+              "max_evals": 20000},
+}
+
+
+class FDIError(ValueError):
+    """Bad identification input (bounds, method, reference); the message is one line."""
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of one identification.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Fitted LF parameters, in decision-vector order.
+    estimates : dict
+        Identified value of each fitted parameter (its unit in ``eha params``).
+    objective : float
+        Objective at the estimate [m].
+    objective_name : str
+        ``"rmse"`` or ``"objfcn"`` (:data:`OBJECTIVES`).
+    evaluations : int
+        LF simulations run.
+    seconds : float
+        Wall time of the identification [s] (reference simulation excluded).
+    history : tuple of float
+        Best objective after each generation / poll [m].
+    method : str
+        :data:`METHODS` entry.
+    seed : int
+        Seed of the optimizer.
+    bounds : dict
+        ``name -> (lower, upper)`` search bounds.
+    options : dict
+        Method options actually used (after defaults).
+    """
+
+    names: tuple[str, ...]
+    estimates: dict[str, float]
+    objective: float
+    objective_name: str
+    evaluations: int
+    seconds: float
+    history: tuple[float, ...]
+    method: str
+    seed: int
+    bounds: dict[str, tuple[float, float]]
+    options: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON form (lists instead of tuples)."""
+        d = asdict(self)
+        d["names"] = list(self.names)
+        d["history"] = list(self.history)
+        d["bounds"] = {k: list(v) for k, v in self.bounds.items()}
+        return d
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+
+
+def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, float]]:
+    """Validate search bounds: LF parameter names, ``lo < hi``, both inside the allowed range.
+
+    Raises
+    ------
+    FDIError
+        One line naming the parameter and its allowed range.
+    """
+    if not fit:
+        raise FDIError("fit: no parameter to identify; give at least one NAME with bounds")
+    out: dict[str, tuple[float, float]] = {}
+    for name, pair in fit.items():
+        if name in NOT_FITTABLE:
+            raise FDIError(f"fit {name}: cannot be identified (structural switch or grid); "
+                           f"pick fault parameters such as {', '.join(DEFAULT_FIT)}")
+        try:
+            lo, hi = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise FDIError(f"fit {name}: bounds must be two numbers (lower, upper), got "
+                           f"{pair!r}") from None
+        spec = SPECS.get(name)
+        try:
+            check_value(name, lo, "lf")
+            check_value(name, hi, "lf")
+        except ParameterError as exc:
+            raise FDIError(f"fit bounds of {exc}") from None
+        if not lo < hi:
+            raise FDIError(f"fit {name}: lower bound {lo:g} must be below upper bound {hi:g} "
+                           f"(allowed range {spec.range_text()})")
+        out[name] = (lo, hi)
+    return out
+
+
+def default_bounds(names: Iterable[str]) -> dict[str, tuple[float, float]]:
+    """Bounds of the thesis' chirp cases for BKL/FDJ, else the parameter's allowed range."""
+    thesis = {"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)}
+    out = {}
+    for name in names:
+        spec = SPECS.get(name)
+        if spec is None:
+            raise FDIError(f"fit {name}: unknown parameter (see `eha params --model lf`)")
+        out[name] = thesis.get(name, (spec.lo, spec.hi))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# objective
+
+
+def objective_values(xu: np.ndarray, reference: np.ndarray, objective: str = "rmse"
+                     ) -> np.ndarray:
+    """Objective of each row of ``xu`` (shape ``(n, n_out)``) against ``reference`` [m]."""
+    diff = xu - reference
+    if objective == "rmse":
+        return np.sqrt(np.mean(diff * diff, axis=-1))
+    if objective == "objfcn":
+        return np.mean(np.abs(diff), axis=-1)
+    raise FDIError(f"objective {objective!r}: allowed {', '.join(OBJECTIVES)}")
+
+
+class BatchObjective:
+    """Objective of unit-cube points: maps rows of ``U`` in [0, 1]^k to LF runs, one batch.
+
+    Parameters
+    ----------
+    reference : float64 array
+        Recorded xu [m] at 1 kHz.
+    com : float64 array
+        Command on the integration-step grid (sampled once per identification).
+    names, bounds :
+        Fitted parameters and their ``(lo, hi)``.
+    base : LFParams
+        Fixed parameters (effects switched on, ...).
+    """
+
+    def __init__(self, reference: np.ndarray, com: np.ndarray, steps_per_out: int, n_out: int,
+                 names: Sequence[str], bounds: Mapping[str, tuple[float, float]],
+                 base: LFParams, objective: str):
+        self.reference = np.ascontiguousarray(reference, dtype=np.float64)
+        self.com = com
+        self.steps_per_out = steps_per_out
+        self.n_out = n_out
+        self.base = base
+        self.base_row = base.to_array()
+        self.index = np.array([int(LF[n]) for n in names])
+        self.lo = np.array([bounds[n][0] for n in names])
+        self.span = np.array([bounds[n][1] - bounds[n][0] for n in names])
+        self.objective = objective
+        self.evaluations = 0
+
+    def physical(self, U: np.ndarray) -> np.ndarray:
+        """Unit-cube points -> parameter values (clipped to the bounds)."""
+        return self.lo + np.clip(U, 0.0, 1.0) * self.span
+
+    def simulate(self, U: np.ndarray) -> np.ndarray:
+        """Recorded LF xu of each unit-cube point, shape ``(n, n_out)``."""
+        U = np.atleast_2d(U)
+        rows = np.tile(self.base_row, (U.shape[0], 1))
+        rows[:, self.index] = self.physical(U)
+        self.evaluations += U.shape[0]
+        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base)
+
+    def __call__(self, U: np.ndarray) -> np.ndarray:
+        return objective_values(self.simulate(U), self.reference, self.objective)
+
+
+# --------------------------------------------------------------------------------------------
+# optimizers (all work in the unit cube and evaluate whole batches)
+
+
+def _stalled(history: list[float], stall: int, ftol: float) -> bool:
+    """Matlab-``ga``-like stop: relative improvement of the best over ``stall`` generations."""
+    if len(history) <= stall:
+        return False
+    old, new = history[-1 - stall], history[-1]
+    return old - new <= ftol * max(abs(old), 1e-300)
+
+
+def _run_ga(obj: BatchObjective, k: int, pop: int, seed: int, max_gen: int, stall: int,
+            ftol: float, max_evals: int, history: list[float],
+            on_generation: Callable[[int, float], None] | None = None
+            ) -> tuple[np.ndarray, float]:
+    from pymoo.algorithms.soo.nonconvex.ga import GA
+    from pymoo.core.problem import Problem
+    from pymoo.termination.max_gen import MaximumGenerationTermination
+
+    class _UnitCube(Problem):
+        def __init__(self):
+            super().__init__(n_var=k, n_obj=1, xl=np.zeros(k), xu=np.ones(k))
+
+        def _evaluate(self, X, out, *args, **kwargs):
+            out["F"] = obj(X)[:, None]   # the whole generation: one parallel numba call
+
+    algorithm = GA(pop_size=pop, eliminate_duplicates=True)
+    algorithm.setup(_UnitCube(), termination=MaximumGenerationTermination(max_gen),
+                    seed=int(seed), verbose=False)
+    while algorithm.has_next():
+        algorithm.next()
+        history.append(float(algorithm.opt[0].F[0]))
+        if on_generation is not None:
+            on_generation(len(history), history[-1])
+        if _stalled(history, stall, ftol) or obj.evaluations >= max_evals:
+            break
+    best = algorithm.opt[0]
+    return np.array(best.X, dtype=np.float64), float(best.F[0])
+
+
+def _pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, xtol: float,
+                    max_evals: int, history: list[float]) -> tuple[np.ndarray, float]:
+    """Compass search: poll ``x ± step·e_i`` (one batch), move to the best improving point,
+    else halve the step; stop below ``xtol`` or at the evaluation budget."""
+    k = x.size
+    step = step0
+    eye = np.eye(k)
+    while step >= xtol and obj.evaluations < max_evals:
+        polls = np.clip(np.vstack([x + step * eye, x - step * eye]), 0.0, 1.0)
+        polls = polls[np.any(polls != x, axis=1)]          # drop points clipped onto x
+        if polls.shape[0] == 0:
+            step *= 0.5
+            continue
+        values = obj(polls)
+        i = int(np.argmin(values))
+        if values[i] < f:
+            x, f = polls[i], float(values[i])
+        else:
+            step *= 0.5
+        history.append(f)
+    return x, f
+
+
+# --------------------------------------------------------------------------------------------
+# public API
+
+
+def identify(reference_xu: np.ndarray, command: Command | str,
+             fit: Mapping[str, Sequence[float]] | None = None,
+             base: LFParams | None = None, method: str = DEFAULT_METHOD, pop: int = 20,
+             seed: int = 0, objective: str = "rmse", t_end: float | None = None,
+             on_generation: Callable[[int, float], None] | None = None,
+             **options: float) -> FitResult:
+    """Identify LF parameters from a recorded position trace.
+
+    Parameters
+    ----------
+    reference_xu : float64 array
+        Recorded control-surface position xu [m] at 1 kHz from t = 0 (same grid as the LF
+        output: ``round(t_end/1e-3) + 1`` samples).
+    command : Command or str
+        The position command of the record (a preset name or e.g. an array command).
+    fit : mapping name -> (lower, upper), optional
+        LF parameters to identify and their search bounds (units of ``eha params``).
+        Default: BKL in [0, 1.25e-3] m and FDJ in [200, 4000] N (the thesis' chirp cases).
+    base : LFParams, optional
+        Parameters held fixed (nominal LF by default; effects switched on, ...).
+    method : {"ga", "ga+ps"}
+        ``"ga"`` is the thesis' genetic algorithm; ``"ga+ps"`` adds a pattern-search polish.
+    pop : int
+        GA population size (thesis: 20, or 40 for case 12).
+    seed : int
+        Optimizer seed; the same seed gives the same result.
+    objective : {"rmse", "objfcn"}
+    t_end : float, optional
+        Record length [s]; default ``(len(reference_xu) - 1)*1e-3``.
+    on_generation : callable(generation, best_objective), optional
+        Progress hook called after each GA generation.
+    **options
+        Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
+        max_evals.
+
+    Returns
+    -------
+    FitResult
+    """
+    if method not in METHODS:
+        raise FDIError(f"method {method!r}: allowed {', '.join(METHODS)}")
+    if objective not in OBJECTIVES:
+        raise FDIError(f"objective {objective!r}: allowed {', '.join(OBJECTIVES)}")
+    if not isinstance(pop, (int, np.integer)) or not 4 <= pop <= 10000:
+        raise FDIError(f"pop={pop}: allowed range [4, 10000] individuals")
+    unknown = set(options) - set(METHOD_DEFAULTS[method])
+    if unknown:
+        raise FDIError(f"method {method}: unknown option {sorted(unknown)[0]!r}; allowed "
+                       f"{', '.join(METHOD_DEFAULTS[method])}")
+    opts = {**METHOD_DEFAULTS[method], **{k: float(v) for k, v in options.items()}}
+    bounds = check_bounds(fit if fit is not None else default_bounds(DEFAULT_FIT))
+    names = tuple(bounds)
+    base = base if base is not None else LFParams()
+    if getattr(base, "model", None) != "lf":
+        raise FDIError("base: an LF parameter set (eha.params.LFParams) is required")
+
+    reference = np.asarray(reference_xu, dtype=np.float64)
+    if reference.ndim != 1 or reference.size < 3 or not np.all(np.isfinite(reference)):
+        raise FDIError("reference_xu: a finite 1-D array of at least 3 samples is required")
+    if t_end is None:
+        t_end = (reference.size - 1) * OUTPUT_DT
+    try:
+        steps_per_out, n_out, t_steps = grid(base, t_end)
+    except ParameterError as exc:
+        raise FDIError(str(exc)) from None
+    if n_out != reference.size:
+        raise FDIError(f"reference_xu: {reference.size} samples, but t_end={t_end:g} s at 1 kHz "
+                       f"needs {n_out}")
+
+    start = time.perf_counter()
+    com = command_on_grid(as_command(command), t_steps)     # sampled once
+    obj = BatchObjective(reference, com, steps_per_out, n_out, names, bounds, base, objective)
+    history: list[float] = []
+    max_evals = int(opts["max_evals"])
+    max_gen = int(opts["max_gen"]) or 100 * len(names)
+    x, f = _run_ga(obj, len(names), int(pop), seed, max_gen, int(opts["stall"]),
+                   opts["ftol"], max_evals, history, on_generation)
+    if method == "ga+ps":
+        x, f = _pattern_search(obj, x, f, opts["step0"], opts["xtol"], max_evals, history)
+    values = obj.physical(x[None, :])[0]
+    seconds = time.perf_counter() - start
+    return FitResult(names=names, estimates={n: float(v) for n, v in zip(names, values)},
+                     objective=float(f), objective_name=objective,
+                     evaluations=int(obj.evaluations), seconds=float(seconds),
+                     history=tuple(history), method=method, seed=int(seed), bounds=bounds,
+                     options=opts)
+
+
+def hf_reference(command: Command | str, faults: Mapping[str, float] | None = None,
+                 seed: int = 0, t_end: float = 1.0) -> Trace:
+    """The HF run with injected ``faults`` (``{"BKL": 1e-4, "FDJ": 800}``) used as reference.
+
+    ``seed`` drives the HF dither (its only random input).
+    """
+    return simulate("hf", command, dict(faults or {}), t_end=t_end, seed=seed)
+
+
+def percent_errors(truth: Mapping[str, float], estimates: Mapping[str, float]
+                   ) -> dict[str, float]:
+    """Thesis percent error ``(input - output)/input*100`` per fitted parameter (0 when the
+    input is 0, as in the thesis' Figure 6.17)."""
+    out = {}
+    for name, est in estimates.items():
+        true = float(truth.get(name, LFParams().as_dict()[name]))
+        out[name] = 0.0 if true == 0.0 else 100.0 * (true - est) / true
+    return out
+
+
+def mean_error_pct(errors: Mapping[str, float]) -> float:
+    """Thesis mean error: the mean of the absolute percent errors (``(|BKL| + |FDJ|)/2``)."""
+    return float(np.mean([abs(v) for v in errors.values()])) if errors else math.nan
+
+
+# --------------------------------------------------------------------------------------------
+# FDI cases (campaigns/thesis-fdi.toml)
+
+
+@dataclass(frozen=True)
+class FDICase:
+    """One identification case: HF reference faults, LF search bounds, GA population.
+
+    ``thesis`` holds the thesis' own result for the report (BKL, FDJ, err_*_pct,
+    mean_err_pct, seconds), empty for cases of one's own.
+    """
+
+    case: int
+    command: str
+    faults: dict[str, float]
+    bounds: dict[str, tuple[float, float]]
+    pop: int = 20
+    thesis: dict[str, float] = field(default_factory=dict)
+    bounds_source: str = ""
+
+
+@dataclass(frozen=True)
+class FDICampaign:
+    """An FDI campaign file: shared settings and its cases."""
+
+    name: str
+    description: str
+    fit: tuple[str, ...]
+    method: str
+    objective: str
+    seeds: tuple[int, ...]
+    t_end: float
+    cases: tuple[FDICase, ...]
+
+
+_CASE_KEYS = {"case", "command", "faults", "bounds", "pop", "thesis", "bounds_source"}
+_FDI_KEYS = {"fit", "method", "objective", "seeds", "t_end", "cases"}
+
+
+def parse_fdi_campaign(data: Mapping[str, Any], source: str = "campaign") -> FDICampaign:
+    """Validate the ``[fdi]`` part of a campaign (already parsed TOML); one line per problem."""
+    fdi = data.get("fdi")
+    if not isinstance(fdi, Mapping):
+        raise FDIError(f"{source}: missing [fdi] table")
+    extra = set(fdi) - _FDI_KEYS
+    if extra:
+        raise FDIError(f"{source}: unknown key fdi.{sorted(extra)[0]}; allowed "
+                       f"{', '.join(sorted(_FDI_KEYS))}")
+    fit = tuple(fdi.get("fit", DEFAULT_FIT))
+    method = fdi.get("method", DEFAULT_METHOD)
+    objective = fdi.get("objective", "rmse")
+    if method not in METHODS:
+        raise FDIError(f"{source}: fdi.method {method!r}; allowed {', '.join(METHODS)}")
+    if objective not in OBJECTIVES:
+        raise FDIError(f"{source}: fdi.objective {objective!r}; allowed "
+                       f"{', '.join(OBJECTIVES)}")
+    seeds = fdi.get("seeds", [0])
+    if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
+        raise FDIError(f"{source}: fdi.seeds must be a non-empty list of integers >= 0")
+    t_end = float(fdi.get("t_end", 1.0))
+    cases = []
+    for i, raw in enumerate(fdi.get("cases", [])):
+        where = f"{source}: fdi.cases[{i}]"
+        extra = set(raw) - _CASE_KEYS
+        if extra:
+            raise FDIError(f"{where}: unknown key {sorted(extra)[0]!r}; allowed "
+                           f"{', '.join(sorted(_CASE_KEYS))}")
+        try:
+            as_command(raw["command"])
+            resolve("hf", raw.get("faults", {}))
+            bounds = check_bounds({n: raw["bounds"][n] for n in fit})
+        except KeyError as exc:
+            raise FDIError(f"{where}: missing {exc.args[0]!r}") from None
+        except (ValueError, ParameterError) as exc:
+            raise FDIError(f"{where}: {exc}") from None
+        pop = raw.get("pop", 20)
+        if not isinstance(pop, int) or not 4 <= pop <= 10000:
+            raise FDIError(f"{where}: pop={pop!r}; allowed range [4, 10000] individuals")
+        cases.append(FDICase(case=int(raw.get("case", i + 1)), command=raw["command"],
+                             faults={k: float(v) for k, v in raw.get("faults", {}).items()},
+                             bounds=bounds, pop=pop,
+                             thesis={k: float(v) for k, v in raw.get("thesis", {}).items()},
+                             bounds_source=str(raw.get("bounds_source", ""))))
+    if not cases:
+        raise FDIError(f"{source}: no [[fdi.cases]]")
+    ids = [c.case for c in cases]
+    if len(set(ids)) != len(ids):
+        raise FDIError(f"{source}: case numbers must be unique")
+    return FDICampaign(name=str(data.get("name", Path(source).stem)),
+                       description=str(data.get("description", "")), fit=fit, method=method,
+                       objective=objective, seeds=tuple(seeds), t_end=t_end,
+                       cases=tuple(cases))
+
+
+def load_fdi_campaign(path: str | Path) -> FDICampaign:
+    """Read and validate an FDI campaign TOML file (e.g. campaigns/thesis-fdi.toml)."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FDIError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FDIError(f"{path}: invalid TOML: {exc}") from None
+    return parse_fdi_campaign(data, str(path))
+
+
+def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
+             objective: str = "rmse", t_end: float = 1.0, base: LFParams | None = None,
+             **options: float) -> dict[str, Any]:
+    """Run one case with one seed: HF reference (dither seed ``seed``), then identification.
+
+    Returns
+    -------
+    dict
+        ``case, command, seed, method, objective_name, truth, estimates, errors_pct,
+        mean_err_pct, objective, evaluations, seconds, pop, bounds`` (percent errors as the
+        thesis computes them, :func:`percent_errors`).
+    """
+    ref = hf_reference(case.command, case.faults, seed=seed, t_end=t_end)
+    res = identify(ref.xu, case.command, case.bounds, base=base, method=method, pop=case.pop,
+                   seed=seed, objective=objective, t_end=t_end, **options)
+    truth = {n: float(case.faults.get(n, LFParams().as_dict()[n])) for n in res.names}
+    errors = percent_errors(truth, res.estimates)
+    return {"case": case.case, "command": case.command, "seed": int(seed), "method": method,
+            "objective_name": objective, "truth": truth, "estimates": res.estimates,
+            "errors_pct": errors, "mean_err_pct": mean_error_pct(errors),
+            "objective": res.objective, "evaluations": res.evaluations,
+            "seconds": res.seconds, "pop": case.pop,
+            "bounds": {k: list(v) for k, v in res.bounds.items()}}
