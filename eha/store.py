@@ -43,3 +43,34 @@ def read_trace(path: str | Path) -> Trace:
     meta_raw = (table.schema.metadata or {}).get(b"eha", b"{}")
     data = np.column_stack([table.column(n).to_numpy() for n in OUTPUTS])
     return Trace(np.ascontiguousarray(data, dtype=np.float64), json.loads(meta_raw))
+
+
+def read_table_file(path: str | Path):
+    """Read a measured-data table (CSV/TSV/TXT or Parquet) into a pandas DataFrame, as is.
+
+    Text files: the separator is sniffed (comma, semicolon, tab, spaces); lines starting with
+    ``#`` are comments. Validation of the columns is :mod:`eha.measured`'s job.
+    """
+    import pandas as pd
+
+    path = Path(path)
+    if path.suffix.lower() in (".parquet", ".pq"):
+        import pyarrow.parquet as pq
+
+        return pq.read_table(path).to_pandas()
+    return pd.read_csv(path, sep=_sniff_separator(path), engine="python", comment="#",
+                       skipinitialspace=True)
+
+
+def _sniff_separator(path: Path) -> str:
+    """Column separator of a text table: comma, semicolon, tab or whitespace (default comma)."""
+    import csv
+
+    with open(path, newline="", errors="replace") as fh:
+        lines = [ln for ln in fh.read(65536).splitlines() if ln.strip()
+                 and not ln.lstrip().startswith("#")][:20]
+    try:
+        sep = csv.Sniffer().sniff("\n".join(lines), delimiters=",;\t ").delimiter
+    except csv.Error:
+        return ","
+    return r"\s+" if sep == " " else sep

@@ -1,0 +1,319 @@
+"""Measured-data input of the residual loop (SPEC §8): read, validate, resample to 1 kHz.
+
+A measured record is a CSV (or TSV/TXT) or Parquet table with at least the columns ``t`` [s],
+``com`` [m] and ``xu`` [m], optionally ``p12`` [Pa] and ``xs`` [m]; SI units. Column names are
+matched case-insensitively, ignoring a trailing unit in brackets (``"t [s]"``, ``"xu (m)"``),
+and through the aliases of :data:`ALIASES`.
+
+Validation (:func:`validate`) reports every problem at once, one line each:
+
+- a required column is missing (or a column is claimed by two headers);
+- a value is not a finite number (NaN, inf, text);
+- time is not strictly increasing;
+- sampling is irregular: an interval differs from the median interval by more than
+  :data:`SAMPLING_TOLERANCE` (20 %), e.g. a gap of missing samples;
+- fewer than :data:`MIN_SAMPLES` samples, or a record shorter than :data:`MIN_DURATION`;
+- values outside physical ranges (:data:`PHYSICAL_RANGES`, e.g. |xu| <= 0.2 m, the jack end
+  stop; a record in millimetres fails here, and the message says so).
+
+Accepted records are shifted to start at t = 0 and resampled (linear interpolation) onto the
+models' 1 kHz output grid; the command keeps its original samples (it is interpolated onto the
+integration step by :func:`eha.commands.array_command`). Reading writes nothing.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eha.commands import Command, array_command
+from eha.simulate import OUTPUT_DT
+
+#: Required columns, then optional ones.
+REQUIRED = ("t", "com", "xu")
+OPTIONAL = ("p12", "xs")
+#: Accepted header names of each column (lower case, unit suffix stripped).
+ALIASES: dict[str, tuple[str, ...]] = {
+    "t": ("t", "time", "t_s", "time_s", "timestamp_s", "seconds"),
+    "com": ("com", "command", "cmd", "xc", "x_cmd", "xcom", "com_m", "command_m", "setpoint",
+            "reference", "ref", "demand", "x_ref", "xref"),
+    "xu": ("xu", "position", "pos", "x", "xu_m", "position_m", "surface", "y", "output",
+           "measured", "x_meas", "xmeas", "feedback"),
+    "p12": ("p12", "dp", "delta_p", "p12_pa", "load_pressure", "differential_pressure"),
+    "xs": ("xs", "spool", "xs_m", "spool_position"),
+}
+#: Largest allowed relative deviation of a sampling interval from the median interval.
+SAMPLING_TOLERANCE = 0.2
+#: Fewest samples and shortest record accepted.
+MIN_SAMPLES = 50
+MIN_DURATION = 0.05
+#: Longest record accepted [s] (the simulator's limit).
+MAX_DURATION = 3600.0
+#: Physical range of each column (SI): jack stroke, supply pressure, spool stroke.
+PHYSICAL_RANGES: dict[str, tuple[float, float, str]] = {
+    "com": (-0.2, 0.2, "m"),
+    "xu": (-0.2, 0.2, "m"),
+    "p12": (-1e8, 1e8, "Pa"),
+    "xs": (-1e-2, 1e-2, "m"),
+}
+FILE_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
+
+
+class MeasuredDataError(ValueError):
+    """A measured record that cannot be used; ``problems`` holds one line per problem."""
+
+    def __init__(self, source: str, problems: list[str]):
+        self.source = source
+        self.problems = list(problems)
+        super().__init__(f"{source}: " + "; ".join(self.problems))
+
+
+@dataclass(frozen=True)
+class MeasuredData:
+    """A validated record on the 1 kHz model grid.
+
+    Attributes
+    ----------
+    t : float64 array
+        Time [s] from 0 at 1 kHz (``len = round(duration/1e-3) + 1``).
+    com, xu : float64 arrays
+        Command and measured position [m] on ``t``.
+    p12, xs : float64 arrays or None
+        Optional load pressure [Pa] and spool position [m] on ``t``.
+    command : Command
+        The command as an array command on the original samples (for the simulator).
+    source : str
+        File name or label.
+    info : dict
+        Original sample count, sampling period, start time, whether it was resampled.
+    """
+
+    t: np.ndarray
+    com: np.ndarray
+    xu: np.ndarray
+    command: Command
+    p12: np.ndarray | None = None
+    xs: np.ndarray | None = None
+    source: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t_end(self) -> float:
+        return float(self.t[-1])
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    def head(self, n: int) -> "MeasuredData":
+        """The first ``n`` samples (the command keeps its full samples)."""
+        cut = {k: (None if v is None else v[:n]) for k, v in
+               (("p12", self.p12), ("xs", self.xs))}
+        return MeasuredData(self.t[:n], self.com[:n], self.xu[:n], self.command, cut["p12"],
+                            cut["xs"], self.source, dict(self.info))
+
+
+def _canonical(header: str) -> str:
+    name = re.sub(r"\s*[\[(].*?[\])]\s*$", "", str(header)).strip().lower()
+    return re.sub(r"[\s\-]+", "_", name)
+
+
+def match_columns(headers: list[str]) -> tuple[dict[str, str], list[str]]:
+    """Map canonical names to the file's headers; returns ``(mapping, problems)``."""
+    mapping: dict[str, str] = {}
+    problems: list[str] = []
+    for header in headers:
+        key = _canonical(header)
+        for name, aliases in ALIASES.items():
+            if key in aliases:
+                if name in mapping:
+                    problems.append(f"column {name}: given twice ({mapping[name]!r} and "
+                                    f"{header!r}); keep one")
+                else:
+                    mapping[name] = header
+    for name in REQUIRED:
+        if name not in mapping:
+            problems.append(f"column {name}: missing (accepted names: "
+                            f"{', '.join(ALIASES[name])}; found: "
+                            f"{', '.join(map(str, headers)) or 'none'})")
+    return mapping, problems
+
+
+def validate(columns: dict[str, Any], source: str = "data") -> dict[str, np.ndarray]:
+    """Check canonical columns (name -> values); return float64 arrays or raise.
+
+    Raises
+    ------
+    MeasuredDataError
+        With one line per problem found.
+    """
+    problems: list[str] = []
+    arrays: dict[str, np.ndarray] = {}
+    for name, values in columns.items():
+        numeric = _to_float(values)
+        bad = ~np.isfinite(numeric)
+        if bad.any():
+            first = int(np.argmax(bad))
+            problems.append(f"column {name}: {int(bad.sum())} value(s) are not finite numbers "
+                            f"(NaN/inf/text), first at row {first + 1}: {str(values[first])!r}")
+        arrays[name] = numeric
+    n = len(arrays["t"]) if "t" in arrays else 0
+    if n < MIN_SAMPLES:
+        problems.append(f"record: {n} samples; at least {MIN_SAMPLES} are required")
+    t = arrays.get("t")
+    if t is not None and n >= 2 and np.all(np.isfinite(t)):
+        dt = np.diff(t)
+        if np.any(dt <= 0):
+            i = int(np.argmax(dt <= 0))
+            problems.append(f"column t: time must be strictly increasing (row {i + 2}: "
+                            f"{t[i + 1]:g} s after {t[i]:g} s)")
+        else:
+            med = float(np.median(dt))
+            dev = np.abs(dt - med) / med
+            if dev.max() > SAMPLING_TOLERANCE:
+                i = int(np.argmax(dev))
+                problems.append(f"column t: irregular sampling, interval {dt[i]:g} s at row "
+                                f"{i + 2} vs median {med:g} s (tolerance "
+                                f"±{100 * SAMPLING_TOLERANCE:g} %)")
+            duration = float(t[-1] - t[0])
+            if duration < MIN_DURATION:
+                problems.append(f"column t: record lasts {duration:g} s; at least "
+                                f"{MIN_DURATION:g} s is required")
+            if duration > MAX_DURATION:
+                problems.append(f"column t: record lasts {duration:g} s; at most "
+                                f"{MAX_DURATION:g} s is allowed")
+    for name, (lo, hi, unit) in PHYSICAL_RANGES.items():
+        values = arrays.get(name)
+        if values is None or not np.all(np.isfinite(values)):
+            continue
+        out = (values < lo) | (values > hi)
+        if out.any():
+            worst = float(values[np.argmax(np.abs(values))])
+            hint = " (SI units required: millimetres?)" if name in ("com", "xu", "xs") else ""
+            problems.append(f"column {name}: {int(out.sum())} value(s) outside the physical "
+                            f"range [{lo:g}, {hi:g}] {unit}, e.g. {worst:g}{hint}")
+    if problems:
+        raise MeasuredDataError(source, problems)
+    return arrays
+
+
+def _to_float(values: Any) -> np.ndarray:
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        import pandas as pd
+
+        return pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(dtype=np.float64)
+
+
+def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data") -> MeasuredData:
+    """Validate arrays and resample them onto the 1 kHz model grid.
+
+    Parameters
+    ----------
+    t : array
+        Time [s], strictly increasing, regular within :data:`SAMPLING_TOLERANCE`.
+    com, xu : arrays
+        Command and measured position [m].
+    p12, xs : arrays, optional
+        Load pressure [Pa], spool position [m].
+    """
+    columns = {"t": t, "com": com, "xu": xu}
+    if p12 is not None:
+        columns["p12"] = p12
+    if xs is not None:
+        columns["xs"] = xs
+    lengths = {k: len(v) for k, v in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise MeasuredDataError(source, [f"columns have different lengths: {lengths}"])
+    arrays = validate(columns, source)
+    t_raw = arrays["t"] - arrays["t"][0]
+    n_out = int(np.floor(t_raw[-1] / OUTPUT_DT + 1e-9)) + 1
+    grid = np.arange(n_out) * OUTPUT_DT
+    period = float(np.median(np.diff(t_raw)))
+    resampled = not (t_raw.size == n_out and np.allclose(t_raw, grid, atol=1e-3 * OUTPUT_DT))
+
+    def on_grid(values):
+        return values.copy() if not resampled else np.interp(grid, t_raw, values)
+
+    info = {"samples": int(t_raw.size), "period_s": period, "t0_s": float(arrays["t"][0]),
+            "resampled": bool(resampled), "samples_1khz": int(n_out)}
+    return MeasuredData(
+        t=grid, com=on_grid(arrays["com"]), xu=on_grid(arrays["xu"]),
+        command=array_command(t_raw, arrays["com"], name=f"array:{Path(source).name}"),
+        p12=on_grid(arrays["p12"]) if "p12" in arrays else None,
+        xs=on_grid(arrays["xs"]) if "xs" in arrays else None,
+        source=str(source), info=info)
+
+
+def load(path: str | Path) -> MeasuredData:
+    """Read, validate and resample a measured record (CSV/TSV/TXT or Parquet).
+
+    Raises
+    ------
+    MeasuredDataError
+        File missing or unreadable, unsupported type, or any validation problem.
+    """
+    from eha.store import read_table_file
+
+    path = Path(path)
+    source = str(path)
+    if not path.is_file():
+        raise MeasuredDataError(source, ["file not found"])
+    if path.suffix.lower() not in FILE_TYPES:
+        raise MeasuredDataError(source, [f"unsupported file type {path.suffix or '(none)'!r}; "
+                                         f"allowed: {', '.join(FILE_TYPES)}"])
+    try:
+        frame = read_table_file(path)
+    except Exception as exc:  # any parser error becomes one line naming the file
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise MeasuredDataError(source, [f"cannot read the table: {first}"]) from None
+    headers = [str(c) for c in frame.columns]
+    mapping, problems = match_columns(headers)
+    if problems:
+        raise MeasuredDataError(source, problems)
+    cols = {name: frame[header].to_numpy() for name, header in mapping.items()}
+    return from_arrays(cols["t"], cols["com"], cols["xu"], cols.get("p12"), cols.get("xs"),
+                       source=source)
+
+
+__all__ = ["MeasuredData", "MeasuredDataError", "load", "from_arrays", "validate",
+           "match_columns", "ALIASES", "REQUIRED", "OPTIONAL", "SAMPLING_TOLERANCE",
+           "MIN_SAMPLES", "MIN_DURATION", "PHYSICAL_RANGES", "synthetic_record"]
+
+
+def synthetic_record(command: Command | str = "test", overrides: dict[str, float] | None = None,
+                     t_end: float = 1.0, noise: float = 1e-6, seed: int = 0,
+                     model: str = "hf"):
+    """A record made by the simulator, for tests and examples: HF (or LF) run plus noise.
+
+    Parameters
+    ----------
+    command : Command or str
+        Position command (preset name or :class:`~eha.commands.Command`).
+    overrides : dict, optional
+        Parameters of the model (faults and the "undeclared" effect, e.g. ``{"FRC": 2000}``).
+    t_end : float
+        Record length [s] (1 kHz samples).
+    noise : float
+        Standard deviation of white Gaussian measurement noise on xu [m].
+    seed : int
+        Seed of the noise and of the HF dither.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``t``, ``com``, ``xu``, ``p12``, ``xs`` (SI), ready for ``to_csv``.
+    """
+    import pandas as pd
+
+    from eha.simulate import simulate
+
+    trace = simulate(model, command, dict(overrides or {}), t_end=t_end, seed=seed)
+    rng = np.random.default_rng(seed)
+    xu = trace.xu + rng.normal(0.0, noise, len(trace)) if noise > 0 else trace.xu.copy()
+    return pd.DataFrame({"t": trace.t, "com": trace["com"], "xu": xu, "p12": trace["p12"],
+                         "xs": trace["xs"]})
