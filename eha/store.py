@@ -3,14 +3,27 @@
 Traces are Parquet files (one per run, metadata under the key ``eha``), written atomically:
 a temporary name in the same directory, then ``os.replace``, so a reader never sees a file
 half-written.
+
+Campaign results live in ``DIR/eha.duckdb`` (DuckDB). The campaign's parent process is its only
+writer (:class:`ResultStore`); queries go through a read-only connection (:func:`query`) that
+also sees every Parquet trace as the view ``traces``. The SQL schema is declared once, in
+:data:`SCHEMA`; a new kind of result (e.g. FDI) adds its table there and, when its rows belong
+to runs, its name to :data:`RESULT_TABLES`.
+
+Layout of a results directory::
+
+    DIR/eha.duckdb                          campaigns, runs, metrics (+ other result tables)
+    DIR/traces/<campaign>/<run_key>.parquet one trace per run (run key also in the metadata)
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -18,16 +31,33 @@ from eha.models import OUTPUTS
 from eha.simulate import Trace
 
 
-def write_trace(trace: Trace, path: str | Path) -> Path:
-    """Write ``trace`` to ``path`` (Parquet) atomically; returns the path."""
+#: Suffix of the temporary files of :func:`write_trace` (removed by :func:`clean_temp_files`).
+TEMP_SUFFIX = ".tmp"
+
+
+def write_trace(trace: Trace, path: str | Path, columns: Sequence[str] | None = None) -> Path:
+    """Write ``trace`` to ``path`` (Parquet) atomically; returns the path.
+
+    Parameters
+    ----------
+    trace : Trace
+        Its ``meta`` goes into the file metadata (key ``eha``).
+    path : path
+        Destination; written under a temporary name in the same folder, then renamed.
+    columns : sequence of str, optional
+        Signals to keep (subset of :data:`eha.models.OUTPUTS`); default all.
+    """
     import pyarrow.parquet as pq
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    table = trace.to_arrow()
+    if columns is not None:
+        table = table.select([c for c in OUTPUTS if c in columns])
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     os.close(fd)
     try:
-        pq.write_table(trace.to_arrow(), tmp)
+        pq.write_table(table, tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -36,12 +66,14 @@ def write_trace(trace: Trace, path: str | Path) -> Path:
 
 
 def read_trace(path: str | Path) -> Trace:
-    """Read a trace written by :func:`write_trace`."""
+    """Read a trace written by :func:`write_trace` (signals not stored come back as NaN)."""
     import pyarrow.parquet as pq
 
     table = pq.read_table(path)
     meta_raw = (table.schema.metadata or {}).get(b"eha", b"{}")
-    data = np.column_stack([table.column(n).to_numpy() for n in OUTPUTS])
+    names = set(table.column_names)
+    data = np.column_stack([table.column(n).to_numpy() if n in names
+                            else np.full(table.num_rows, np.nan) for n in OUTPUTS])
     return Trace(np.ascontiguousarray(data, dtype=np.float64), json.loads(meta_raw))
 
 
@@ -74,3 +106,370 @@ def _sniff_separator(path: Path) -> str:
     except csv.Error:
         return ","
     return r"\s+" if sep == " " else sep
+
+
+# =========================================================================== result database
+#: File name of the result database inside a results directory.
+DB_NAME = "eha.duckdb"
+#: Folder of the Parquet traces inside a results directory.
+TRACES = "traces"
+
+#: The SQL schema, in one place: table name -> CREATE statement. Units are SI (cor in mA).
+SCHEMA: dict[str, str] = {
+    "campaigns": """
+        CREATE TABLE IF NOT EXISTS campaigns (
+            name          VARCHAR PRIMARY KEY,
+            description   VARCHAR,
+            source        VARCHAR,      -- campaign file it was first run from
+            spec_hash     VARCHAR NOT NULL,  -- hash of the sorted run keys
+            model_version VARCHAR,
+            n_runs        INTEGER,
+            definition    JSON,         -- the parsed campaign file
+            created_at    TIMESTAMP,
+            updated_at    TIMESTAMP)""",
+    "runs": """
+        CREATE TABLE IF NOT EXISTS runs (
+            run_key     VARCHAR PRIMARY KEY,  -- hash of the resolved job spec + model version
+            campaign    VARCHAR NOT NULL,
+            kind        VARCHAR NOT NULL,     -- 'simulate' (others: see eha.campaign)
+            status      VARCHAR NOT NULL,     -- 'pending', 'done', 'failed'
+            model       VARCHAR,
+            command     VARCHAR,
+            faults      JSON,                 -- fault overrides, e.g. {"BKL": 0.0001}
+            fault_label VARCHAR,
+            seed        BIGINT,
+            t_end       DOUBLE,               -- s
+            case_key    VARCHAR,              -- same command/faults/seed/t_end across models
+            label       VARCHAR,
+            trace_path  VARCHAR,              -- relative to the results directory
+            error       VARCHAR,
+            worker      VARCHAR,              -- host:pid that ran it
+            queued_at   TIMESTAMP,
+            started_at  TIMESTAMP,
+            finished_at TIMESTAMP,
+            sim_s       DOUBLE,               -- s of simulation
+            elapsed_s   DOUBLE,               -- s in the worker (simulation + metrics + write)
+            spec        JSON)""",
+    "metrics": """
+        CREATE TABLE IF NOT EXISTS metrics (
+            run_key          VARCHAR PRIMARY KEY,
+            rmse_xu_com      DOUBLE,  -- m, RMS of xu - com
+            max_err_xu_com   DOUBLE,  -- m, max |xu - com|
+            final_err_xu_com DOUBLE,  -- m, xu - com at t_end
+            settling_time    DOUBLE,  -- s, from which |xu - com| stays within 2 % of max|com|
+            lag              DOUBLE,  -- s, shift of xu best matching com (0 to 0.2 s)
+            xu_min           DOUBLE,  -- m
+            xu_max           DOUBLE,  -- m
+            xs_abs_max       DOUBLE,  -- m, spool peak
+            p12_min          DOUBLE,  -- Pa
+            p12_max          DOUBLE,  -- Pa
+            p12_abs_max      DOUBLE,  -- Pa
+            cor_abs_max      DOUBLE,  -- mA
+            rmse_xu_hf_lf    DOUBLE,  -- m, HF vs LF of the same case (both runs get it)
+            max_err_xu_hf_lf DOUBLE,  -- m
+            rmse_p12_hf_lf   DOUBLE)  -- Pa""",
+}
+#: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
+RESULT_TABLES: tuple[str, ...] = ("metrics",)
+
+_LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
+
+
+class StoreError(RuntimeError):
+    """The result database cannot be used (locked, missing, bad query); one-line message."""
+
+
+def db_path(results: str | Path) -> Path:
+    """``DIR/eha.duckdb``."""
+    return Path(results) / DB_NAME
+
+
+def trace_path(results: str | Path, campaign: str, run_key: str) -> Path:
+    """Where the trace of a run lives: ``DIR/traces/<campaign>/<run_key>.parquet``."""
+    return Path(results) / TRACES / campaign / f"{run_key}.parquet"
+
+
+def clean_temp_files(folder: str | Path) -> int:
+    """Remove temporary files left by interrupted :func:`write_trace` calls; returns how many.
+
+    Only call this while no writer can be active in ``folder`` (the runner does it while it
+    holds the database lock, before starting its workers).
+    """
+    folder = Path(folder)
+    n = 0
+    if folder.is_dir():
+        for tmp in folder.glob(f".*{TEMP_SUFFIX}"):
+            tmp.unlink(missing_ok=True)
+            n += 1
+    return n
+
+
+def connect(results: str | Path, read_only: bool = False):
+    """Open ``DIR/eha.duckdb``; the schema is created on a writable connection.
+
+    Raises
+    ------
+    StoreError
+        The database is held by another process, or (read-only) does not exist.
+    """
+    import duckdb
+
+    path = db_path(results)
+    if read_only and not path.exists():
+        raise StoreError(f"{path}: no result database yet; run a campaign first "
+                         "(eha campaign run FILE)")
+    if not read_only:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        con = duckdb.connect(str(path), read_only=read_only)
+    except duckdb.IOException as exc:
+        match = _LOCK_RE.search(str(exc))
+        if match:
+            raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
+                             f"{Path(match.group(1)).name}), probably a running campaign; "
+                             "wait for it to finish or use another --results folder") from None
+        raise StoreError(f"{path}: {str(exc).splitlines()[0]}") from None
+    if not read_only:
+        for ddl in SCHEMA.values():
+            con.execute(ddl)
+    return con
+
+
+def _frame(rows: Sequence[Mapping[str, Any]]):
+    import pandas as pd
+
+    frame = pd.DataFrame(list(rows))
+    for col in frame.columns:  # JSON columns travel as text
+        if frame[col].map(lambda v: isinstance(v, (dict, list))).any():
+            frame[col] = frame[col].map(lambda v: json.dumps(v, sort_keys=True))
+    return frame
+
+
+class ResultStore:
+    """The campaign parent's read-write connection to ``DIR/eha.duckdb`` (the only writer).
+
+    Use as a context manager; the database stays locked against other processes while open.
+    """
+
+    def __init__(self, results: str | Path):
+        self.results = Path(results).resolve()
+        self.con = connect(self.results)
+
+    def __enter__(self) -> "ResultStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.con is not None:
+            self.con.execute("CHECKPOINT")
+            self.con.close()
+            self.con = None
+
+    # ---- campaigns
+    def campaign(self, name: str) -> dict | None:
+        """The ``campaigns`` row of ``name`` (dict) or None."""
+        cur = self.con.execute("SELECT * FROM campaigns WHERE name = ?", [name])
+        rows = cur.fetchall()
+        return dict(zip([d[0] for d in cur.description], rows[0])) if rows else None
+
+    def register_campaign(self, row: Mapping[str, Any]) -> None:
+        """Insert or update a ``campaigns`` row (keeps ``created_at`` of an existing one)."""
+        frame = _frame([row])
+        self.con.register("_c", frame)
+        try:
+            self.con.execute("""
+                INSERT INTO campaigns BY NAME SELECT * FROM _c
+                ON CONFLICT (name) DO UPDATE SET description = excluded.description,
+                    source = excluded.source, spec_hash = excluded.spec_hash,
+                    model_version = excluded.model_version, n_runs = excluded.n_runs,
+                    definition = excluded.definition, updated_at = excluded.updated_at""")
+        finally:
+            self.con.unregister("_c")
+
+    def delete_campaign(self, name: str) -> int:
+        """Remove a campaign: its trace folder, result rows, runs and ``campaigns`` row.
+
+        Files go first: if this is interrupted, the database still lists the campaign and the
+        runner re-runs whatever trace is missing.
+        """
+        import shutil
+
+        shutil.rmtree(self.results / TRACES / name, ignore_errors=True)
+        n = self.con.execute("SELECT count(*) FROM runs WHERE campaign = ?", [name]).fetchall()[0][0]
+        self.con.execute("BEGIN")
+        for table in RESULT_TABLES:
+            self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
+                             "(SELECT run_key FROM runs WHERE campaign = ?)", [name])
+        self.con.execute("DELETE FROM runs WHERE campaign = ?", [name])
+        self.con.execute("DELETE FROM campaigns WHERE name = ?", [name])
+        self.con.execute("COMMIT")
+        return n
+
+    # ---- runs
+    def run_keys(self, campaign: str, status: str | None = None) -> dict[str, str]:
+        """``run_key -> status`` of a campaign's recorded runs (optionally one status only)."""
+        sql = "SELECT run_key, status FROM runs WHERE campaign = ?"
+        args: list[Any] = [campaign]
+        if status is not None:
+            sql += " AND status = ?"
+            args.append(status)
+        return dict(self.con.execute(sql, args).fetchall())
+
+    def done_with_trace(self, campaign: str) -> set[str]:
+        """Run keys recorded as done whose trace file is present (a missing one is re-run)."""
+        rows = self.con.execute("SELECT run_key, trace_path FROM runs WHERE campaign = ? AND "
+                                "status = 'done'", [campaign]).fetchall()
+        return {k for k, p in rows if p is None or (self.results / p).exists()}
+
+    def add_pending(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Insert ``pending`` runs; runs already recorded are left as they are."""
+        if not rows:
+            return
+        self.con.register("_p", _frame(rows))
+        try:
+            self.con.execute("INSERT OR IGNORE INTO runs BY NAME SELECT * FROM _p")
+        finally:
+            self.con.unregister("_p")
+
+    def record(self, results: Sequence[Mapping[str, Any]]) -> None:
+        """Store finished runs in one transaction.
+
+        Each result has ``run_key``, ``status`` and the other ``runs`` columns to update
+        (``error``, ``worker``, timings, ``trace_path``), and ``rows``: result-table name ->
+        one row (dict of columns) for that run.
+        """
+        if not results:
+            return
+        run_cols = {"status", "error", "worker", "started_at", "finished_at", "sim_s",
+                    "elapsed_s", "trace_path"}
+        updates = [{"run_key": r["run_key"], **{k: r.get(k) for k in run_cols}} for r in results]
+        per_table: dict[str, list[dict]] = {}
+        for r in results:
+            for table, row in (r.get("rows") or {}).items():
+                if table not in RESULT_TABLES:
+                    raise StoreError(f"result table {table!r} is not in the schema "
+                                     f"({', '.join(RESULT_TABLES)})")
+                per_table.setdefault(table, []).append({"run_key": r["run_key"], **row})
+        self.con.execute("BEGIN")
+        try:
+            self.con.register("_u", _frame(updates))
+            sets = ", ".join(f"{c} = _u.{c}" for c in sorted(run_cols))
+            self.con.execute(f"UPDATE runs SET {sets} FROM _u WHERE runs.run_key = _u.run_key")
+            self.con.unregister("_u")
+            for table, rows in per_table.items():
+                self.upsert(table, rows)
+            self.con.execute("COMMIT")
+        except BaseException:
+            self.con.execute("ROLLBACK")
+            raise
+
+    def upsert(self, table: str, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Insert or replace rows of a result table (by ``run_key``); columns by name."""
+        if table not in RESULT_TABLES:
+            raise StoreError(f"{table!r} is not a result table ({', '.join(RESULT_TABLES)})")
+        if not rows:
+            return
+        frame = _frame(rows)
+        self.con.register("_r", frame)
+        try:
+            cols = [c for c in frame.columns if c != "run_key"]
+            sets = ", ".join(f"{c} = excluded.{c}" for c in cols)
+            self.con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r ON CONFLICT "
+                             f"(run_key) DO UPDATE SET {sets}")
+        finally:
+            self.con.unregister("_r")
+
+    def hf_lf_pairs(self, campaign: str) -> list[tuple[str, str, str, str]]:
+        """``(hf_key, hf_trace, lf_key, lf_trace)`` of done HF/LF runs of the same case whose
+        HF-vs-LF metrics are still missing (trace paths relative to the results folder)."""
+        return self.con.execute("""
+            SELECT h.run_key, h.trace_path, l.run_key, l.trace_path
+            FROM runs h JOIN runs l ON h.case_key = l.case_key AND h.campaign = l.campaign
+            JOIN metrics mh ON mh.run_key = h.run_key
+            JOIN metrics ml ON ml.run_key = l.run_key
+            WHERE h.campaign = ? AND h.kind = 'simulate' AND l.kind = 'simulate'
+              AND h.model = 'hf' AND l.model = 'lf'
+              AND h.status = 'done' AND l.status = 'done'
+              AND (mh.rmse_xu_hf_lf IS NULL OR ml.rmse_xu_hf_lf IS NULL)
+            ORDER BY h.run_key""", [campaign]).fetchall()
+
+    def status_counts(self, campaign: str) -> dict[str, int]:
+        return dict(self.con.execute("SELECT status, count(*) FROM runs WHERE campaign = ? "
+                                     "GROUP BY status", [campaign]).fetchall())
+
+
+# =========================================================================== queries
+def _create_traces_view(con, results: Path) -> None:
+    """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``."""
+    files = list((results / TRACES).glob("*/*.parquet"))
+    if files:
+        pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
+        con.execute(f"""
+            CREATE OR REPLACE TEMP VIEW traces AS
+            SELECT regexp_extract(filename, '([^/\\\\]+)[/\\\\][^/\\\\]+$', 1) AS campaign,
+                   regexp_extract(filename, '([0-9a-f]{{16}})\\.parquet$', 1) AS run_key,
+                   * EXCLUDE (filename)
+            FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
+    else:
+        cols = ", ".join(f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
+        con.execute("CREATE OR REPLACE TEMP VIEW traces AS SELECT NULL::VARCHAR AS campaign, "
+                    f"NULL::VARCHAR AS run_key, {cols} WHERE false")
+
+
+def query(results: str | Path, sql: str):
+    """Run ``sql`` on a read-only connection to ``DIR/eha.duckdb``; returns a pandas DataFrame.
+
+    The Parquet traces are visible as the view ``traces`` (columns ``campaign``, ``run_key``
+    and the stored signals).
+
+    Raises
+    ------
+    StoreError
+        No database, database locked, or an SQL error (first line of DuckDB's message).
+    """
+    import duckdb
+
+    results = Path(results).resolve()
+    con = connect(results, read_only=True)
+    try:
+        _create_traces_view(con, results)
+        return con.execute(sql).df()
+    except duckdb.Error as exc:
+        raise StoreError(f"query: {str(exc).splitlines()[0]}") from None
+    finally:
+        con.close()
+
+
+def tables(results: str | Path) -> list[str]:
+    """Names of the tables and views that :func:`export_csv` accepts."""
+    con = connect(results, read_only=True)
+    try:
+        names = [r[0] for r in con.execute("SELECT table_name FROM information_schema.tables "
+                                           "ORDER BY table_name").fetchall()]
+    finally:
+        con.close()
+    return names + ["traces"]
+
+
+def export_csv(results: str | Path, table: str, path: str | Path) -> int:
+    """Write a table (or the ``traces`` view) of ``DIR/eha.duckdb`` to CSV; returns the rows.
+
+    Written to a temporary name then renamed, so a failed export leaves nothing behind.
+    """
+    allowed = tables(results)
+    if table not in allowed:
+        raise StoreError(f"export: unknown table {table!r}; allowed: {', '.join(allowed)}")
+    frame = query(results, f'SELECT * FROM "{table}"')
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    os.close(fd)
+    try:
+        frame.to_csv(tmp, index=False)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return len(frame)

@@ -1,0 +1,501 @@
+"""Run campaigns: executors (local spawn pool, Dask), worker job functions, run metrics.
+
+The parent process plans the jobs (:mod:`eha.campaign`), opens ``DIR/eha.duckdb`` (it is the
+only writer, :class:`eha.store.ResultStore`), skips runs already done, and hands the rest to an
+:class:`Executor`. Workers simulate, compute the run's metrics and write one Parquet trace each
+(atomically, :func:`eha.store.write_trace`); they never touch the database. The parent records
+results in batches, shows a progress bar, and finally computes the HF-vs-LF metrics of every
+case whose two runs are done.
+
+Resume
+------
+A run is recorded ``done`` only after its trace file has been renamed into place, in the same
+transaction as its metrics. Killing everything at any moment (``kill -9`` of the process group)
+loses at most the runs not yet committed; the next ``eha campaign run`` of the same file removes
+stray temporary files, re-runs every run not ``done`` (or whose trace is missing) and ends with
+the same rows as an uninterrupted run.
+
+Job kinds
+---------
+:data:`JOB_RUNNERS` maps a job kind to ``fn(spec, run_key, campaign, trace_file) -> dict`` run
+in the worker. It returns ``{"rows": {table: row}, ...runs columns...}``; every table must be
+in :data:`eha.store.RESULT_TABLES` (declared in :data:`eha.store.SCHEMA`). To add FDI: an
+expander in :data:`eha.campaign.SECTION_KINDS` (``[fdi]`` section → jobs of kind ``"fdi"``),
+``JOB_RUNNERS["fdi"]`` here, and the ``fdi_results`` table in the store's schema.
+
+This module imports nothing heavy at import time: spawn workers unpickle functions from it,
+and :func:`_init_worker` must set ``NUMBA_NUM_THREADS`` before numba is first imported.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Mapping
+
+#: Tolerance band of the settling time: fraction of the command's peak magnitude.
+SETTLING_BAND = 0.02
+#: Largest command-to-position lag searched [s].
+MAX_LAG = 0.2
+#: Numba threads per worker process (one process per core already).
+WORKER_NUMBA_THREADS = 1
+#: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` results).
+BATCH_SECONDS = 0.5
+BATCH_ROWS = 200
+
+
+class CampaignChanged(ValueError):
+    """The campaign was recorded from a different definition under the same name."""
+
+
+def _now() -> datetime:
+    return datetime.now(timezone.utc).replace(tzinfo=None)
+
+
+# =========================================================================== metrics
+def rmse(a, b) -> float:
+    """Root-mean-square difference of two equally sampled signals."""
+    import numpy as np
+
+    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+def max_abs_error(a, b) -> float:
+    """Largest absolute difference of two equally sampled signals."""
+    import numpy as np
+
+    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+
+
+def settling_time(t, xu, com, band: float = SETTLING_BAND) -> float | None:
+    """Time [s] from which ``|xu - com|`` stays within ``band * max|com|``; None if it never does
+    (or the command is zero)."""
+    import numpy as np
+
+    tol = band * float(np.max(np.abs(com)))
+    if tol <= 0:
+        return None
+    outside = np.flatnonzero(np.abs(xu - com) > tol)
+    if outside.size == 0:
+        return float(t[0])
+    last = outside[-1]
+    return None if last == len(t) - 1 else float(t[last + 1])
+
+
+def lag(t, xu, com, max_lag: float = MAX_LAG) -> float | None:
+    """Shift [s] in ``[0, max_lag]`` of ``com`` that best matches ``xu`` (least squares);
+    None for a constant command."""
+    import numpy as np
+
+    if np.ptp(com) == 0 or len(t) < 3:
+        return None
+    dt = float(t[1] - t[0])
+    n = len(t)
+    kmax = min(int(round(max_lag / dt)), n // 2)
+    errs = [np.mean((xu[k:] - com[:n - k]) ** 2) for k in range(kmax + 1)]
+    return float(np.argmin(errs) * dt)
+
+
+def trace_metrics(trace) -> dict[str, float | None]:
+    """Metrics of one run (columns of the ``metrics`` table, SI units, cor in mA)."""
+    import numpy as np
+
+    t, xu, com, p12 = trace.t, trace.xu, trace["com"], trace["p12"]
+    return {
+        "rmse_xu_com": rmse(xu, com), "max_err_xu_com": max_abs_error(xu, com),
+        "final_err_xu_com": float(xu[-1] - com[-1]),
+        "settling_time": settling_time(t, xu, com), "lag": lag(t, xu, com),
+        "xu_min": float(np.min(xu)), "xu_max": float(np.max(xu)),
+        "xs_abs_max": float(np.max(np.abs(trace["xs"]))),
+        "p12_min": float(np.min(p12)), "p12_max": float(np.max(p12)),
+        "p12_abs_max": float(np.max(np.abs(p12))),
+        "cor_abs_max": float(np.max(np.abs(trace["cor"]))),
+    }
+
+
+def pair_metrics(hf, lf) -> dict[str, float | None]:
+    """HF-vs-LF metrics of one case (same command, faults, seed, t_end)."""
+    import numpy as np
+
+    out = {"rmse_xu_hf_lf": rmse(hf.xu, lf.xu), "max_err_xu_hf_lf": max_abs_error(hf.xu, lf.xu),
+           "rmse_p12_hf_lf": rmse(hf["p12"], lf["p12"])}
+    return {k: (None if v is None or not np.isfinite(v) else v) for k, v in out.items()}
+
+
+# =========================================================================== worker side
+def _init_worker() -> None:
+    """Pool-worker initialiser: one numba thread per process, then :func:`warm_worker`."""
+    os.environ["NUMBA_NUM_THREADS"] = str(WORKER_NUMBA_THREADS)
+    warm_worker()
+
+
+def warm_worker() -> str:
+    """Run a tiny HF and LF job end to end in this process (not recorded anywhere).
+
+    Imports happen once per worker instead of inside the first task, numba loads and links the
+    cached kernels (``cache=True``: nothing is recompiled per task), and pyarrow's Parquet
+    writer is initialised. Returns ``host:pid``.
+    """
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="eha-warm-") as tmp:
+        for model in ("hf", "lf"):
+            spec = {"model": model, "command": {"name": "step_1mm", "set": {}}, "params": {},
+                    "seed": 0, "t_end": 2e-3, "signals": ["t", "com", "xu"]}
+            _run_simulation(spec, "0" * 16, "warm-up", str(Path(tmp) / f"{model}.parquet"))
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str,
+                    trace_file: str) -> dict[str, Any]:
+    from eha.commands import make_command
+    from eha.simulate import simulate
+    from eha.simulate import Trace
+    from eha.store import write_trace
+
+    cmd = make_command(spec["command"]["name"], **spec["command"]["set"])
+    t0 = time.perf_counter()
+    trace = simulate(spec["model"], cmd, spec["params"], t_end=spec["t_end"], seed=spec["seed"])
+    sim_s = time.perf_counter() - t0
+    import numpy as np
+
+    if not np.all(np.isfinite(trace.data)):
+        raise FloatingPointError("the simulation produced NaN/inf (unstable parameter set)")
+    metrics = trace_metrics(trace)
+    trace = Trace(trace.data, {**trace.meta, "run_key": run_key, "campaign": campaign})
+    write_trace(trace, trace_file, columns=spec["signals"])
+    return {"rows": {"metrics": metrics}, "sim_s": sim_s}
+
+
+#: Worker function of each job kind (see the module docstring).
+JOB_RUNNERS: dict[str, Callable[..., dict[str, Any]]] = {"simulate": _run_simulation}
+
+
+def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
+    """Run one job in a worker; never raises for a failing job (status ``failed``).
+
+    ``payload``: ``kind``, ``spec``, ``run_key``, ``campaign``, ``trace_file`` (absolute path),
+    ``trace_path`` (relative, recorded in the database).
+    """
+    started = _now()
+    t0 = time.perf_counter()
+    result: dict[str, Any] = {"run_key": payload["run_key"], "started_at": started,
+                              "worker": f"{socket.gethostname()}:{os.getpid()}",
+                              "trace_path": None, "error": None, "rows": {}}
+    try:
+        out = JOB_RUNNERS[payload["kind"]](payload["spec"], payload["run_key"],
+                                           payload["campaign"], payload["trace_file"])
+        result.update(out)
+        result["status"] = "done"
+        if Path(payload["trace_file"]).exists():
+            result["trace_path"] = payload["trace_path"]
+    except Exception as exc:  # recorded, the campaign goes on
+        result["status"] = "failed"
+        result["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        result["rows"] = {}
+    result["finished_at"] = _now()
+    result["elapsed_s"] = time.perf_counter() - t0
+    return result
+
+
+# =========================================================================== executors
+class Executor:
+    """Runs a function over payloads on some workers; yields results as they complete.
+
+    Subclasses implement :meth:`_submit` and :meth:`_wait_one`; at most ``in_flight`` tasks
+    are outstanding so that a huge campaign does not sit in memory as futures.
+    """
+
+    workers: int = 1
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        pass
+
+    def warm_up(self) -> None:
+        """Start the workers and load the kernels before timing or submitting jobs."""
+
+    def map_unordered(self, fn: Callable, payloads: Iterable[Any]) -> Iterator[Any]:
+        pending: set = set()
+        in_flight = max(4, 4 * self.workers)
+        it = iter(payloads)
+        exhausted = False
+        while True:
+            while not exhausted and len(pending) < in_flight:
+                try:
+                    pending.add(self._submit(fn, next(it)))
+                except StopIteration:
+                    exhausted = True
+            if not pending:
+                return
+            done, pending = self._wait(pending)
+            for fut in done:
+                yield fut.result()
+
+    def _submit(self, fn, payload):  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def _wait(self, pending: set) -> tuple[set, set]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+
+class LocalPoolExecutor(Executor):
+    """A pool of ``workers`` spawned processes (one numba thread each)."""
+
+    def __init__(self, workers: int = 2):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.workers = max(1, int(workers))
+        self._pool = ProcessPoolExecutor(self.workers,
+                                         mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_init_worker)
+
+    def warm_up(self) -> None:
+        # Every worker runs the initialiser (warm_worker) as it starts; these no-op tasks only
+        # make all of them start now.
+        if getattr(self, "_warm", False):
+            return
+        self._warm = True
+        futs = [self._pool.submit(time.sleep, 0.02) for _ in range(self.workers)]
+        for f in futs:
+            f.result()
+
+    def _submit(self, fn, payload):
+        return self._pool.submit(fn, payload)
+
+    def _wait(self, pending):
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        done, rest = wait(pending, return_when=FIRST_COMPLETED)
+        return set(done), set(rest)
+
+    def close(self) -> None:
+        # The workers exit on their own once told to; the parent goes on meanwhile.
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+class DaskExecutor(Executor):
+    """Jobs on a Dask distributed cluster (``scheduler``: ``tcp://HOST:PORT`` or a Client).
+
+    Workers must see the results folder at the same absolute path (shared file system) and
+    have ``eha`` installed; see docs/scaling.md.
+    """
+
+    def __init__(self, scheduler: Any):
+        try:
+            from distributed import Client
+        except ImportError:  # pragma: no cover - depends on the install
+            raise RuntimeError("--scheduler needs Dask: pip install 'eha[dask]'") from None
+        if isinstance(scheduler, Client):
+            self.client, self._own = scheduler, False
+        else:
+            try:
+                self.client, self._own = Client(scheduler, timeout="10s"), True
+            except (OSError, TimeoutError) as exc:
+                raise RuntimeError(f"--scheduler {scheduler}: cannot connect "
+                                   f"({type(exc).__name__}: {exc})") from None
+        self.workers = max(1, sum(w.get("nthreads", 1) for w in
+                                  self.client.scheduler_info()["workers"].values()))
+
+    def warm_up(self) -> None:
+        self.client.run(warm_worker)
+
+    def _submit(self, fn, payload):
+        return self.client.submit(fn, payload, pure=False)
+
+    def _wait(self, pending):
+        from distributed import wait
+
+        res = wait(list(pending), return_when="FIRST_COMPLETED")
+        return set(res.done), set(res.not_done)
+
+    def close(self) -> None:
+        if self._own:
+            self.client.close()
+
+
+def make_executor(workers: int = 2, scheduler: Any = None) -> Executor:
+    """The local spawn pool, or a :class:`DaskExecutor` when ``scheduler`` is given."""
+    if scheduler is not None:
+        return DaskExecutor(scheduler)
+    return LocalPoolExecutor(workers)
+
+
+# =========================================================================== parent side
+@dataclass
+class RunSummary:
+    """What :func:`run_campaign` did."""
+
+    campaign: str
+    total: int
+    skipped: int = 0
+    done: int = 0
+    failed: int = 0
+    wall_s: float = 0.0
+    startup_s: float = 0.0
+    replaced: int = 0
+    errors: list[str] = field(default_factory=list)
+    results: str = ""
+
+
+def _progress(enabled: bool):
+    from rich.console import Console
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), TimeRemainingColumn(),
+                    console=Console(stderr=True), disable=not enabled, transient=False)
+
+
+def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
+                 scheduler: Any = None, replace: bool = False, progress: bool = True,
+                 executor: Executor | None = None) -> RunSummary:
+    """Run (or resume) a campaign into ``results``.
+
+    Parameters
+    ----------
+    campaign : Campaign or path
+        A :class:`eha.campaign.Campaign` or a campaign TOML file.
+    results : path
+        Results folder (database ``eha.duckdb`` and ``traces/``).
+    workers : int
+        Local worker processes (ignored with ``scheduler``).
+    scheduler : str or distributed.Client, optional
+        Dask scheduler address (``tcp://HOST:PORT``) to run the jobs on instead.
+    replace : bool
+        Discard the recorded runs of a campaign of the same name but a different definition.
+    progress : bool
+        Show a rich progress bar on stderr.
+    executor : Executor, optional
+        An open executor to reuse (several campaigns, one pool); not closed here.
+
+    Raises
+    ------
+    eha.campaign.CampaignError
+        Invalid campaign file (nothing runs).
+    CampaignChanged
+        The campaign name is recorded with a different definition and ``replace`` is false.
+    eha.store.StoreError
+        The database is locked by another process.
+    """
+    from eha.campaign import Campaign, load_campaign
+    from eha.simulate import MODEL_VERSION
+    from eha.store import ResultStore, clean_temp_files, trace_path
+
+    t_start = time.perf_counter()
+    camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+    summary = RunSummary(camp.name, len(camp.jobs))
+    with ResultStore(results) as db:
+        summary.results = str(db.results)
+        old = db.campaign(camp.name)
+        if old is not None and old["spec_hash"] != camp.spec_hash:
+            if not replace:
+                recorded = db.run_keys(camp.name)
+                common = len(set(recorded) & {j.run_key for j in camp.jobs})
+                raise CampaignChanged(
+                    f"campaign {camp.name!r} in {db.results / 'eha.duckdb'} was recorded from a "
+                    f"different definition (file edited or model version changed: "
+                    f"{len(recorded)} recorded runs, {len(camp.jobs)} planned, {common} in "
+                    "common); give it a new name, or pass --replace to discard the recorded runs")
+            summary.replaced = db.delete_campaign(camp.name)
+            old = None
+        now = _now()
+        db.register_campaign({
+            "name": camp.name, "description": camp.description, "source": camp.source,
+            "spec_hash": camp.spec_hash, "model_version": MODEL_VERSION,
+            "n_runs": len(camp.jobs), "definition": camp.definition,
+            "created_at": old["created_at"] if old else now, "updated_at": now})
+        trace_dir = db.results / "traces" / camp.name
+        clean_temp_files(trace_dir)  # we hold the database lock: no other writer is active
+        done = db.done_with_trace(camp.name)
+        todo = [j for j in camp.jobs if j.run_key not in done]
+        summary.skipped = len(camp.jobs) - len(todo)
+        db.add_pending([{"run_key": j.run_key, "campaign": j.campaign, "kind": j.kind,
+                         "status": "pending", "spec": j.spec, "queued_at": now,
+                         **{k: v for k, v in j.columns.items() if k in _RUN_COLUMNS}}
+                        for j in todo])
+        payloads = []
+        for j in todo:
+            path = trace_path(db.results, camp.name, j.run_key)
+            payloads.append({"kind": j.kind, "spec": j.spec, "run_key": j.run_key,
+                             "campaign": camp.name, "trace_file": str(path),
+                             "trace_path": str(path.relative_to(db.results))})
+        if payloads:
+            _execute(payloads, db, summary, workers, scheduler, progress, executor)
+        _finish_pairs(db, camp.name)
+        counts = db.status_counts(camp.name)
+        summary.failed = counts.get("failed", 0)
+    summary.wall_s = time.perf_counter() - t_start
+    return summary
+
+
+_RUN_COLUMNS = {"model", "command", "faults", "fault_label", "seed", "t_end", "case_key", "label"}
+
+
+def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bool,
+             executor: Executor | None) -> None:
+    import contextlib
+
+    t0 = time.perf_counter()
+    own = executor is None
+    with (make_executor(workers, scheduler) if own else contextlib.nullcontext(executor)) as ex, \
+            _progress(progress) as bar:
+        task = bar.add_task(f"{summary.campaign} (starting {ex.workers} workers)",
+                            total=len(payloads))
+        ex.warm_up()
+        summary.startup_s = time.perf_counter() - t0
+        bar.update(task, description=f"{summary.campaign} ({ex.workers} workers)")
+        buffer: list[dict] = []
+        last = time.perf_counter()
+        try:
+            for res in ex.map_unordered(execute_job, payloads):
+                buffer.append(res)
+                if res["status"] == "done":
+                    summary.done += 1
+                elif len(summary.errors) < 20:
+                    summary.errors.append(f"{res['run_key']}: {res['error']}")
+                bar.advance(task)
+                if len(buffer) >= BATCH_ROWS or time.perf_counter() - last > BATCH_SECONDS:
+                    db.record(buffer)
+                    buffer, last = [], time.perf_counter()
+        finally:
+            db.record(buffer)  # also on Ctrl-C: keep what is finished
+
+
+def _finish_pairs(db, campaign: str) -> int:
+    """HF-vs-LF metrics of every case whose HF and LF runs are both done; returns how many."""
+    from eha.store import read_trace
+
+    rows = []
+    for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):
+        try:
+            hf = read_trace(db.results / hf_path)
+            lf = read_trace(db.results / lf_path)
+        except OSError:
+            continue  # a trace vanished: the run is re-run next time
+        if len(hf) != len(lf):
+            continue
+        m = pair_metrics(hf, lf)
+        rows += [{"run_key": hf_key, **m}, {"run_key": lf_key, **m}]
+    if rows:
+        db.con.execute("BEGIN")
+        db.upsert("metrics", rows)
+        db.con.execute("COMMIT")
+    return len(rows) // 2
+
+
+__all__ = ["run_campaign", "RunSummary", "CampaignChanged", "Executor", "LocalPoolExecutor",
+           "DaskExecutor", "make_executor", "execute_job", "JOB_RUNNERS", "trace_metrics",
+           "pair_metrics", "rmse", "max_abs_error", "settling_time", "lag"]
