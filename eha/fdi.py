@@ -539,3 +539,31 @@ def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
             "objective": res.objective, "evaluations": res.evaluations,
             "seconds": res.seconds, "pop": case.pop,
             "bounds": {k: list(v) for k, v in res.bounds.items()}}
+
+
+def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
+                 method: str | None = None, objective: str | None = None,
+                 cases: Sequence[int] | None = None, base: LFParams | None = None,
+                 on_row: Callable[[dict[str, Any]], None] | None = None,
+                 **options: float) -> list[dict[str, Any]]:
+    """Run every case of ``campaign`` for every seed, one after the other (each
+    identification already uses every core through the batched LF kernel).
+
+    ``seeds``, ``method``, ``objective`` override the campaign's; ``cases`` selects case
+    numbers; ``on_row`` is called after each run (progress bars).
+    """
+    seeds = tuple(campaign.seeds if seeds is None else seeds)
+    method = method or campaign.method
+    objective = objective or campaign.objective
+    chosen = [c for c in campaign.cases if cases is None or c.case in set(cases)]
+    if cases is not None and len(chosen) != len(set(cases)):
+        missing = sorted(set(cases) - {c.case for c in chosen})
+        raise FDIError(f"cases: no case {missing[0]} in {campaign.name}")
+    rows = []
+    for case in chosen:
+        for seed in seeds:
+            row = run_case(case, seed, method, objective, campaign.t_end, base=base, **options)
+            rows.append(row)
+            if on_row is not None:
+                on_row(row)
+    return rows

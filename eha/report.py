@@ -490,7 +490,17 @@ def plot_fdi_mean_error(table, path: str | Path) -> Path:
                 label=f"eha {table['method'].iloc[0]} (median, min–max of "
                       f"{int(table['seeds'].iloc[0])} seeds)")
     ax.set_yscale("log")
-    ax.set_xticks(x, [f"{c}\n{cmd}" for c, cmd in zip(cases, table["command"])], fontsize=8)
+    ax.set_xticks(x, [str(c) for c in cases])
+    commands = list(table["command"])
+    start, group = 0, 0
+    for i in range(1, len(commands) + 1):       # one shaded, labelled span per command
+        if i == len(commands) or commands[i] != commands[start]:
+            ax.axvspan(start - 0.5, i - 0.5, color=("0.92", "0.97")[group % 2], zorder=0)
+            group += 1
+            ax.text((start + i - 1) / 2, 0.02, f"{commands[start]} command",
+                    transform=ax.get_xaxis_transform(), ha="center", fontsize=9, color="0.3")
+            start = i
+    ax.set_xlim(-0.5, len(cases) - 0.5)
     ax.set_xlabel("case")
     ax.set_ylabel("mean error [%]  (|BKL err| + |FDJ err|)/2")
     ax.grid(True, which="both", alpha=0.3)
