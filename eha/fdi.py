@@ -148,7 +148,7 @@ def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, f
             check_value(name, lo, "lf")
             check_value(name, hi, "lf")
         except ParameterError as exc:
-            raise FDIError(f"fit bounds of {exc}") from None
+            raise FDIError(f"fit bounds: {exc}") from None
         if not lo < hi:
             raise FDIError(f"fit {name}: lower bound {lo:g} must be below upper bound {hi:g} "
                            f"(allowed range {spec.range_text()})")
@@ -433,7 +433,26 @@ class FDICase:
 
 @dataclass(frozen=True)
 class FDICampaign:
-    """An FDI campaign file: shared settings and its cases."""
+    """An FDI campaign file: shared settings and its cases.
+
+    File format (a top-level ``[fdi]`` table of a campaign file)::
+
+        [fdi]
+        fit = ["BKL", "FDJ"]          # LF parameters to identify
+        method = "ga+ps"              # METHODS
+        objective = "rmse"            # OBJECTIVES
+        seeds = [0, 1, 2, 3, 4]       # each seed: HF dither and optimizer
+        t_end = 1.0                   # s
+        base = { orifice_law = 1 }    # optional: LF parameters held fixed (effects)
+
+        [[fdi.cases]]
+        case = 1
+        command = "mixed"
+        faults = { BKL = 1e-3, FDJ = 6400 }           # injected in the HF reference
+        bounds = { BKL = [0, 5e-3], FDJ = [200, 8000] }
+        pop = 20
+        thesis = { BKL = 0.0046792, FDJ = 2885.5684, err_BKL_pct = -367.92, ... }  # optional
+    """
 
     name: str
     description: str
@@ -443,10 +462,11 @@ class FDICampaign:
     seeds: tuple[int, ...]
     t_end: float
     cases: tuple[FDICase, ...]
+    base: dict[str, float] = field(default_factory=dict)
 
 
 _CASE_KEYS = {"case", "command", "faults", "bounds", "pop", "thesis", "bounds_source"}
-_FDI_KEYS = {"fit", "method", "objective", "seeds", "t_end", "cases"}
+_FDI_KEYS = {"fit", "method", "objective", "seeds", "t_end", "base", "cases"}
 
 
 def parse_fdi_campaign(data: Mapping[str, Any], source: str = "campaign") -> FDICampaign:
@@ -469,7 +489,16 @@ def parse_fdi_campaign(data: Mapping[str, Any], source: str = "campaign") -> FDI
     seeds = fdi.get("seeds", [0])
     if not seeds or not all(isinstance(s, int) and s >= 0 for s in seeds):
         raise FDIError(f"{source}: fdi.seeds must be a non-empty list of integers >= 0")
-    t_end = float(fdi.get("t_end", 1.0))
+    t_end = fdi.get("t_end", 1.0)
+    if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or \
+            not 1e-3 <= t_end <= 3600.0:
+        raise FDIError(f"{source}: fdi.t_end={t_end!r}; allowed range [0.001, 3600] s")
+    t_end = float(t_end)
+    base = fdi.get("base", {})
+    try:
+        resolve("lf", base)
+    except ParameterError as exc:
+        raise FDIError(f"{source}: fdi.base: {exc}") from None
     cases = []
     for i, raw in enumerate(fdi.get("cases", [])):
         where = f"{source}: fdi.cases[{i}]"
@@ -501,7 +530,7 @@ def parse_fdi_campaign(data: Mapping[str, Any], source: str = "campaign") -> FDI
     return FDICampaign(name=str(data.get("name", Path(source).stem)),
                        description=str(data.get("description", "")), fit=fit, method=method,
                        objective=objective, seeds=tuple(seeds), t_end=t_end,
-                       cases=tuple(cases))
+                       cases=tuple(cases), base={k: float(v) for k, v in base.items()})
 
 
 def load_fdi_campaign(path: str | Path) -> FDICampaign:
@@ -538,7 +567,8 @@ def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
             "errors_pct": errors, "mean_err_pct": mean_error_pct(errors),
             "objective": res.objective, "evaluations": res.evaluations,
             "seconds": res.seconds, "pop": case.pop,
-            "bounds": {k: list(v) for k, v in res.bounds.items()}}
+            "bounds": {k: list(v) for k, v in res.bounds.items()},
+            "history": list(res.history)}
 
 
 def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
@@ -553,6 +583,8 @@ def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
     numbers; ``on_row`` is called after each run (progress bars).
     """
     seeds = tuple(campaign.seeds if seeds is None else seeds)
+    if base is None and campaign.base:
+        base = resolve("lf", campaign.base)
     method = method or campaign.method
     objective = objective or campaign.objective
     chosen = [c for c in campaign.cases if cases is None or c.case in set(cases)]
@@ -567,3 +599,179 @@ def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
             if on_row is not None:
                 on_row(row)
     return rows
+
+
+# --------------------------------------------------------------------------------------------
+# campaign-runner jobs (kind "fdi"; eha.campaign expands, eha.runner executes, eha.store keeps)
+
+
+def fdi_jobs(table: Mapping[str, Any], source: str = "campaign") -> list[dict[str, Any]]:
+    """Jobs of the ``[fdi]`` section of a campaign: one per case and seed.
+
+    Returns dicts with ``kind`` ("fdi"), ``spec`` (what :func:`run_job` needs, with the method
+    options resolved so that a change of a default changes the run key), ``identity`` and the
+    descriptive ``columns`` of the ``runs`` table.
+    """
+    camp = parse_fdi_campaign(table, source)
+    jobs = []
+    for case in camp.cases:
+        for seed in camp.seeds:
+            spec = {"case": case.case, "command": case.command, "faults": case.faults,
+                    "bounds": {k: list(v) for k, v in case.bounds.items()}, "pop": case.pop,
+                    "seed": seed, "method": camp.method, "objective": camp.objective,
+                    "t_end": camp.t_end, "base": camp.base,
+                    "options": METHOD_DEFAULTS[camp.method]}
+            jobs.append({"kind": "fdi", "spec": spec,
+                         "identity": {"hf": resolve("hf", case.faults).as_dict()},
+                         "columns": {"model": "lf", "command": case.command,
+                                     "faults": case.faults, "seed": seed, "t_end": camp.t_end,
+                                     "fault_label": ",".join(f"{k}={v:g}" for k, v in
+                                                             case.faults.items()),
+                                     "label": f"case {case.case} seed {seed}",
+                                     "estimated_s": 1.5 * camp.t_end}})
+    return jobs
+
+
+def result_row(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A :func:`run_case` row in the columns of the ``fdi_results`` table (eha.store)."""
+    est, truth, err = row["estimates"], row["truth"], row["errors_pct"]
+    return {"case_id": int(row["case"]), "command": row["command"], "seed": int(row["seed"]),
+            "method": row["method"], "objective_name": row["objective_name"],
+            "fit": list(est), "truth": dict(truth), "estimates": dict(est),
+            "errors_pct": dict(err), "bounds": dict(row["bounds"]),
+            "bkl_true": truth.get("BKL"), "bkl_est": est.get("BKL"),
+            "err_bkl_pct": err.get("BKL"), "fdj_true": truth.get("FDJ"),
+            "fdj_est": est.get("FDJ"), "err_fdj_pct": err.get("FDJ"),
+            "mean_err_pct": float(row["mean_err_pct"]), "objective": float(row["objective"]),
+            "evaluations": int(row["evaluations"]), "seconds": float(row["seconds"]),
+            "pop": int(row["pop"]), "history": list(row.get("history", []))}
+
+
+def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
+    """Execute one FDI job (:func:`fdi_jobs`): the ``fdi_results`` row and the identified LF
+    trace (meta: case, seed, truth, estimates)."""
+    case = FDICase(case=int(spec["case"]), command=spec["command"], faults=spec["faults"],
+                   bounds={k: tuple(v) for k, v in spec["bounds"].items()}, pop=int(spec["pop"]))
+    base = resolve("lf", spec.get("base") or {})
+    row = run_case(case, int(spec["seed"]), spec["method"], spec["objective"],
+                   float(spec["t_end"]), base=base, **spec.get("options", {}))
+    fitted = simulate("lf", case.command, base.replace(**row["estimates"]),
+                      t_end=float(spec["t_end"]))
+    meta = {**fitted.meta, "fdi": {"case": case.case, "seed": row["seed"],
+                                   "truth": row["truth"], "estimates": row["estimates"],
+                                   "mean_err_pct": row["mean_err_pct"]}}
+    return result_row(row), Trace(fitted.data, meta)
+
+
+def rows_from_results(frame) -> list[dict[str, Any]]:
+    """``fdi_results`` table rows (a DataFrame, JSON as text) back as :func:`run_case` rows."""
+    import json
+
+    rows = []
+    for rec in frame.to_dict("records"):
+        load = lambda v: json.loads(v) if isinstance(v, str) else (v or {})  # noqa: E731
+        rows.append({"case": int(rec["case_id"]), "command": rec["command"],
+                     "seed": int(rec["seed"]), "method": rec["method"],
+                     "objective_name": rec["objective_name"], "truth": load(rec["truth"]),
+                     "estimates": load(rec["estimates"]), "errors_pct": load(rec["errors_pct"]),
+                     "mean_err_pct": float(rec["mean_err_pct"]),
+                     "objective": float(rec["objective"]),
+                     "evaluations": int(rec["evaluations"]), "seconds": float(rec["seconds"]),
+                     "pop": int(rec["pop"]), "bounds": load(rec["bounds"])})
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# one identification from the command line (eha fdi)
+
+
+def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
+    """Parse ``NAME=LO:HI`` strings (``BKL=0:1.25e-3``) into bounds (validated later)."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, rng = item.partition("=")
+        lo, sep2, hi = rng.partition(":")
+        name = name.strip()
+        try:
+            if not (sep and sep2 and name):
+                raise ValueError
+            out[name] = (float(lo), float(hi))
+        except ValueError:
+            raise FDIError(f"--bounds {item!r}: expected NAME=LO:HI, for example "
+                           "BKL=0:1.25e-3") from None
+    return out
+
+
+@dataclass(frozen=True)
+class Identification:
+    """One identification against a reference: the fit, the reference and the fitted trace.
+
+    ``truth``/``errors_pct``/``mean_err_pct`` are set only for HF references (known faults).
+    """
+
+    result: FitResult
+    reference: Trace
+    fitted: Trace
+    source: str
+    truth: dict[str, float] | None = None
+    errors_pct: dict[str, float] | None = None
+    mean_err_pct: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"source": self.source, **self.result.to_dict(), "truth": self.truth,
+                "errors_pct": self.errors_pct, "mean_err_pct": self.mean_err_pct}
+
+
+def identify_source(command: str | None = None, faults: Mapping[str, float] | None = None,
+                    data: str | Path | None = None, fit: Sequence[str] = DEFAULT_FIT,
+                    bounds: Mapping[str, Sequence[float]] | None = None,
+                    base: Mapping[str, float] | None = None, method: str = DEFAULT_METHOD,
+                    pop: int = 20, seed: int = 0, objective: str = "rmse",
+                    t_end: float = 1.0, **options: float) -> Identification:
+    """Identify ``fit`` against an HF reference (``command`` + injected ``faults``, dither seed
+    ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu; eha.measured).
+
+    ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed.
+    """
+    if (command is None) == (data is None):
+        raise FDIError("give either --command (HF reference) or --data FILE (measured record)")
+    names = tuple(dict.fromkeys(fit))
+    if not names:
+        raise FDIError("--fit: name at least one LF parameter, e.g. BKL,FDJ")
+    extra = set(bounds or {}) - set(names)
+    if extra:
+        raise FDIError(f"--bounds {sorted(extra)[0]}: not among the fitted parameters "
+                       f"({', '.join(names)})")
+    chosen = {**default_bounds(names), **{k: tuple(v) for k, v in (bounds or {}).items()}}
+    try:
+        lf_base = resolve("lf", dict(base or {}))
+    except ParameterError as exc:
+        raise FDIError(f"--base {exc}") from None
+    truth = None
+    if data is not None:
+        from eha.measured import load
+
+        rec = load(data)
+        cmd: Command = rec.command
+        ref_data = np.full((len(rec), 9), np.nan)
+        from eha.models import O_COM, O_T, O_XU
+
+        ref_data[:, O_T], ref_data[:, O_COM], ref_data[:, O_XU] = rec.t, rec.com, rec.xu
+        reference = Trace(ref_data, {"model": "measured", "source": str(data),
+                                     "command": cmd.describe(), "params": {}})
+        t_end, source = rec.t_end, str(data)
+    else:
+        cmd = as_command(command)
+        reference = hf_reference(cmd, faults, seed=seed, t_end=t_end)
+        hf = reference.meta["params"]
+        truth = {n: float(hf.get(n, resolve("hf").as_dict().get(n, math.nan))) for n in names}
+        source = f"HF {command} " + (", ".join(f"{k}={v:g}" for k, v in (faults or {}).items())
+                                     or "nominal") + f", seed {seed}"
+    res = identify(reference.xu, cmd, chosen, base=lf_base, method=method, pop=pop, seed=seed,
+                   objective=objective, t_end=t_end, **options)
+    fitted = simulate("lf", cmd, lf_base.replace(**res.estimates), t_end=t_end)
+    errors = mean = None
+    if truth is not None:
+        errors = percent_errors(truth, res.estimates)
+        mean = mean_error_pct(errors)
+    return Identification(res, reference, fitted, source, truth, errors, mean)

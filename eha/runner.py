@@ -173,7 +173,22 @@ def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str,
 
 
 #: Worker function of each job kind (see the module docstring).
-JOB_RUNNERS: dict[str, Callable[..., dict[str, Any]]] = {"simulate": _run_simulation}
+def _run_fdi(spec: Mapping[str, Any], run_key: str, campaign: str,
+             trace_file: str) -> dict[str, Any]:
+    """Fault identification (:func:`eha.fdi.run_job`): an ``fdi_results`` row and the trace of
+    the identified LF model."""
+    from eha.fdi import run_job
+    from eha.simulate import Trace
+    from eha.store import write_trace
+
+    row, fitted = run_job(spec)
+    write_trace(Trace(fitted.data, {**fitted.meta, "run_key": run_key, "campaign": campaign}),
+                trace_file)
+    return {"rows": {"fdi_results": row}, "sim_s": row["seconds"]}
+
+
+JOB_RUNNERS: dict[str, Callable[..., dict[str, Any]]] = {"simulate": _run_simulation,
+                                                         "fdi": _run_fdi}
 
 
 def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:

@@ -168,9 +168,30 @@ SCHEMA: dict[str, str] = {
             rmse_xu_hf_lf    DOUBLE,  -- m, HF vs LF of the same case (both runs get it)
             max_err_xu_hf_lf DOUBLE,  -- m
             rmse_p12_hf_lf   DOUBLE)  -- Pa""",
+    "fdi_results": """
+        CREATE TABLE IF NOT EXISTS fdi_results (
+            run_key        VARCHAR PRIMARY KEY,
+            case_id        INTEGER,   -- case number (thesis Figure 6.17 numbering)
+            command        VARCHAR,
+            seed           BIGINT,    -- HF dither and optimizer seed
+            method         VARCHAR,   -- 'ga' (thesis) or 'ga+ps' (eha.fdi.METHODS)
+            objective_name VARCHAR,   -- 'rmse' or 'objfcn' (thesis' mean absolute error)
+            fit            JSON,      -- fitted LF parameters, e.g. ["BKL", "FDJ"]
+            truth          JSON,      -- injected values (SI)
+            estimates      JSON,      -- identified values (SI)
+            errors_pct     JSON,      -- (input - output)/input*100, 0 when input is 0
+            bounds         JSON,      -- search bounds {name: [lo, hi]}
+            bkl_true DOUBLE, bkl_est DOUBLE, err_bkl_pct DOUBLE,  -- m, m, %
+            fdj_true DOUBLE, fdj_est DOUBLE, err_fdj_pct DOUBLE,  -- N, N, %
+            mean_err_pct   DOUBLE,    -- mean of the absolute percent errors
+            objective      DOUBLE,    -- m, at the estimate
+            evaluations    INTEGER,   -- LF simulations
+            seconds        DOUBLE,    -- s, identification wall time in the worker
+            pop            INTEGER,   -- GA population
+            history        JSON)      -- best objective per generation/poll [m]""",
 }
 #: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
-RESULT_TABLES: tuple[str, ...] = ("metrics",)
+RESULT_TABLES: tuple[str, ...] = ("metrics", "fdi_results")
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
 
@@ -402,22 +423,16 @@ class ResultStore:
 
 # =========================================================================== queries
 def _create_traces_view(con, results: Path) -> None:
-    """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``, and
-    every signal of :data:`eha.models.OUTPUTS` (NULL where a campaign did not store it)."""
+    """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``."""
     files = list((results / TRACES).glob("*/*.parquet"))
     if files:
         pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
         con.execute(f"""
-            CREATE OR REPLACE TEMP VIEW _traces_raw AS
-            SELECT * FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
-        present = {r[0] for r in con.execute("DESCRIBE _traces_raw").fetchall()}
-        signals = ", ".join(c if c in present else f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
-        con.execute(f"""
             CREATE OR REPLACE TEMP VIEW traces AS
             SELECT regexp_extract(filename, '([^/\\\\]+)[/\\\\][^/\\\\]+$', 1) AS campaign,
                    regexp_extract(filename, '([0-9a-f]{{16}})\\.parquet$', 1) AS run_key,
-                   {signals}
-            FROM _traces_raw""")
+                   * EXCLUDE (filename)
+            FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
     else:
         cols = ", ".join(f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
         con.execute("CREATE OR REPLACE TEMP VIEW traces AS SELECT NULL::VARCHAR AS campaign, "
