@@ -110,21 +110,204 @@ def commands():
 
 @app.command()
 def reproduce(results: Path = typer.Option(Path("results"), "--results",
-                                           help="Output directory.")):
-    """Run the thesis reproduction: every nominal command through HF and LF, with plots.
+                                           help="Output directory."),
+              workers: int = typer.Option(2, "--workers", min=1, help="Worker processes.")):
+    """Reproduce thesis chapter 5: nominal, single-fault and matrix campaigns, plots, reports.
+
+    Runs campaigns/thesis-*.toml into --results (resuming what is done), then writes the
+    HF-vs-LF figures, reports/summary.md and one CSV per campaign.
 
     Example: eha reproduce --results results
     """
-    from eha.report import nominal_comparison
+    from eha.report import reproduce_thesis
 
-    rows = nominal_comparison(results)
+    try:
+        out = reproduce_thesis(results, workers=workers)
+    except _campaign_errors() as exc:
+        _fail_lines(str(exc))
+    table = Table("campaign", "runs", "run now", "already done", "failed", "wall [s]")
+    for s in out["summaries"]:
+        table.add_row(s.campaign, str(s.total), str(s.done), str(s.skipped), str(s.failed),
+                      f"{s.wall_s:.1f}")
+        if s.replaced:
+            console.print(f"{s.campaign}: its file changed; {s.replaced} old runs replaced")
+    console.print(table)
     table = Table("command", "RMSE xu HF vs LF [µm]", "% of command peak")
-    for r in rows:
+    for r in out["nominal"]:
         table.add_row(r["command"], f"{1e6 * r['rmse_xu_m']:.2f}", f"{r['rmse_pct_of_peak']:.3f}")
     console.print(table)
-    console.print(f"traces and plots under {results}/")
+    console.print(f"{len(out['plots'])} plots under {results}/plots, reports under "
+                  f"{results}/reports (summary.md), database {results}/eha.duckdb")
 
 
+# --------------------------------------------------------------------------- campaigns
+campaign_app = typer.Typer(no_args_is_help=True,
+                           help="Fault campaigns: validate, plan and run TOML campaign files.\n\n"
+                                "Example: eha campaign run campaigns/thesis-matrix.toml")
+app.add_typer(campaign_app, name="campaign")
+
+
+def _campaign_errors():
+    from eha.campaign import CampaignError
+    from eha.runner import CampaignChanged
+    from eha.store import StoreError
+
+    return (CampaignError, CampaignChanged, StoreError, *_input_errors())
+
+
+def _fail_lines(text: str, code: int = BAD_INPUT) -> None:
+    """One ``error:`` line per problem, then exit with ``code``."""
+    for line in text.splitlines() or [text]:
+        err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _load(file: Path):
+    from eha.campaign import CampaignError, load_campaign
+
+    try:
+        return load_campaign(file)
+    except CampaignError as exc:
+        _fail_lines(str(exc))
+
+
+@campaign_app.command("validate")
+def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.")):
+    """Check a campaign file; prints one line per problem (exit 2) or the job count.
+
+    Example: eha campaign validate campaigns/thesis-matrix.toml
+    """
+    camp = _load(file)
+    console.print(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs")
+
+
+@campaign_app.command("plan")
+def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
+                  workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+                  jobs: bool = typer.Option(False, "--jobs", help="List every job.")):
+    """Show what a campaign would run: job counts and an estimated wall time.
+
+    Example: eha campaign plan campaigns/thesis-single-fault.toml --jobs
+    """
+    from eha.campaign import plan
+
+    camp = _load(file)
+    info = plan(camp, workers)
+    if jobs:
+        table = Table("run_key", "kind", "job")
+        for j in camp.jobs:
+            table.add_row(j.run_key, j.kind, j.label)
+        console.print(table)
+    console.print(f"campaign {camp.name}: {info['jobs']} jobs "
+                  f"({', '.join(f'{k}: {v}' for k, v in info['by_model'].items() if k)}), "
+                  f"{info['fault_sets']} fault sets, commands "
+                  f"{', '.join(str(c) for c in info['by_command'] if c)}")
+    console.print(f"estimated wall time on {workers} workers: {info['estimated_s']:.1f} s")
+
+
+@campaign_app.command("run")
+def campaign_run(
+    file: Path = typer.Argument(..., help="Campaign TOML file."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Local worker processes."),
+    results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler",
+                                            help="Dask scheduler tcp://HOST:PORT (eha[dask])."),
+    replace: bool = typer.Option(False, "--replace",
+                                 help="Discard runs recorded under this name from an older "
+                                      "version of the file."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Run or resume a campaign: Parquet traces and DuckDB rows under --results.
+
+    Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
+    """
+    from eha.runner import run_campaign
+
+    camp = _load(file)
+    try:
+        s = run_campaign(camp, results, workers=workers, scheduler=scheduler, replace=replace,
+                         progress=progress)
+    except _campaign_errors() as exc:
+        _fail_lines(str(exc))
+    except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
+        fail(str(exc), 1)
+    if s.replaced:
+        console.print(f"replaced {s.replaced} runs recorded from an older {camp.name}")
+    console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already done, "
+                  f"{s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
+    for line in s.errors:
+        err_console.print(f"failed: {line}", highlight=False, soft_wrap=True)
+    if s.failed:
+        raise typer.Exit(1)
+
+
+@app.command()
+def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
+          results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+          format: str = typer.Option("table", "--format", help="table, csv or json.")):
+    """Query the result database read-only; Parquet traces are the view `traces`.
+
+    Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
+    (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
+    """
+    from eha.store import StoreError, query as run_query
+
+    if format not in ("table", "csv", "json"):
+        fail(f"--format {format!r}: allowed table, csv, json")
+    try:
+        frame = run_query(results, sql)
+    except StoreError as exc:
+        fail(str(exc))
+    if format == "csv":
+        typer.echo(frame.to_csv(index=False), nl=False)
+    elif format == "json":
+        typer.echo(frame.to_json(orient="records", date_format="iso"))
+    else:
+        table = Table(*[str(c) for c in frame.columns])
+        for row in frame.itertuples(index=False):
+            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+        console.print(table)
+
+
+@app.command()
+def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs, metrics, "
+                                                 "traces, ...)."),
+           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           results: Path = typer.Option(Path("results"), "--results", help="Results folder.")):
+    """Export a table of the result database to CSV.
+
+    Example: eha export metrics --csv results/metrics.csv
+    """
+    from eha.store import StoreError, export_csv
+
+    try:
+        n = export_csv(results, table, csv)
+    except StoreError as exc:
+        fail(str(exc))
+    console.print(f"{table}: {n} rows -> {csv}")
+
+
+@app.command()
+def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),
+         results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+         out: Optional[Path] = typer.Option(None, "--out",
+                                            help="Folder (default RESULTS/plots/CAMPAIGN).")):
+    """Campaign figures (PNG): HF vs LF xu and P12 per fault set, RMSE summary.
+
+    Example: eha plot thesis-matrix --results results
+    """
+    from eha.report import plot_campaign
+    from eha.store import StoreError
+
+    try:
+        paths = plot_campaign(results, campaign, out)
+    except StoreError as exc:
+        fail(str(exc))
+    for p in paths:
+        console.print(str(p))
+
+
+# --------------------------------------------------------------------------- fault identification
 # --------------------------------------------------------------------------- fault identification
 @app.command()
 def fdi(

@@ -423,16 +423,22 @@ class ResultStore:
 
 # =========================================================================== queries
 def _create_traces_view(con, results: Path) -> None:
-    """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``."""
+    """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``, and
+    every signal of :data:`eha.models.OUTPUTS` (NULL where a campaign did not store it)."""
     files = list((results / TRACES).glob("*/*.parquet"))
     if files:
         pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
         con.execute(f"""
+            CREATE OR REPLACE TEMP VIEW _traces_raw AS
+            SELECT * FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
+        present = {r[0] for r in con.execute("DESCRIBE _traces_raw").fetchall()}
+        signals = ", ".join(c if c in present else f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
+        con.execute(f"""
             CREATE OR REPLACE TEMP VIEW traces AS
             SELECT regexp_extract(filename, '([^/\\\\]+)[/\\\\][^/\\\\]+$', 1) AS campaign,
                    regexp_extract(filename, '([0-9a-f]{{16}})\\.parquet$', 1) AS run_key,
-                   * EXCLUDE (filename)
-            FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
+                   {signals}
+            FROM _traces_raw""")
     else:
         cols = ", ".join(f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
         con.execute("CREATE OR REPLACE TEMP VIEW traces AS SELECT NULL::VARCHAR AS campaign, "
