@@ -11,6 +11,7 @@ File format
 
     name = "thesis-matrix"              # [A-Za-z0-9_.-]+, also the trace folder
     description = "..."
+    kind = "simulate"                    # default; other kinds: see "Other job kinds"
     models = ["hf", "lf"]
     commands = ["mixed", {name = "chirp_1cm", A0 = 5e-3}]   # presets or kinds, overrides
     seeds = [0]                          # HF dither seeds (default [0])
@@ -45,7 +46,9 @@ Other job kinds
 A job has a ``kind``; simulations are ``"simulate"``. Another kind (e.g. fault identification)
 plugs in through :data:`SECTION_KINDS`: a top-level TOML table (``[fdi]``) mapped to an
 ``expand(section, campaign_table, problems) -> list[JobDraft]`` function that validates its
-section (appending one line per problem to ``problems``) and returns the job specs. The runner
+section (appending one line per problem to ``problems``) and returns the job specs. A file
+with ``kind = "fdi"`` (and no ``models``/``commands``) has only the jobs of its ``[fdi]``
+section; a simulation file may also carry such a section (both kinds in one campaign). The runner
 maps the kind to its worker function (:data:`eha.runner.JOB_RUNNERS`) and the store has the
 kind's result table in its one schema (:data:`eha.store.SCHEMA`).
 """
@@ -72,8 +75,8 @@ REQUIRED_SIGNALS = ("t", "com", "xu")
 #: Upper bound on the number of jobs of one campaign (a typo in a grid should not explode).
 MAX_JOBS = 200_000
 #: Top-level keys of the simulation part of a campaign file.
-TOP_KEYS = ("name", "description", "models", "commands", "seeds", "t_end", "signals", "params",
-            "faults")
+TOP_KEYS = ("name", "description", "kind", "models", "commands", "seeds", "t_end", "signals",
+            "params", "faults")
 FAULT_KEYS = ("nominal", "grid", "single", "points")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,80}$")
 
@@ -210,9 +213,13 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         problems.append("description: must be a string")
         description = ""
 
+    kind = table.get("kind", "simulate")
+    if kind != "simulate" and kind not in SECTION_KINDS:
+        problems.append(f"kind: {kind!r} is not a campaign kind here; allowed: "
+                        f"{', '.join(['simulate', *SECTION_KINDS])}")
     drafts: list[JobDraft] = []
     others = [k for k in SECTION_KINDS if k in table]
-    if not others or "models" in table or "commands" in table:
+    if kind == "simulate" or "models" in table or "commands" in table:
         drafts += _expand_simulations(table, name, problems)
     for key in others:
         section = table[key]
@@ -552,6 +559,21 @@ def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
 #: Extra job kinds: top-level TOML table name -> expander (see the module docstring).
 SECTION_KINDS: dict[str, Callable[[Mapping[str, Any], Mapping[str, Any], list[str]],
                                   list[JobDraft]]] = {}
+
+
+def _expand_fdi(section: Mapping[str, Any], table: Mapping[str, Any],
+                problems: list[str]) -> list[JobDraft]:
+    """``[fdi]``: one fault-identification job per case and seed (:func:`eha.fdi.fdi_jobs`)."""
+    from eha.fdi import FDIError, fdi_jobs
+
+    try:
+        return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
+    except FDIError as exc:
+        problems.append(str(exc))
+        return []
+
+
+SECTION_KINDS["fdi"] = _expand_fdi
 
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",
            "plan", "SECTION_KINDS", "REQUIRED_SIGNALS", "MAX_JOBS"]

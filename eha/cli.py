@@ -308,7 +308,6 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
 
 # --------------------------------------------------------------------------- fault identification
-# --------------------------------------------------------------------------- fault identification
 @app.command()
 def fdi(
     command: Optional[str] = typer.Option(None, "--command",

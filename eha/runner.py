@@ -29,7 +29,6 @@ and :func:`_init_worker` must set ``NUMBA_NUM_THREADS`` before numba is first im
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import time
@@ -149,6 +148,21 @@ def warm_worker() -> str:
                     "seed": 0, "t_end": 2e-3, "signals": ["t", "com", "xu"]}
             _run_simulation(spec, "0" * 16, "warm-up", str(Path(tmp) / f"{model}.parquet"))
     return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def worker_info() -> dict[str, Any]:
+    """Diagnostics of the calling worker: ``worker`` (host:pid), ``numba_threads`` and the
+    numba cache statistics of the kernels (``cache_misses`` stays 0 when nothing recompiles)."""
+    import numba
+
+    from eha.models.hf import run_hf
+    from eha.models.lf import run_lf
+
+    misses = sum(sum(k.stats.cache_misses.values()) for k in (run_hf, run_lf))
+    hits = sum(sum(k.stats.cache_hits.values()) for k in (run_hf, run_lf))
+    return {"worker": f"{socket.gethostname()}:{os.getpid()}",
+            "numba_threads": numba.config.NUMBA_NUM_THREADS,
+            "cache_hits": hits, "cache_misses": misses}
 
 
 def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str,
