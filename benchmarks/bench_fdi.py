@@ -35,13 +35,19 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1 per case")
     ap.add_argument("--cases", default="", help="comma-separated case numbers (default all)")
     ap.add_argument("--campaign", default=str(ROOT / "campaigns" / "thesis-fdi.toml"))
+    ap.add_argument("--base", action="append", default=[],
+                    help="LF parameter held fixed, NAME=VALUE (e.g. orifice_law=1); repeatable")
     ap.add_argument("--json", action="store_true", help="print figures as JSON only")
     args = ap.parse_args()
 
+    from eha.params import parse_assignments, resolve
+
     camp = fdi.load_fdi_campaign(args.campaign)
+    base = resolve("lf", {**camp.base, **parse_assignments(args.base)})
     cases = [int(c) for c in args.cases.split(",") if c] or None
     # JIT warm-up (numba cache load) outside the timing, as a long-running service would be
-    fdi.run_case(camp.cases[0], 0, args.method, args.objective, camp.t_end, max_gen=2)
+    fdi.run_case(camp.cases[0], 0, args.method, args.objective, camp.t_end, base=base,
+                 max_gen=2)
 
     console = Console(stderr=True)
     n_runs = len(cases or camp.cases) * args.seeds
@@ -49,7 +55,7 @@ def main() -> None:
     with Progress(console=console, transient=True, disable=args.json) as bar:
         task = bar.add_task(f"FDI {args.method}", total=n_runs)
         rows = fdi.run_campaign(camp, seeds=range(args.seeds), method=args.method,
-                                objective=args.objective, cases=cases,
+                                objective=args.objective, cases=cases, base=base,
                                 on_row=lambda r: bar.advance(task))
     total = time.perf_counter() - start
 
@@ -75,6 +81,8 @@ def main() -> None:
     better = {c: v["mean_err_pct_median"] <= v["thesis_mean_err_pct"]
               for c, v in per_case.items()}
     summary = {"method": args.method, "objective": args.objective, "seeds": args.seeds,
+               "base": {k: v for k, v in base.as_dict().items()
+                        if v != getattr(type(base)(), k)},
                "runs": len(rows), "total_seconds": total,
                "median_seconds_per_case": med_time,
                "cases_at_least_as_accurate": sum(better.values()),
@@ -86,7 +94,8 @@ def main() -> None:
     if args.json:
         print(json.dumps(summary, indent=2))
         return
-    print(f"method {args.method}, objective {args.objective}, seeds 0..{args.seeds - 1}")
+    print(f"method {args.method}, objective {args.objective}, seeds 0..{args.seeds - 1}, "
+          f"LF base {summary['base'] or 'nominal'}")
     print(f"{'case':>4} {'command':<10} {'ours median':>11} {'[min, max]':>20} "
           f"{'thesis':>8} {'ok':>3} {'s/run':>6} {'evals':>6}  estimates (median)")
     for c, v in per_case.items():
