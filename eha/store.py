@@ -31,6 +31,14 @@ from eha.models import OUTPUTS
 from eha.simulate import Trace
 
 
+def _file_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_FILE_MODE = _file_mode()
+
 #: Suffix of the temporary files of :func:`write_trace` (removed by :func:`clean_temp_files`).
 TEMP_SUFFIX = ".tmp"
 
@@ -58,6 +66,7 @@ def write_trace(trace: Trace, path: str | Path, columns: Sequence[str] | None = 
     os.close(fd)
     try:
         pq.write_table(table, tmp)
+        os.chmod(tmp, _FILE_MODE)  # mkstemp makes 0600; traces are shared like any output
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -483,20 +492,30 @@ def tables(results: str | Path) -> list[str]:
 def export_csv(results: str | Path, table: str, path: str | Path) -> int:
     """Write a table (or the ``traces`` view) of ``DIR/eha.duckdb`` to CSV; returns the rows.
 
-    Written to a temporary name then renamed, so a failed export leaves nothing behind.
+    Streams with DuckDB's ``COPY`` (no copy in memory) to a temporary name, then renames, so a
+    failed export leaves nothing behind.
     """
+    import duckdb
+
     allowed = tables(results)
     if table not in allowed:
         raise StoreError(f"export: unknown table {table!r}; allowed: {', '.join(allowed)}")
-    frame = query(results, f'SELECT * FROM "{table}"')
+    results = Path(results).resolve()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     os.close(fd)
+    con = connect(results, read_only=True)
     try:
-        frame.to_csv(tmp, index=False)
+        _create_traces_view(con, results)
+        target = tmp.replace("'", "''")
+        con.execute(f"COPY (SELECT * FROM \"{table}\") TO '{target}' (HEADER, DELIMITER ',')")
+        n = con.execute(f'SELECT count(*) FROM "{table}"').fetchall()[0][0]
+        os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
-    except BaseException:
+    except duckdb.Error as exc:
+        raise StoreError(f"export {table}: {str(exc).splitlines()[0]}") from None
+    finally:
+        con.close()
         Path(tmp).unlink(missing_ok=True)
-        raise
-    return len(frame)
+    return int(n)
