@@ -371,8 +371,9 @@ class RunSummary:
     skipped: int = 0
     done: int = 0
     failed: int = 0
-    wall_s: float = 0.0
-    startup_s: float = 0.0
+    wall_s: float = 0.0       # s, everything (validation, database, pool, jobs, HF-vs-LF)
+    startup_s: float = 0.0    # s, starting and warming the workers
+    jobs_s: float = 0.0       # s, from warm workers to the last result committed
     replaced: int = 0
     errors: list[str] = field(default_factory=list)
     results: str = ""
@@ -501,6 +502,7 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
                     buffer, last = [], time.perf_counter()
         finally:
             db.record(buffer)  # also on Ctrl-C: keep what is finished
+            summary.jobs_s = time.perf_counter() - t0 - summary.startup_s
 
 
 def _finish_pairs(db, campaign: str) -> int:
