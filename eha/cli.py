@@ -112,7 +112,8 @@ def commands():
 def reproduce(results: Path = typer.Option(Path("results"), "--results",
                                            help="Output directory."),
               workers: int = typer.Option(2, "--workers", min=1, help="Worker processes.")):
-    """Reproduce thesis chapter 5: nominal, single-fault and matrix campaigns, plots, reports.
+    """Reproduce thesis chapters 5 and 6: nominal, single-fault, matrix and FDI campaigns,
+    plots, reports (the FDI table as `eha report thesis` writes it).
 
     Runs campaigns/thesis-*.toml into --results (resuming what is done), then writes the
     HF-vs-LF figures, reports/summary.md and one CSV per campaign.
@@ -138,6 +139,8 @@ def reproduce(results: Path = typer.Option(Path("results"), "--results",
     console.print(table)
     console.print(f"{len(out['plots'])} plots under {results}/plots, reports under "
                   f"{results}/reports (summary.md), database {results}/eha.duckdb")
+    console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
+                  f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
 
 
 # --------------------------------------------------------------------------- campaigns

@@ -342,7 +342,8 @@ def _markdown_table(header: list[str], rows: list[list[str]]) -> str:
 
 def reproduce_thesis(results: str | Path = "results", workers: int = 2,
                      progress: bool = True) -> dict:
-    """Thesis chapter 5 end to end: run :data:`THESIS_CAMPAIGNS`, then figures and reports.
+    """Thesis chapters 5 and 6 end to end: run :data:`THESIS_CAMPAIGNS` and the FDI campaign
+    :data:`FDI_CAMPAIGN`, then figures and reports (the FDI ones by :func:`thesis_report`).
 
     Runs each ``campaigns/<name>.toml`` into ``results`` on one pool of ``workers`` processes
     (resuming runs already done; a thesis campaign whose file changed is re-run from scratch),
@@ -362,7 +363,7 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     results = Path(results)
     summaries = []
     with LocalPoolExecutor(workers) as pool:
-        for name in THESIS_CAMPAIGNS:
+        for name in THESIS_CAMPAIGNS + [FDI_CAMPAIGN]:   # chapter 5, then chapter 6 (FDI)
             path = campaigns_dir() / f"{name}.toml"
             summaries.append(run_campaign(path, results, replace=True, progress=progress,
                                           executor=pool))
@@ -383,7 +384,11 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
         plots += plot_campaign(results, name)
         reports.append(campaign_report(results, name))
     reports.append(_summary_markdown(results, summaries, nominal))
-    return {"summaries": summaries, "nominal": nominal, "plots": plots, "reports": reports}
+    fdi = thesis_report(results)        # reports/thesis: fdi_table.csv, mean_error.png, summary
+    plots.append(fdi["plot"])
+    reports += [fdi["table"], fdi["summary"]]
+    return {"summaries": summaries, "nominal": nominal, "plots": plots, "reports": reports,
+            "fdi": fdi}
 
 
 def _summary_markdown(results: Path, summaries, nominal: list[dict]) -> Path:
