@@ -308,24 +308,31 @@ def _expand_simulations(table: Mapping[str, Any], name: str,
     return drafts
 
 
+def _distinct(key: str, value: Any, what: str, ok: Callable[[Any], bool],
+              bad: Callable[[Any], str], problems: list[str]) -> list:
+    """A non-empty list of distinct valid items (a single item counts as a list of one)."""
+    if not isinstance(value, list):
+        value = [value] if isinstance(value, (str, int)) and not isinstance(value, bool) else []
+    if not value:
+        problems.append(f"{key}: must be a non-empty list of {what}")
+        return []
+    out: list = []
+    for item in value:
+        if not ok(item):
+            problems.append(f"{key}: {bad(item)}")
+        elif item in out:
+            problems.append(f"{key}: {item!r} listed twice")
+        else:
+            out.append(item)
+    return out
+
+
 def _models(value: Any, problems: list[str]) -> list[str]:
     if value is None:
         problems.append("models: required, a list from: hf, lf")
         return []
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list) or not value:
-        problems.append("models: must be a non-empty list from: hf, lf")
-        return []
-    out = []
-    for m in value:
-        if m not in MODELS:
-            problems.append(f"models: unknown model {m!r}; allowed: hf, lf")
-        elif m in out:
-            problems.append(f"models: {m!r} listed twice")
-        else:
-            out.append(m)
-    return out
+    return _distinct("models", value, "models from: hf, lf", lambda m: m in MODELS,
+                     lambda m: f"unknown model {m!r}; allowed: hf, lf", problems)
 
 
 def _commands(value: Any, problems: list[str]) -> list[tuple[str, dict, Command]]:
@@ -365,20 +372,10 @@ def _commands(value: Any, problems: list[str]) -> list[tuple[str, dict, Command]
 
 
 def _seeds(value: Any, problems: list[str]) -> list[int]:
-    if isinstance(value, int) and not isinstance(value, bool):
-        value = [value]
-    if not isinstance(value, list) or not value:
-        problems.append("seeds: must be a non-empty list of integers in [0, 2**32-1]")
-        return []
-    out = []
-    for s in value:
-        if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s < 2**32:
-            problems.append(f"seeds: {s!r} is out of range; allowed integers in [0, 2**32-1]")
-        elif s in out:
-            problems.append(f"seeds: {s} listed twice")
-        else:
-            out.append(s)
-    return out
+    return _distinct("seeds", value, "integers in [0, 2**32-1]",
+                     lambda s: isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32,
+                     lambda s: f"{s!r} is out of range; allowed integers in [0, 2**32-1]",
+                     problems)
 
 
 def _t_end(value: Any, models: list[str], problems: list[str]) -> float:
