@@ -375,6 +375,96 @@ def fdi(
                     title=f"Identification ({res.method}): reference vs identified LF")
 
 
+@app.command()
+def explain(
+    data: Path = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu "
+                                "(SI; aliases in docs/explain.md), optional p12, xs."),
+    fit: str = typer.Option("BKL,FDJ", "--fit", help="Declared faults to fit: NAME or "
+                            "NAME=LO:HI, comma-separated."),
+    effects: Optional[str] = typer.Option(None, "--effects", help="Candidate effects, "
+                                          "comma-separated SPEC §7 names (default: all 14)."),
+    holdout: Optional[float] = typer.Option(None, "--holdout", help="Fraction of the record "
+                                            "held out at its end for scoring (default 0.3)."),
+    validate: Optional[Path] = typer.Option(None, "--validate", help="Second record used as "
+                                            "held-out data instead of --holdout."),
+    prior: Optional[Path] = typer.Option(None, "--prior", help="--json of an earlier run: its "
+                                         "effects start switched on (e.g. from nominal data)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write rmse_before/after, "
+                                            "faults_before/after and the steps as JSON."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default "
+                                       "RESULTS/explain/<file stem>)."),
+    results: Path = typer.Option(Path("results"), "--results", help="Folder of eha.duckdb."),
+    method: str = typer.Option("ga+ps", "--method", help="Optimizer of every fit (eha fdi)."),
+    pop: int = typer.Option(20, "--pop", help="GA population of every fit."),
+    seed: int = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result)."),
+    candidates: int = typer.Option(6, "--candidates", help="Effects refitted per round, the "
+                                   "best-ranked by signature (0 = all)."),
+    max_steps: int = typer.Option(4, "--max-steps", help="Most effects added."),
+    min_gain: float = typer.Option(0.1, "--min-gain", help="Smallest penalised held-out RMSE "
+                                   "reduction that adds an effect."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
+):
+    """Trace the residual of a measured record to the effects the LF model lacks, add them,
+    and report the error before and after.
+
+    Example: eha explain data/run1.csv --fit BKL,FDJ --holdout 0.3 --json out.json
+    """
+    from eha.explain import ExplainError
+    from eha.fdi import FDIError
+    from eha.measured import MeasuredDataError
+    from eha.report import explain_report
+
+    if holdout is not None and validate is not None:
+        fail("--holdout and --validate exclude each other; give one")
+    if json_out is not None and json_out.suffix.lower() != ".json":
+        fail(f"--json {json_out}: the file must end in .json")
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
+                   TextColumn("[dim]{task.completed} fits"), TimeElapsedColumn(),
+                   console=err_console, disable=not progress, transient=True)
+    with bar:
+        task = bar.add_task("reading the record", total=None)
+
+        def step(message: str) -> None:
+            bar.update(task, description=message, advance=1)
+
+        try:
+            run = explain_report(data, fit=fit, effects=effects, holdout=holdout,
+                                 validate=validate, prior=prior, json_path=json_out, out=out,
+                                 results=results, on_progress=step, method=method, pop=pop,
+                                 seed=seed, candidates=candidates, max_steps=max_steps,
+                                 min_gain=min_gain)
+        except MeasuredDataError as exc:
+            bar.stop()
+            _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))
+        except (ExplainError, FDIError, *_input_errors()) as exc:
+            bar.stop()
+            fail(str(exc))
+    res = run["result"]
+    table = Table("step", "effect", "parameters", "RMSE fit [µm]", "RMSE held-out [µm]",
+                  "RMSE all [µm]", "faults after")
+    table.add_row("0", "(declared faults)", "-", f"{1e6 * res.before.rmse_fit:.3g}",
+                  f"{1e6 * res.before.rmse_hold:.3g}", f"{1e6 * res.rmse_before:.3g}",
+                  ", ".join(f"{k}={v:.4g}" for k, v in res.faults_before.items()))
+    for row, s in zip(res.steps_table(), res.steps):
+        table.add_row(str(row["step"]), s.effect, row["params"],
+                      f"{1e6 * s.rmse_fit_before:.3g} → {1e6 * s.rmse_fit_after:.3g}",
+                      f"{1e6 * s.rmse_hold_before:.3g} → {1e6 * s.rmse_hold_after:.3g}",
+                      f"{1e6 * s.rmse_before:.3g} → {1e6 * s.rmse_after:.3g}",
+                      row["faults_after"])
+    console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held out: "
+                  f"{res.holdout}")
+    console.print(table)
+    console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
+                  f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
+                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")
+    for kind, path in run["paths"].items():
+        console.print(f"{kind}: {path}")
+    if run["db_error"]:
+        fail(f"results database not written: {run['db_error']}", code=1)
+
+
 report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database.")
 app.add_typer(report_app, name="report")
 

@@ -135,7 +135,7 @@ register(Effect("leakage", "leakage between the chambers in the P12 law",
 register(Effect("external_load", "constant load force on the jack",
                 bounds={"FRC": (-8000.0, 8000.0)}, probe={"FRC": 500.0}))
 register(Effect("hinge_moment", "load proportional to the jack position (aerodynamic hinge "
-                "moment)", bounds={"Kaer": (0.0, 2e5)}, probe={"Kaer": 2e4}))
+                "moment)", bounds={"Kaer": (0.0, 1e6)}, probe={"Kaer": 5e4}))
 register(Effect("offset", "torque-motor offset current",
                 bounds={"Ofs": (-2.0, 2.0)}, probe={"Ofs": 0.1}))
 register(Effect("hysteresis", "play-type magnetic hysteresis on the motor current",

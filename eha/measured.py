@@ -312,7 +312,14 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
 
     from eha.simulate import simulate
 
-    trace = simulate(model, command, dict(overrides or {}), t_end=t_end, seed=seed)
+    from eha.commands import as_command
+
+    # The model is driven by the 1 kHz samples of the command, exactly what a reader of the
+    # record can rebuild (a sharp step becomes a 1 ms ramp), so the record is self-consistent.
+    grid = np.arange(int(round(t_end / OUTPUT_DT)) + 1) * OUTPUT_DT
+    sampled = array_command(grid, as_command(command).sample(grid),
+                            name=as_command(command).name or "array")
+    trace = simulate(model, sampled, dict(overrides or {}), t_end=t_end, seed=seed)
     rng = np.random.default_rng(seed)
     xu = trace.xu + rng.normal(0.0, noise, len(trace)) if noise > 0 else trace.xu.copy()
     return pd.DataFrame({"t": trace.t, "com": trace["com"], "xu": xu, "p12": trace["p12"],

@@ -198,6 +198,40 @@ SCHEMA: dict[str, str] = {
             seconds        DOUBLE,    -- s, identification wall time in the worker
             pop            INTEGER,   -- GA population
             history        JSON)      -- best objective per generation/poll [m]""",
+    "explain_runs": """
+        CREATE TABLE IF NOT EXISTS explain_runs (
+            run_id          VARCHAR PRIMARY KEY,  -- hash of the inputs and settings
+            source          VARCHAR,   -- measured-data file
+            created_at      TIMESTAMP,
+            fit             JSON,      -- declared faults and bounds {name: [lo, hi]}
+            holdout         VARCHAR,   -- what the held-out data was
+            settings        JSON,      -- loop settings, method, pop, seed
+            rmse_before     DOUBLE,    -- m, whole record, declared faults only
+            rmse_after      DOUBLE,    -- m, whole record, with the added effects
+            noise_rmse      DOUBLE,    -- m, measurement noise estimated from the record
+            unexplained_rmse DOUBLE,   -- m, sqrt(max(rmse_after^2 - noise^2, 0))
+            faults_before   JSON,
+            faults_after    JSON,
+            effects         JSON,      -- added effects, in order
+            stop_reason     VARCHAR,
+            seconds         DOUBLE)""",
+    "explain_steps": """
+        CREATE TABLE IF NOT EXISTS explain_steps (
+            run_id            VARCHAR,
+            step              INTEGER,  -- 1, 2, ... in the order the effects were added
+            effect            VARCHAR,  -- SPEC §7 name
+            params            JSON,     -- estimated effect parameters (SI)
+            rmse_before       DOUBLE,   -- m, whole record
+            rmse_after        DOUBLE,
+            rmse_fit_before   DOUBLE,   -- m, fitted part
+            rmse_fit_after    DOUBLE,
+            rmse_hold_before  DOUBLE,   -- m, held-out part or validation record
+            rmse_hold_after   DOUBLE,
+            faults_before     JSON,
+            faults_after      JSON,
+            gain              DOUBLE,   -- relative held-out RMSE reduction
+            score             DOUBLE,   -- gain minus the parameter penalty
+            PRIMARY KEY (run_id, step))""",
 }
 #: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
 RESULT_TABLES: tuple[str, ...] = ("metrics", "fdi_results")
@@ -519,3 +553,31 @@ def export_csv(results: str | Path, table: str, path: str | Path) -> int:
         con.close()
         Path(tmp).unlink(missing_ok=True)
     return int(n)
+
+
+def save_explain(results: str | Path, run: Mapping[str, Any],
+                 steps: Sequence[Mapping[str, Any]]) -> Path:
+    """Store one residual-loop run (``explain_runs``) and its steps (``explain_steps``).
+
+    One transaction; a run with the same ``run_id`` is replaced. Returns the database path.
+    """
+    con = connect(results)
+    try:
+        con.execute("BEGIN")
+        try:
+            con.execute("DELETE FROM explain_steps WHERE run_id = ?", [run["run_id"]])
+            con.execute("DELETE FROM explain_runs WHERE run_id = ?", [run["run_id"]])
+            con.register("_r", _frame([run]))
+            con.execute("INSERT INTO explain_runs BY NAME SELECT * FROM _r")
+            con.unregister("_r")
+            if steps:
+                con.register("_s", _frame(steps))
+                con.execute("INSERT INTO explain_steps BY NAME SELECT * FROM _s")
+                con.unregister("_s")
+            con.execute("COMMIT")
+        except BaseException:
+            con.execute("ROLLBACK")
+            raise
+    finally:
+        con.close()
+    return db_path(results)

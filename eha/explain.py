@@ -1,0 +1,559 @@
+"""The residual loop: fit the declared faults, trace the residual to a missing effect, add it.
+
+Given a measured record (:mod:`eha.measured`), :func:`explain`
+
+a. fits the declared fault parameters of the LF model (:func:`eha.fdi.identify`) on the fitted
+   part of the record: the baseline and its residual ``r = y_measured - y_LF``;
+b. traces the residual: its correlation with the *signature* of every effect of
+   :data:`eha.effects.EFFECTS` (the change of the LF output xu when the effect is switched on at
+   its probe value, a secant sensitivity computed by finite differences, all in one parallel
+   batch) and with signals (position, sign of the jack velocity, command, tracking error, P12);
+   the linearised fit ``r ~ J_faults*d_faults + a*signature`` gives the fraction of the residual
+   each effect could explain, which ranks the candidates;
+c. refits the faults together with each of the best-ranked candidates (its parameters free
+   within their bounds) and scores it by the relative reduction of the *held-out* RMSE minus a
+   penalty per added parameter;
+d. adds the best candidate when that penalised gain is significant (>= ``min_gain``), and
+   repeats from (b) with the augmented model;
+e. stops when no candidate is significant, when the residual is at the measurement-noise level
+   (estimated from the record itself), or after ``max_steps``; it says how much of the residual
+   is left unexplained (the part above the noise level).
+
+Held-out data: the last ``holdout`` fraction of the record (the model is fitted on the first
+part and simulated over the whole record), or a second record (``validate``) simulated with its
+own command. RMSE in metres.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from eha.effects import EFFECTS, Effect, get as get_effects
+from eha.measured import MeasuredData
+from eha.models import O_DXJ, O_P12, O_XU, OUTPUTS
+from eha.params import LF, SPECS, LFParams, ParameterError, resolve
+from eha.simulate import OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch
+
+#: Search bounds of the declared faults when none are given (wider than the thesis' chirp
+#: cases, for records of unknown actuators).
+DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
+                                                        "FDJ": (0.0, 8000.0)}
+#: Defaults of the loop (see :func:`explain`).
+DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
+                              "max_steps": 4, "candidates": 6, "noise_factor": 1.25}
+#: Signals the residual is correlated with (name -> meaning).
+SIGNALS = {
+    "position": "LF position xu",
+    "velocity_sign": "sign of the LF jack velocity",
+    "command": "position command",
+    "tracking_error": "command - LF position",
+    "p12": "load pressure P12 (measured when the record has it, else LF)",
+}
+
+
+class ExplainError(ValueError):
+    """Bad input to the residual loop (one line)."""
+
+
+@dataclass
+class Evaluation:
+    """An LF parameter set scored on the record."""
+
+    params: LFParams
+    xu: np.ndarray                  # LF output on the whole record [m]
+    rmse_fit: float                 # on the fitted part [m]
+    rmse_hold: float                # on the held-out part or the validation record [m]
+    rmse_all: float                 # whole record [m]
+
+
+@dataclass
+class Candidate:
+    """One effect tried in one round."""
+
+    effect: str
+    signature_corr: float           # Pearson correlation of the residual with the signature
+    explained: float                # fraction of the residual variance its linearised fit adds
+    refit: bool = False
+    params: dict[str, float] = field(default_factory=dict)
+    faults: dict[str, float] = field(default_factory=dict)
+    rmse_fit: float = math.nan
+    rmse_hold: float = math.nan
+    rmse_all: float = math.nan
+    gain: float = math.nan          # relative held-out RMSE reduction
+    score: float = math.nan         # gain - penalty * added parameters
+    seconds: float = 0.0
+
+
+@dataclass
+class Step:
+    """An effect added to the model."""
+
+    effect: str
+    params: dict[str, float]
+    rmse_before: float              # whole record, before / after adding the effect [m]
+    rmse_after: float
+    rmse_fit_before: float
+    rmse_fit_after: float
+    rmse_hold_before: float
+    rmse_hold_after: float
+    faults_before: dict[str, float]
+    faults_after: dict[str, float]
+    gain: float
+    score: float
+
+
+@dataclass
+class Round:
+    """The trace of the residual at one stage and the candidates tried."""
+
+    residual_rmse: float
+    signals: dict[str, float]
+    candidates: list[Candidate]
+
+
+@dataclass
+class ExplainResult:
+    """Outcome of :func:`explain` (RMSE in metres)."""
+
+    source: str
+    fit_bounds: dict[str, tuple[float, float]]
+    faults_before: dict[str, float]
+    faults_after: dict[str, float]
+    before: Evaluation
+    after: Evaluation
+    steps: list[Step]
+    rounds: list[Round]
+    noise_rmse: float
+    stop_reason: str
+    holdout: str
+    t: np.ndarray
+    measured: np.ndarray
+    settings: dict[str, Any]
+    seconds: float
+
+    @property
+    def rmse_before(self) -> float:
+        return self.before.rmse_all
+
+    @property
+    def rmse_after(self) -> float:
+        return self.after.rmse_all
+
+    @property
+    def unexplained_rmse(self) -> float:
+        """RMSE left above the noise level [m]: ``sqrt(max(rmse_after^2 - noise^2, 0))``."""
+        return math.sqrt(max(self.rmse_after ** 2 - self.noise_rmse ** 2, 0.0))
+
+    @property
+    def effects(self) -> list[str]:
+        return [s.effect for s in self.steps]
+
+    def to_json(self) -> dict[str, Any]:
+        """The contract of ``eha explain --json`` (issue 5): RMSE over the whole record [m]."""
+        return {
+            "rmse_before": self.rmse_before,
+            "rmse_after": self.rmse_after,
+            "faults_before": dict(self.faults_before),
+            "faults_after": dict(self.faults_after),
+            "steps": [{"effect": s.effect, "params": dict(s.params),
+                       "rmse_before": s.rmse_before, "rmse_after": s.rmse_after}
+                      for s in self.steps],
+        }
+
+    def steps_table(self) -> list[dict[str, Any]]:
+        """One row per added effect, for people (CSV / console)."""
+        return [{"step": i + 1, "effect": s.effect,
+                 "params": ", ".join(f"{k}={v:.4g}" for k, v in s.params.items()) or "-",
+                 "rmse_fit_before_m": s.rmse_fit_before, "rmse_fit_after_m": s.rmse_fit_after,
+                 "rmse_holdout_before_m": s.rmse_hold_before,
+                 "rmse_holdout_after_m": s.rmse_hold_after,
+                 "rmse_before_m": s.rmse_before, "rmse_after_m": s.rmse_after,
+                 "faults_before": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_before.items()),
+                 "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
+                 "gain": s.gain, "score": s.score}
+                for i, s in enumerate(self.steps)]
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+
+
+def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
+              ) -> dict[str, tuple[float, float]]:
+    """Fault parameters to fit: ``"BKL,FDJ"`` or ``"BKL=0:1e-3,FDJ=200:4000"`` or a mapping.
+
+    Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or :func:`eha.fdi.default_bounds`.
+    """
+    from eha.fdi import FDIError, check_bounds, default_bounds
+
+    if spec is None:
+        spec = "BKL,FDJ"
+    if isinstance(spec, Mapping):
+        items = {k: tuple(v) for k, v in spec.items()}
+    else:
+        parts = [p.strip() for p in (spec.split(",") if isinstance(spec, str) else spec)]
+        items = {}
+        for part in filter(None, parts):
+            name, sep, rng = part.partition("=")
+            name = name.strip()
+            if name in items:
+                raise ExplainError(f"--fit {name}: given twice")
+            if sep:
+                lo, colon, hi = rng.partition(":")
+                try:
+                    items[name] = (float(lo), float(hi))
+                except ValueError:
+                    raise ExplainError(f"--fit {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
+                                       f"BKL=0:1e-3") from None
+            else:
+                try:
+                    items[name] = DEFAULT_FAULT_BOUNDS.get(name) or default_bounds([name])[name]
+                except FDIError as exc:
+                    raise ExplainError(str(exc)) from None
+    if not items:
+        raise ExplainError("--fit: no parameter given; e.g. --fit BKL,FDJ")
+    try:
+        return check_bounds(items)
+    except FDIError as exc:
+        raise ExplainError(str(exc)) from None
+
+
+def noise_level(xu: np.ndarray) -> float:
+    """Measurement-noise standard deviation [m] estimated from the record itself.
+
+    Robust (median absolute deviation) spread of the second difference, divided by sqrt(6):
+    white noise of std s gives second differences of std s*sqrt(6), while the actuator's
+    position (a mass behind a valve) is smooth at 1 kHz except at a few corners.
+    """
+    d2 = np.diff(np.asarray(xu, dtype=np.float64), 2)
+    if d2.size < 3:
+        return 0.0
+    mad = np.median(np.abs(d2 - np.median(d2)))
+    return float(1.4826 * mad / math.sqrt(6.0))
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    d = np.asarray(a) - np.asarray(b)
+    return float(np.sqrt(np.mean(d * d))) if d.size else math.nan
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    a = a - a.mean()
+    b = b - b.mean()
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    return float(a @ b / den) if den > 0 else 0.0
+
+
+class _Record:
+    """A record and the means to simulate the LF model on it in batches."""
+
+    def __init__(self, data: MeasuredData, base: LFParams):
+        self.data = data
+        self.base = base
+        self.t_end = (len(data) - 1) * OUTPUT_DT
+        self.steps_per_out, self.n_out, t_steps = grid(base, self.t_end)
+        self.com = command_on_grid(data.command, t_steps)
+
+    def run(self, params: Sequence[LFParams]) -> np.ndarray:
+        """Recorded xu of each parameter set, shape (n, n_out)."""
+        rows = np.stack([p.to_array() for p in params])
+        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base)
+
+    def full(self, params: LFParams):
+        return simulate("lf", self.data.command, params, t_end=self.t_end)
+
+
+def augmented_base(prior: Mapping[str, Any] | Sequence[Mapping[str, Any]],
+                   base: LFParams | None = None) -> LFParams:
+    """LF parameters with the effects of a previous run switched on.
+
+    Parameters
+    ----------
+    prior : dict or list
+        The ``--json`` output of an earlier ``eha explain`` (its ``steps``), or the list of
+        steps itself (``{"effect": name, "params": {...}}``).
+    base : LFParams, optional
+        Starting set (nominal LF by default).
+    """
+    steps = prior.get("steps", []) if isinstance(prior, Mapping) else prior
+    params = base if base is not None else LFParams()
+    try:
+        for step in steps:
+            params = get_effects([step["effect"]])[0].switch_on(params, step.get("params", {}))
+    except (KeyError, TypeError) as exc:
+        raise ExplainError(f"prior: each step needs an 'effect' and 'params' ({exc})") from None
+    except ParameterError as exc:
+        raise ExplainError(f"prior: {exc}") from None
+    return params
+
+
+def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 0.01) -> bool:
+    """Every fitted parameter within ``tol`` of its search range from the off value."""
+    off = effect.off
+    return all(abs(values[n] - off[n]) <= tol * (hi - lo) for n, (lo, hi) in
+               effect.bounds.items())
+
+
+def _initial_position(data: MeasuredData, base: LFParams) -> LFParams:
+    # The LF model starts at rest at XJ0; a record starting at rest sits near its command.
+    x0 = float(np.clip(data.com[0], -base.XJM, base.XJM))
+    return base.replace(XJ0=x0)
+
+
+# --------------------------------------------------------------------------------------------
+# the loop
+
+
+def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
+            holdout: float | None = None, validate: MeasuredData | None = None,
+            base: LFParams | None = None, method: str | None = None, pop: int = 20,
+            seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
+            max_steps: int | None = None, candidates: int | None = None,
+            noise_factor: float | None = None,
+            on_progress: Callable[[str], None] | None = None,
+            **fdi_options: float) -> ExplainResult:
+    """Find and add the effects the LF model lacks to explain a measured record.
+
+    Parameters
+    ----------
+    data : MeasuredData
+        The record (:func:`eha.measured.load`).
+    fit : str or mapping, optional
+        Declared fault parameters and bounds (:func:`parse_fit`); default BKL, FDJ.
+    effects : names, optional
+        Candidate effects (SPEC §7 names); default all of :data:`eha.effects.EFFECTS`.
+    holdout : float, optional
+        Fraction of the record (at its end) held out for scoring, in [0, 0.8]; default 0.3.
+        0 scores on the fitted data (then only the penalty guards against over-fitting).
+    validate : MeasuredData, optional
+        A second record used as held-out data instead (the first is then fitted whole).
+    base : LFParams, optional
+        Starting LF parameters (nominal by default; XJ0 is set from the record's command).
+    method, pop, seed, **fdi_options
+        Passed to :func:`eha.fdi.identify` for every fit (same seed for all fits).
+    min_gain : float
+        Smallest penalised held-out RMSE reduction (relative) that adds an effect; 0.1.
+    penalty : float
+        Relative held-out gain charged per added parameter; 0.02.
+    max_steps : int
+        Most effects added; 4.
+    candidates : int
+        Effects refitted per round, the best-ranked by their signature (0 = all); 6.
+    noise_factor : float
+        Stop when the held-out RMSE is below ``noise_factor`` times the noise level; 1.25.
+    on_progress : callable(str), optional
+        Called with a short message before each fit.
+
+    Returns
+    -------
+    ExplainResult
+    """
+    from eha.fdi import DEFAULT_METHOD, FDIError, identify
+
+    started = time.perf_counter()
+    settings = dict(DEFAULTS)
+    for key, value in (("min_gain", min_gain), ("penalty", penalty), ("max_steps", max_steps),
+                       ("candidates", candidates), ("noise_factor", noise_factor)):
+        if value is not None:
+            settings[key] = value
+    if holdout is not None:
+        settings["holdout"] = holdout
+    if not 0.0 <= settings["holdout"] <= 0.8:
+        raise ExplainError(f"--holdout {settings['holdout']:g}: allowed range [0, 0.8]")
+    method = method or DEFAULT_METHOD
+    bounds = parse_fit(fit)
+    pool = get_effects(effects) if effects is not None else list(EFFECTS.values())
+    try:
+        base = _initial_position(data, resolve("lf", {}, base=base) if base else LFParams())
+    except ParameterError as exc:
+        raise ExplainError(str(exc)) from None
+    # effects already in the base (a prior) or overlapping the declared faults are not tried
+    pool = [e for e in pool if not set(e.params) & set(bounds) and not e.is_on(base)]
+    progress = on_progress or (lambda message: None)
+    n = len(data)
+    if validate is not None:
+        n_fit = n
+        holdout_text = f"validation record {validate.source} ({len(validate)} samples)"
+    else:
+        n_fit = n - int(round(settings["holdout"] * n))
+        holdout_text = (f"last {settings['holdout']:.0%} of the record ({n - n_fit} samples)"
+                        if n_fit < n else "none (scored on the fitted data)")
+    if n_fit < 20:
+        raise ExplainError(f"record: {n_fit} samples left to fit after the hold-out; at least "
+                           f"20 are required (lower --holdout)")
+    record = _Record(data, base)
+    check = _Record(validate, _initial_position(validate, base)) if validate is not None \
+        else None
+    y = data.xu
+    fit_y = y[:n_fit]
+
+    def evaluate_many(params: list[LFParams]) -> list[Evaluation]:
+        xu = record.run(params)
+        hold = None
+        if check is not None:
+            hold = check.run([p.replace(XJ0=check.base.XJ0) for p in params])
+        out = []
+        for j, p in enumerate(params):
+            r_fit = _rmse(xu[j, :n_fit], fit_y)
+            if check is not None:
+                r_hold = _rmse(hold[j], validate.xu)
+            elif n_fit < n:
+                r_hold = _rmse(xu[j, n_fit:], y[n_fit:])
+            else:
+                r_hold = r_fit
+            out.append(Evaluation(p, xu[j], r_fit, r_hold, _rmse(xu[j], y)))
+        return out
+
+    def refit(start: LFParams, free: dict[str, tuple[float, float]], label: str):
+        progress(label)
+        try:
+            res = identify(fit_y, data.command, fit=free, base=start, method=method, pop=pop,
+                           seed=seed, **fdi_options)
+        except FDIError as exc:
+            raise ExplainError(str(exc)) from None
+        return start.replace(**res.estimates), res
+
+    # (a) baseline
+    current, _ = refit(base, bounds, "fit the declared faults")
+    cur = evaluate_many([current])[0]
+    before = cur
+    faults_before = {k: getattr(current, k) for k in bounds}
+    noise = noise_level(y)
+    free = dict(bounds)                     # parameters refitted every round
+    steps: list[Step] = []
+    rounds: list[Round] = []
+    stop = ""
+    while True:
+        if len(steps) >= settings["max_steps"]:
+            stop = f"reached max_steps={settings['max_steps']:g}"
+            break
+        if cur.rmse_hold <= settings["noise_factor"] * noise:
+            stop = (f"held-out RMSE {cur.rmse_hold:.3g} m is at the noise level "
+                    f"({noise:.3g} m estimated from the record)")
+            break
+        remaining = [e for e in pool if e.name not in {s.effect for s in steps}]
+        if not remaining:
+            stop = "every candidate effect is already in the model"
+            break
+        # (b) trace the residual
+        rnd = trace_residual(record, cur, free, remaining, n_fit)
+        rounds.append(rnd)
+        ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
+        k = int(settings["candidates"])
+        chosen = ranked if k <= 0 else ranked[:k]
+        # (c) refit with each candidate switched on
+        for cand in chosen:
+            effect = EFFECTS[cand.effect]
+            t0 = time.perf_counter()
+            start = effect.switch_on(current)
+            trial, _ = refit(start, {**free, **effect.bounds},
+                             f"round {len(rounds)}: refit with {effect.name}")
+            ev = evaluate_many([trial])[0]
+            cand.refit = True
+            cand.params = {p: getattr(trial, p) for p in effect.params}
+            cand.faults = {p: getattr(trial, p) for p in bounds}
+            cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
+            cand.gain = 1.0 - ev.rmse_hold / cur.rmse_hold if cur.rmse_hold > 0 else 0.0
+            cand.score = cand.gain - settings["penalty"] * len(effect.params)
+            if effect.params and _at_off(effect, cand.params):
+                # the fit switched the effect off: any gain is the optimizer's, not the effect's
+                cand.score = -math.inf
+            cand.seconds = time.perf_counter() - t0
+            cand._evaluation = ev          # kept for the step, not reported
+        tried = [c for c in chosen if c.refit and c.score > -math.inf]
+        if not tried:
+            stop = "no candidate could be refitted"
+            break
+        best = max(tried, key=lambda c: c.score)
+        # (d) add the best when significant
+        if best.score < settings["min_gain"]:
+            stop = (f"no significant effect left: best candidate {best.effect} reduces the "
+                    f"held-out RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
+                    f"{settings['min_gain']:.0%})")
+            break
+        ev = best._evaluation
+        steps.append(Step(best.effect, dict(best.params), cur.rmse_all, ev.rmse_all,
+                          cur.rmse_fit, ev.rmse_fit, cur.rmse_hold, ev.rmse_hold,
+                          {p: getattr(current, p) for p in bounds}, dict(best.faults),
+                          best.gain, best.score))
+        current, cur = ev.params, ev
+        free.update(EFFECTS[best.effect].bounds)
+    for rnd in rounds:
+        for c in rnd.candidates:
+            c.__dict__.pop("_evaluation", None)
+    return ExplainResult(
+        source=data.source, fit_bounds=bounds, faults_before=faults_before,
+        faults_after={k: getattr(current, k) for k in bounds}, before=before, after=cur,
+        steps=steps, rounds=rounds, noise_rmse=noise, stop_reason=stop, holdout=holdout_text,
+        t=data.t.copy(), measured=y.copy(),
+        settings={**settings, "method": method, "pop": pop, "seed": seed, "n_fit": n_fit,
+                  "effects": [e.name for e in pool], **fdi_options},
+        seconds=time.perf_counter() - started)
+
+
+def signatures(record: _Record, current: LFParams, effects: Sequence[Effect],
+               free: Mapping[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """Effect signatures and free-parameter sensitivities of xu, one batch of LF runs.
+
+    Returns
+    -------
+    S : array (n_effects, n_out)
+        ``xu(effect on at its probe value) - xu(current)`` [m].
+    J : array (n_free, n_out)
+        Finite-difference sensitivity of xu to each free parameter, scaled to 2 % of its
+        search range [m].
+    """
+    rows = [current] + [e.switch_on(current) for e in effects]
+    for name, (lo, hi) in free.items():
+        value = getattr(current, name)
+        h = 0.02 * (hi - lo)
+        step = value + h if value + h <= hi else value - h
+        rows.append(current.replace(**{name: step}))
+    xu = record.run(rows)
+    ref = xu[0]
+    m = len(effects)
+    return xu[1:1 + m] - ref, xu[1 + m:] - ref
+
+
+def trace_residual(record: _Record, cur: Evaluation, free: Mapping[str, tuple[float, float]],
+                   effects: Sequence[Effect], n_fit: int) -> Round:
+    """Correlate the residual with every effect's signature and with signals (step b).
+
+    ``explained`` of a candidate is the fraction of the residual's energy (on the fitted part)
+    that the linearised fit over the free parameters *and* the effect explains, minus what the
+    free parameters alone explain.
+    """
+    r = (record.data.xu - cur.xu)[:n_fit]
+    S, J = signatures(record, cur.params, effects, free)
+    S, J = S[:, :n_fit], J[:, :n_fit]
+
+    def explained(columns: np.ndarray) -> float:
+        if columns.size == 0 or not np.any(columns):
+            return 0.0
+        A = columns.T
+        coef, *_ = np.linalg.lstsq(A, r, rcond=None)
+        return 1.0 - float(np.sum((r - A @ coef) ** 2)) / max(float(r @ r), 1e-300)
+
+    base_explained = explained(J)
+    cands = [Candidate(e.name, _corr(r, S[i]) if np.any(S[i]) else 0.0,
+                       max(explained(np.vstack([J, S[i:i + 1]])) - base_explained, 0.0))
+             for i, e in enumerate(effects)]
+    full = record.full(cur.params)
+    dxj = full["dxj"][:n_fit]
+    p12 = record.data.p12[:n_fit] if record.data.p12 is not None else full["p12"][:n_fit]
+    signals = {"position": _corr(r, cur.xu[:n_fit]),
+               "velocity_sign": _corr(r, np.sign(np.where(np.abs(dxj) > 1e-6, dxj, 0.0))),
+               "command": _corr(r, record.data.com[:n_fit]),
+               "tracking_error": _corr(r, (record.data.com - cur.xu)[:n_fit]),
+               "p12": _corr(r, p12)}
+    return Round(_rmse(r, 0.0), signals, cands)
+
+
+__all__ = ["explain", "augmented_base", "ExplainResult", "ExplainError", "Step", "Candidate", "Round",
+           "parse_fit", "noise_level", "trace_residual", "signatures", "DEFAULTS",
+           "DEFAULT_FAULT_BOUNDS", "SIGNALS"]
