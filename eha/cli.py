@@ -234,6 +234,8 @@ def campaign_run(
         _fail_lines(str(exc))
     except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
         fail(str(exc), 1)
+    except KeyboardInterrupt:
+        fail("interrupted; finished runs are saved, re-run the same command to resume", 130)
     if s.replaced:
         console.print(f"replaced {s.replaced} runs recorded from an older {camp.name}")
     console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already done, "

@@ -129,7 +129,12 @@ def pair_metrics(hf, lf) -> dict[str, float | None]:
 # =========================================================================== worker side
 def _init_worker() -> None:
     """Pool-worker initialiser: one numba thread per process, then :func:`warm_worker`."""
+    import signal
+
     os.environ["NUMBA_NUM_THREADS"] = str(WORKER_NUMBA_THREADS)
+    # Ctrl-C goes to the whole terminal process group: the parent handles it (commits what is
+    # finished, stops the pool); workers would only print tracebacks.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     warm_worker()
 
 
