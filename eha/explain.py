@@ -292,7 +292,7 @@ def augmented_base(prior: Mapping[str, Any] | Sequence[Mapping[str, Any]],
     return params
 
 
-def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 0.01) -> bool:
+def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 1e-3) -> bool:
     """Every fitted parameter within ``tol`` of its search range from the off value."""
     off = effect.off
     return all(abs(values[n] - off[n]) <= tol * (hi - lo) for n, (lo, hi) in
@@ -467,7 +467,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             cand._evaluation = ev          # kept for the step, not reported
         tried = [c for c in chosen if c.refit and c.score > -math.inf]
         if not tried:
-            stop = "no candidate could be refitted"
+            stop = "no candidate improved the model (every refit switched its effect off)"
             break
         best = max(tried, key=lambda c: c.score)
         # (d) add the best when significant

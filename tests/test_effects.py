@@ -1,0 +1,61 @@
+"""Effect library (SPEC §7): registry, switching on/off, every effect changes the LF output."""
+
+import numpy as np
+import pytest
+
+from eha.effects import EFFECTS, Effect, effects_on, get, register
+from eha.params import SPECS, LFParams, ParameterError
+from eha.simulate import simulate
+
+SPEC_NAMES = ("orifice_law", "leakage", "external_load", "hinge_moment", "offset", "hysteresis",
+              "motor_gain", "clogging", "supply_pressure", "flapper_dynamics",
+              "viscous_friction", "sensor_bias", "sensor_gain", "delay")
+
+
+def test_registry_holds_the_14_spec_effects_in_order():
+    assert tuple(EFFECTS) == SPEC_NAMES
+
+
+@pytest.mark.parametrize("name", SPEC_NAMES)
+def test_effect_is_off_in_nominal_lf_and_switches_on_and_off(name):
+    effect = EFFECTS[name]
+    nominal = LFParams()
+    assert not effect.is_on(nominal)
+    on = effect.switch_on(nominal)
+    assert effect.is_on(on) and effects_on(on) == [name]
+    assert effect.switch_off(on) == nominal
+    for param, (lo, hi) in effect.bounds.items():
+        assert SPECS[param].lo <= lo < hi <= SPECS[param].hi
+        assert lo <= effect.probe[param] <= hi
+
+
+@pytest.mark.parametrize("name", SPEC_NAMES)
+def test_every_effect_changes_the_lf_output(name):
+    # the 'test' command has steps (saturation), a ramp and a sine: every effect shows
+    base = LFParams().replace(BKL=1e-4, FDJ=800.0)
+    if name == "supply_pressure":
+        # with the linear P12 law PSR is only the pressure clamp; it acts through the orifice law
+        base = base.replace(orifice_law=1.0)
+    off = simulate("lf", "test", base, t_end=0.6).xu
+    on = simulate("lf", "test", EFFECTS[name].switch_on(base), t_end=0.6).xu
+    assert np.sqrt(np.mean((on - off) ** 2)) > 1e-7
+
+
+def test_switch_on_with_values_and_bad_values():
+    p = EFFECTS["external_load"].switch_on(LFParams(), {"FRC": 1234.0})
+    assert p.FRC == 1234.0
+    with pytest.raises(ParameterError, match="GM"):
+        EFFECTS["external_load"].switch_on(LFParams(), {"GM": 0.1})
+    with pytest.raises(ParameterError, match="out of range"):
+        EFFECTS["offset"].switch_on(LFParams(), {"Ofs": 50.0})
+
+
+def test_get_and_register_validate_names():
+    assert [e.name for e in get("offset, delay")] == ["offset", "delay"]
+    with pytest.raises(ParameterError, match="unknown"):
+        get("wind")
+    with pytest.raises(ParameterError, match="not an LF parameter"):
+        register(Effect("bad", "uses an HF-only parameter", bounds={"GAI": (0.0, 1.0)}))
+    with pytest.raises(ParameterError, match="registered twice"):
+        register(Effect("offset", "again", bounds={"Ofs": (-1.0, 1.0)}))
+    assert "bad" not in EFFECTS

@@ -1,0 +1,124 @@
+"""The residual loop on records with an undeclared effect (issue 5 §5).
+
+HF records with faults BKL = 0.1 mm, FDJ = 800 N (declared, fitted) and one undeclared effect,
+1 µm RMS white measurement noise, saved as CSV and read back. Fits use a small GA budget
+(population 12) to keep the suite short; the checks are on the effect chosen, its estimate and
+the RMSE reduction.
+"""
+
+import json
+
+import duckdb
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from eha.cli import app
+from eha.explain import ExplainError, augmented_base, explain, noise_level, parse_fit
+from eha.measured import load, synthetic_record
+
+FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
+NOISE = 1e-6
+FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0}
+#: The structural differences of HF from LF at the HF's values (SPEC §2 vs §5): the prior of
+#: the injected-effect tests, so that the undeclared effect is the only thing left to find.
+HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
+                {"effect": "flapper_dynamics", "params": {"SNF": 2513.0, "ZF": 0.6}}]
+
+
+def _record(tmp_path, name, command, t_end, overrides=None, model="hf", seed=1):
+    path = tmp_path / f"{name}.csv"
+    synthetic_record(command, {**FAULTS, **(overrides or {})}, t_end=t_end, noise=NOISE,
+                     seed=seed, model=model).to_csv(path, index=False)
+    return path
+
+
+def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
+    """Plain nominal HF data: the missing physics is the orifice law (the 'mixed' command
+    opens the spool beyond XSS); found first, RMSE falls >= 3x; all outputs written."""
+    data = _record(tmp_path, "nominal", "mixed", 1.0)
+    js, out, res = tmp_path / "r.json", tmp_path / "out", tmp_path / "results"
+    result = CliRunner().invoke(app, ["explain", str(data), "--fit", "BKL,FDJ", "--pop", "12",
+                                      "--candidates", "4", "--json", str(js), "--out",
+                                      str(out), "--results", str(res), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(js.read_text())
+    assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps"}
+    assert doc["steps"][0]["effect"] == "orifice_law"
+    assert set(doc["steps"][0]) == {"effect", "params", "rmse_before", "rmse_after"}
+    assert doc["rmse_before"] >= 3 * doc["rmse_after"]
+    assert doc["steps"][0]["rmse_before"] == pytest.approx(doc["rmse_before"])
+    assert doc["steps"][-1]["rmse_after"] == pytest.approx(doc["rmse_after"])
+    assert doc["faults_after"]["BKL"] == pytest.approx(1e-4, rel=0.1)
+    assert doc["faults_after"]["FDJ"] == pytest.approx(800.0, rel=0.15)
+    for name in ("residuals.png", "trace.png", "steps.csv", "candidates.csv", "explain.json"):
+        assert (out / name).stat().st_size > 0
+    con = duckdb.connect(str(res / "eha.duckdb"), read_only=True)
+    run = con.execute("SELECT run_id, rmse_before, rmse_after, effects FROM explain_runs"
+                      ).fetchall()
+    steps = con.execute("SELECT step, effect, rmse_after FROM explain_steps ORDER BY step"
+                        ).fetchall()
+    con.close()
+    assert len(run) == 1 and run[0][1] == pytest.approx(doc["rmse_before"])
+    assert [s[1] for s in steps] == [s["effect"] for s in doc["steps"]]
+
+
+@pytest.mark.parametrize("effect,overrides,param,rel", [
+    ("external_load", {"FRC": 2000.0}, "FRC", 0.10),
+    ("offset", {"Ofs": 0.3}, "Ofs", 0.10),
+    ("hinge_moment", {"Kaer": 1.5e5}, "Kaer", 0.10),
+    ("sensor_bias", {"sensor_bias": 1e-4}, "sensor_bias", 0.05),
+])
+def test_undeclared_effect_is_found_first(tmp_path, effect, overrides, param, rel):
+    data = load(_record(tmp_path, effect, "test", 0.6, overrides))
+    res = explain(data, base=augmented_base(HF_STRUCTURE), **FAST)
+    assert res.effects[0] == effect, res.stop_reason
+    assert res.steps[0].params[param] == pytest.approx(overrides[param], rel=rel)
+    assert res.rmse_before >= 3 * res.rmse_after
+    assert res.faults_after["BKL"] == pytest.approx(1e-4, rel=0.15)
+
+
+def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
+    """Leakage trades off against jack friction (both soften the position loop), so the GA
+    estimates Clk only to within a factor of 3 (docs/explain.md, limits)."""
+    data = load(_record(tmp_path, "leakage", "mixed", 1.0, {"Clk": 5e-12}))
+    res = explain(data, base=augmented_base(HF_STRUCTURE), **FAST)
+    assert res.effects[0] == "leakage", res.stop_reason
+    assert 5e-12 / 3 <= res.steps[0].params["Clk"] <= 5e-12 * 3
+    assert res.rmse_before >= 3 * res.rmse_after
+
+
+def test_validation_record_instead_of_holdout(tmp_path):
+    data = load(_record(tmp_path, "bias", "test", 0.6, {"sensor_bias": -1e-4}))
+    check = load(_record(tmp_path, "bias2", "mixed", 0.5, {"sensor_bias": -1e-4}, seed=2))
+    res = explain(data, base=augmented_base(HF_STRUCTURE), validate=check, **FAST)
+    assert "validation record" in res.holdout
+    assert res.effects[0] == "sensor_bias"
+    assert res.steps[0].params["sensor_bias"] == pytest.approx(-1e-4, rel=0.05)
+
+
+def test_noise_only_adds_nothing(tmp_path):
+    """An LF record (the model is exact) plus noise: nothing to explain."""
+    data = load(_record(tmp_path, "noise", "mixed", 1.0, model="lf"))
+    assert noise_level(data.xu) == pytest.approx(NOISE, rel=0.2)
+    res = explain(data, **FAST)
+    assert res.steps == [] and "noise level" in res.stop_reason
+    assert res.rmse_after == res.rmse_before < 1.3 * NOISE
+    # without the noise-floor stop, the held-out test alone rejects every candidate
+    res = explain(data, noise_factor=0.0, max_steps=1, **FAST)
+    assert res.steps == [] and res.rmse_after == res.rmse_before
+    assert "noise level" not in res.stop_reason
+    assert sum(c.refit for c in res.rounds[0].candidates) == FAST["candidates"]
+
+
+def test_bad_inputs_raise_one_line(tmp_path):
+    assert parse_fit("BKL=0:1e-3, FDJ") == {"BKL": (0.0, 1e-3), "FDJ": (0.0, 8000.0)}
+    for spec, match in [("BKL=1e-3", "LOW:HIGH"), ("XYZ", "unknown"), ("BKL,BKL", "twice"),
+                        ("", "no parameter")]:
+        with pytest.raises(ExplainError, match=match):
+            parse_fit(spec)
+    data = load(_record(tmp_path, "short", "step_1mm", 0.1))
+    with pytest.raises(ExplainError, match="holdout"):
+        explain(data, holdout=0.9)
+    with pytest.raises(ExplainError, match="prior"):
+        augmented_base([{"effect": "offset", "params": {"Ofs": 99.0}}])
