@@ -332,7 +332,8 @@ def fdi(
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
     objective: str = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' "
                                   "mean absolute error)."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time of the HF reference [s]."),
+    t_end: float = typer.Option(1.0, "--t-end",
+                                help="Simulated time of the HF reference, in seconds."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG: reference vs identified LF."),
 ):
