@@ -550,9 +550,38 @@ def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path) -> dict
         "search: the plain LF model (linear P12 law, no leakage) has its best fit a few percent "
         "away from the injected FDJ (see docs/fdi.md).",
         "", f"![mean error]({png.name})", ""]
+    cases = plot_fdi_cases(rows, campaign, out / "cases")
+    lines += ["## Each case: HF reference against the identified LF model (first seed)", ""]
+    lines += [f"![case {c}](cases/{path.name})" for c, path in cases.items()] + [""]
     md = out / "fdi_summary.md"
     md.write_text("\n".join(lines), encoding="utf-8")
-    return {"table": csv_path, "plot": png, "summary": md}
+    return {"table": csv_path, "plot": png, "summary": md, "cases": out / "cases"}
+
+
+def plot_fdi_cases(rows: Sequence[dict], campaign, out: str | Path) -> dict[int, Path]:
+    """One figure per case, like the thesis' Figures 6.4–6.16: the HF reference with the
+    injected faults against the LF model with the identified ones, for the case's first seed
+    (both re-simulated: the runs are deterministic). Returns ``case -> PNG path``."""
+    from eha.fdi import hf_reference
+    from eha.params import resolve
+    from eha.simulate import simulate
+
+    base = resolve("lf", campaign.base)
+    paths = {}
+    for case in campaign.cases:
+        rs = sorted((r for r in rows if int(r["case"]) == case.case), key=lambda r: r["seed"])
+        if not rs:
+            continue
+        r = rs[0]
+        hf = hf_reference(case.command, case.faults, seed=r["seed"], t_end=campaign.t_end)
+        lf = simulate("lf", case.command, base.replace(**r["estimates"]), t_end=campaign.t_end)
+        truth = ", ".join(f"{k}={v:.4g}" for k, v in r["truth"].items())
+        est = ", ".join(f"{k}={v:.4g}" for k, v in r["estimates"].items())
+        paths[case.case] = plot_traces(
+            [hf, lf], Path(out) / f"case_{case.case:02d}.png",
+            title=f"Case {case.case} ({case.command}, seed {r['seed']}): HF with {truth}\n"
+                  f"vs LF with the identified {est} (mean error {r['mean_err_pct']:.3g} %)")
+    return paths
 
 
 #: The campaign of the thesis' fault-identification cases (campaigns/thesis-fdi.toml).

@@ -101,6 +101,7 @@ def test_thesis_report_files(campaign_results, tmp_path):
     assert list(table["case"]) == [9, 12] and list(table["seeds"]) == [2, 2]
     assert table.loc[1, "thesis_seconds"] == 4873 and table.loc[1, "thesis_mean_err_pct"] == 5.0
     assert paths["plot"].stat().st_size > 10_000
+    assert sorted(p.name for p in paths["cases"].iterdir()) == ["case_09.png", "case_12.png"]
     text = paths["summary"].read_text()
     assert "| 12 |" in text and "mean_error.png" in text
 
