@@ -112,8 +112,10 @@ def commands():
 def reproduce(results: Path = typer.Option(Path("results"), "--results",
                                            help="Output directory."),
               workers: int = typer.Option(2, "--workers", min=1, help="Worker processes.")):
-    """Reproduce thesis chapters 5 and 6: nominal, single-fault, matrix and FDI campaigns,
-    plots, reports (the FDI table as `eha report thesis` writes it).
+    """Reproduce thesis chapters 5 and 6: all thesis campaigns, figures and reports.
+
+    Runs the nominal, single-fault, matrix and FDI campaigns and writes the reports, the FDI
+    table as `eha report thesis` writes it.
 
     Runs campaigns/thesis-*.toml into --results (resuming what is done), then writes the
     HF-vs-LF figures, reports/summary.md and one CSV per campaign.
@@ -468,7 +470,8 @@ def explain(
         fail(f"results database not written: {run['db_error']}", code=1)
 
 
-report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database.")
+report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database."
+                         "\n\nExample: eha report thesis --results results")
 app.add_typer(report_app, name="report")
 
 
@@ -477,8 +480,10 @@ def report_thesis(results: Path = typer.Option(Path("results"), "--results",
                                                help="Results folder (eha.duckdb)."),
                   out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
                                                      "(default RESULTS/reports/thesis).")):
-    """Thesis FDI table (Figure 6.17) with the thesis' values side by side, the mean-error
-    figure (Figure 6.18) and a summary, from the thesis-fdi campaign's results.
+    """Thesis FDI table (Figure 6.17) beside the thesis' own values, figures, summary.
+
+    From the thesis-fdi campaign's results: fdi_table.csv, mean_error.png (Figure 6.18),
+    one HF-vs-identified-LF figure per case, fdi_summary.md.
 
     Example: eha report thesis --results results --out results/reports/thesis
     """
