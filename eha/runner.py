@@ -283,8 +283,37 @@ class Executor:
         raise NotImplementedError
 
 
+class _MainHidden:
+    """Hide ``__main__`` from multiprocessing while workers are spawned.
+
+    A spawned worker normally re-imports the parent's main script (the ``eha`` entry point,
+    a notebook kernel, a script without an ``if __name__ == "__main__"`` guard, or fails for
+    ``python - < script``). The pool only runs functions of this module, so the workers need
+    nothing from ``__main__``: skipping it starts them faster and from anywhere.
+    """
+
+    def __enter__(self):
+        import sys
+
+        self.main = sys.modules.get("__main__")
+        self.saved = {k: getattr(self.main, k) for k in ("__spec__", "__file__")
+                      if self.main is not None and hasattr(self.main, k)}
+        if self.main is not None:
+            self.main.__spec__ = None
+            if "__file__" in self.saved:
+                del self.main.__file__
+        return self
+
+    def __exit__(self, *exc):
+        for k, v in self.saved.items():
+            setattr(self.main, k, v)
+
+
 class LocalPoolExecutor(Executor):
-    """A pool of ``workers`` spawned processes (one numba thread each)."""
+    """A pool of ``workers`` spawned processes (one numba thread each).
+
+    All workers are started by :meth:`warm_up` (the runner calls it before the first job).
+    """
 
     def __init__(self, workers: int = 2):
         import multiprocessing
@@ -301,7 +330,10 @@ class LocalPoolExecutor(Executor):
         if getattr(self, "_warm", False):
             return
         self._warm = True
-        futs = [self._pool.submit(time.sleep, 0.02) for _ in range(self.workers)]
+        # One task per worker, submitted back to back: each submit spawns a process (none is
+        # idle yet), so every worker starts here, inside _MainHidden.
+        with _MainHidden():
+            futs = [self._pool.submit(time.sleep, 0.02) for _ in range(self.workers)]
         for f in futs:
             f.result()
 
