@@ -307,6 +307,16 @@ def _rmse_figure(runs, fault_sets, commands, out: Path, campaign: str) -> Path:
             ax.set_ylabel(names[0])
             ax.set_title(cmd)
             fig.colorbar(im, ax=ax, label="RMSE xu HF vs LF [µm]")
+    elif len(fault_sets) == 1:  # one case per command: a bar per command, values written
+        key = json.dumps(fault_sets[0], sort_keys=True)
+        ys = [value.get((c, key), np.nan) for c in commands]
+        fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(commands)), 4))
+        bars = ax.bar(commands, ys, color="tab:blue")
+        ax.bar_label(bars, labels=[f"{y:.3g}" for y in ys], fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("RMSE xu HF vs LF [µm]")
+        ax.set_title(_fault_text(fault_sets[0]), fontsize=9)
+        ax.grid(True, axis="y", alpha=0.3)
     else:
         fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(fault_sets) * len(commands)), 4))
         labels = [_fault_text(f) for f in fault_sets]

@@ -80,6 +80,15 @@ def test_campaign_run_rows_traces_metrics_and_resume(tmp_path):
         assert expected > 0
     assert (runs["p12_abs_max"] > 0).all() and runs["lag"].notna().all()
 
+    res = cli.invoke(app, ["plot", "mini", "--results", str(results)])
+    assert res.exit_code == 0, res.output
+    pngs = sorted(p.name for p in (results / "plots" / "mini").glob("*.png"))
+    assert pngs == ["mixed_p12.png", "mixed_xu.png", "ramp_p12.png", "ramp_xu.png",
+                    "rmse_hf_lf.png"]
+    assert all((results / "plots" / "mini" / n).read_bytes()[:4] == b"\x89PNG" for n in pngs)
+    res = cli.invoke(app, ["plot", "nope", "--results", str(results)])
+    assert res.exit_code == 2 and "no finished runs" in res.output
+
     again = run_campaign(path, results, workers=2, progress=False)
     assert (again.done, again.skipped) == (0, 8)
     # a run whose trace disappeared is run again, and only that one
