@@ -133,7 +133,7 @@ def reproduce(results: Path = typer.Option(Path("results"), "--results",
         table.add_row(s.campaign, str(s.total), str(s.done), str(s.skipped), str(s.failed),
                       f"{s.wall_s:.1f}")
         if s.replaced:
-            console.print(f"{s.campaign}: its file changed; {s.replaced} old runs replaced")
+            console.print(f"{s.campaign}: its file changed; {s.replaced} old runs discarded")
     console.print(table)
     table = Table("command", "RMSE xu HF vs LF [µm]", "% of command peak")
     for r in out["nominal"]:
@@ -218,8 +218,8 @@ def campaign_run(
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                             help="Dask scheduler tcp://HOST:PORT (eha[dask])."),
     replace: bool = typer.Option(False, "--replace",
-                                 help="Discard runs recorded under this name from an older "
-                                      "version of the file."),
+                                 help="The file changed: discard the recorded runs it no "
+                                      "longer has (shared runs are kept)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
 ):
     """Run or resume a campaign: Parquet traces and DuckDB rows under --results.
@@ -239,7 +239,7 @@ def campaign_run(
     except KeyboardInterrupt:
         fail("interrupted; finished runs are saved, re-run the same command to resume", 130)
     if s.replaced:
-        console.print(f"replaced {s.replaced} runs recorded from an older {camp.name}")
+        console.print(f"discarded {s.replaced} runs recorded from an older {camp.name}")
     console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already done, "
                   f"{s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
     for line in s.errors:
@@ -348,11 +348,16 @@ def fdi(
     from eha.params import parse_assignments
 
     try:
-        run = identify_source(command=command, faults=parse_assignments(set_), data=data,
-                              fit=[n.strip() for n in fit.split(",") if n.strip()],
-                              bounds=parse_bounds(bounds), base=parse_assignments(base),
-                              method=method, pop=pop, seed=seed, objective=objective,
-                              t_end=t_end)
+        with err_console.status(f"identifying ({method}) ...") as status:
+            def progress(gen: int, best: float) -> None:
+                status.update(f"identifying ({method}): generation {gen}, best "
+                              f"{objective} {best:.4g} m")
+
+            run = identify_source(command=command, faults=parse_assignments(set_), data=data,
+                                  fit=[n.strip() for n in fit.split(",") if n.strip()],
+                                  bounds=parse_bounds(bounds), base=parse_assignments(base),
+                                  method=method, pop=pop, seed=seed, objective=objective,
+                                  t_end=t_end, on_generation=progress)
     except (FDIError, MeasuredDataError, *_input_errors()) as exc:
         fail(str(exc))
     res = run.result

@@ -727,11 +727,14 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
                     bounds: Mapping[str, Sequence[float]] | None = None,
                     base: Mapping[str, float] | None = None, method: str = DEFAULT_METHOD,
                     pop: int = 20, seed: int = 0, objective: str = "rmse",
-                    t_end: float = 1.0, **options: float) -> Identification:
+                    t_end: float = 1.0,
+                    on_generation: Callable[[int, float], None] | None = None,
+                    **options: float) -> Identification:
     """Identify ``fit`` against an HF reference (``command`` + injected ``faults``, dither seed
     ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu; eha.measured).
 
-    ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed.
+    ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed;
+    ``on_generation`` is :func:`identify`'s progress hook.
     """
     if (command is None) == (data is None):
         raise FDIError("give either --command (HF reference) or --data FILE (measured record)")
@@ -768,7 +771,7 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
         source = f"HF {command} " + (", ".join(f"{k}={v:g}" for k, v in (faults or {}).items())
                                      or "nominal") + f", seed {seed}"
     res = identify(reference.xu, cmd, chosen, base=lf_base, method=method, pop=pop, seed=seed,
-                   objective=objective, t_end=t_end, **options)
+                   objective=objective, t_end=t_end, on_generation=on_generation, **options)
     fitted = simulate("lf", cmd, lf_base.replace(**res.estimates), t_end=t_end)
     errors = mean = None
     if truth is not None:
