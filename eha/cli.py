@@ -132,7 +132,7 @@ def reproduce(results: Path = typer.Option(Path("results"), "--results",
     for s in out["summaries"]:
         table.add_row(s.campaign, str(s.total), str(s.done), str(s.skipped), str(s.failed),
                       f"{s.wall_s:.1f}")
-        if s.replaced:
+        if s.changed:
             console.print(f"{s.campaign}: its file changed; {s.replaced} old runs discarded")
     console.print(table)
     table = Table("command", "RMSE xu HF vs LF [µm]", "% of command peak")
@@ -238,8 +238,9 @@ def campaign_run(
         fail(str(exc), 1)
     except KeyboardInterrupt:
         fail("interrupted; finished runs are saved, re-run the same command to resume", 130)
-    if s.replaced:
-        console.print(f"discarded {s.replaced} runs recorded from an older {camp.name}")
+    if s.changed:
+        console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
+                      "it no longer has, kept the shared ones")
     console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already done, "
                   f"{s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
     for line in s.errors:

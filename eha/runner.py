@@ -411,7 +411,8 @@ class RunSummary:
     wall_s: float = 0.0       # s, everything (validation, database, pool, jobs, HF-vs-LF)
     startup_s: float = 0.0    # s, starting and warming the workers
     jobs_s: float = 0.0       # s, from warm workers to the last result committed
-    replaced: int = 0
+    changed: bool = False     # recorded from another definition (and --replace given)
+    replaced: int = 0         # recorded runs discarded because the definition changed
     errors: list[str] = field(default_factory=list)
     results: str = ""
 
@@ -442,7 +443,8 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     scheduler : str or distributed.Client, optional
         Dask scheduler address (``tcp://HOST:PORT``) to run the jobs on instead.
     replace : bool
-        Discard the recorded runs of a campaign of the same name but a different definition.
+        When the campaign is recorded with a different definition: discard the recorded runs
+        that the new definition does not have (runs it shares are kept, not re-run).
     progress : bool
         Show a rich progress bar on stderr.
     executor : Executor, optional
@@ -476,8 +478,9 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
                     f"different definition (file edited or model version changed: "
                     f"{len(recorded)} recorded runs, {len(camp.jobs)} planned, {common} in "
                     "common); give it a new name, or pass --replace to discard the recorded runs")
-            summary.replaced = db.delete_campaign(camp.name)
-            old = None
+            # Runs of the new definition already recorded are the same runs (same key): kept.
+            summary.changed = True
+            summary.replaced = db.discard_runs(camp.name, {j.run_key for j in camp.jobs})
         now = _now()
         db.register_campaign({
             "name": camp.name, "description": camp.description, "source": camp.source,

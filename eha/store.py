@@ -352,24 +352,32 @@ class ResultStore:
         finally:
             self.con.unregister("_c")
 
-    def delete_campaign(self, name: str) -> int:
-        """Remove a campaign: its trace folder, result rows, runs and ``campaigns`` row.
+    def discard_runs(self, campaign: str, keep: set[str] | frozenset[str] = frozenset()) -> int:
+        """Remove the runs of ``campaign`` whose key is not in ``keep``: their trace files,
+        result rows and ``runs`` rows; returns how many.
 
-        Files go first: if this is interrupted, the database still lists the campaign and the
-        runner re-runs whatever trace is missing.
+        Files go first: if this is interrupted, the runs are still listed and the runner re-runs
+        whatever trace is missing.
         """
-        import shutil
-
-        shutil.rmtree(self.results / TRACES / name, ignore_errors=True)
-        n = self.con.execute("SELECT count(*) FROM runs WHERE campaign = ?", [name]).fetchall()[0][0]
-        self.con.execute("BEGIN")
-        for table in RESULT_TABLES:
-            self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
-                             "(SELECT run_key FROM runs WHERE campaign = ?)", [name])
-        self.con.execute("DELETE FROM runs WHERE campaign = ?", [name])
-        self.con.execute("DELETE FROM campaigns WHERE name = ?", [name])
-        self.con.execute("COMMIT")
-        return n
+        rows = self.con.execute("SELECT run_key FROM runs WHERE campaign = ?",
+                                [campaign]).fetchall()
+        gone = [k for (k,) in rows if k not in keep]
+        for key in gone:
+            trace_path(self.results, campaign, key).unlink(missing_ok=True)
+        if gone:
+            self.con.register("_gone", _frame([{"run_key": k} for k in gone]))
+            self.con.execute("BEGIN")
+            try:
+                for table in RESULT_TABLES + ("runs",):
+                    self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
+                                     "(SELECT run_key FROM _gone)")
+                self.con.execute("COMMIT")
+            except BaseException:
+                self.con.execute("ROLLBACK")
+                raise
+            finally:
+                self.con.unregister("_gone")
+        return len(gone)
 
     # ---- runs
     def run_keys(self, campaign: str, status: str | None = None) -> dict[str, str]:

@@ -104,7 +104,7 @@ def test_changed_campaign_is_reported_then_replaced(tmp_path):
     res = cli.invoke(app, ["campaign", "run", str(path), "--results", str(results),
                            "--no-progress"])
     assert res.exit_code == 0, res.output
-    path.write_text(CAMPAIGN.replace("FDJ = [400.0]", "FDJ = [400.0, 800.0]"))
+    path.write_text(CAMPAIGN.replace("FDJ = [400.0]", "FDJ = [800.0, 400.0]"))
     proc = subprocess.run([sys.executable, "-m", "eha", "campaign", "run", str(path),
                            "--results", str(results), "--no-progress"],
                           capture_output=True, text=True)
@@ -117,10 +117,21 @@ def test_changed_campaign_is_reported_then_replaced(tmp_path):
     res = cli.invoke(app, ["campaign", "run", str(path), "--results", str(results), "--replace",
                            "--no-progress"], env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
-    assert "replaced 8 runs" in res.output
+    assert "discarded 0 runs" in res.output and "8 run now, 8 already done" in res.output
     runs = query(results, "SELECT count(*) AS n, count(DISTINCT run_key) AS k FROM runs")
     assert runs["n"][0] == runs["k"][0] == 16
     assert len(list((results / "traces" / "mini").glob("*.parquet"))) == 16
+    # shrinking the grid discards the runs (rows and traces) it no longer has
+    path.write_text(CAMPAIGN.replace("FDJ = [400.0]", "FDJ = [800.0]"))
+    res = cli.invoke(app, ["campaign", "run", str(path), "--results", str(results), "--replace",
+                           "--no-progress"], env={"COLUMNS": "200"})
+    assert res.exit_code == 0 and "discarded 8 runs" in res.output, res.output
+    assert "0 run now, 8 already done" in res.output
+    counts = query(results, "SELECT (SELECT count(*) FROM runs) AS r, "
+                            "(SELECT count(*) FROM metrics) AS m, "
+                            "(SELECT n_runs FROM campaigns) AS c")
+    assert counts.iloc[0].tolist() == [8, 8, 8]
+    assert len(list((results / "traces" / "mini").glob("*.parquet"))) == 8
 
 
 def test_pool_workers_use_one_numba_thread_and_the_kernel_cache():
