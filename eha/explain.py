@@ -535,14 +535,18 @@ def trace_residual(record: _Record, cur: Evaluation, free: Mapping[str, tuple[fl
     S, J = S[:, :n_fit], J[:, :n_fit]
 
     def explained(columns: np.ndarray) -> float:
-        if columns.size == 0 or not np.any(columns):
+        # unit-norm columns (sensitivities differ by orders of magnitude); unusable ones dropped
+        norms = np.linalg.norm(columns, axis=1) if columns.size else np.zeros(0)
+        keep = np.isfinite(norms) & (norms > 0)
+        rr = float(r @ r)
+        if not keep.any() or rr <= 0.0:
             return 0.0
-        A = columns.T
-        coef, *_ = np.linalg.lstsq(A, r, rcond=None)
-        return 1.0 - float(np.sum((r - A @ coef) ** 2)) / max(float(r @ r), 1e-300)
+        A = (columns[keep] / norms[keep, None]).T
+        coef, *_ = np.linalg.lstsq(A, r, rcond=1e-10)
+        return float(np.clip(1.0 - float(np.sum((r - A @ coef) ** 2)) / rr, 0.0, 1.0))
 
     base_explained = explained(J)
-    cands = [Candidate(e.name, _corr(r, S[i]) if np.any(S[i]) else 0.0,
+    cands = [Candidate(e.name, _corr(r, S[i]) if np.all(np.isfinite(S[i])) else 0.0,
                        max(explained(np.vstack([J, S[i:i + 1]])) - base_explained, 0.0))
              for i, e in enumerate(effects)]
     full = record.full(cur.params)
