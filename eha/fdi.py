@@ -226,7 +226,9 @@ class BatchObjective:
         return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base)
 
     def __call__(self, U: np.ndarray) -> np.ndarray:
-        return objective_values(self.simulate(U), self.reference, self.objective)
+        values = objective_values(self.simulate(U), self.reference, self.objective)
+        # an unstable parameter set (NaN/inf trace) is simply the worst candidate
+        return np.where(np.isfinite(values), values, np.inf)
 
 
 # --------------------------------------------------------------------------------------------
