@@ -164,3 +164,17 @@ def test_run_case_row(tmp_path):
     assert row["mean_err_pct"] == pytest.approx(
         (abs(row["errors_pct"]["BKL"]) + abs(row["errors_pct"]["FDJ"])) / 2)
     assert row["mean_err_pct"] < 5.0
+
+
+def test_unstable_candidates_score_infinity(lf_reference, monkeypatch):
+    real = fdi.simulate_lf_batch
+
+    def half_broken(rows, *args, **kwargs):
+        xu = real(rows, *args, **kwargs)
+        xu[::2] = np.nan                      # every other candidate "diverges"
+        return xu
+
+    monkeypatch.setattr(fdi, "simulate_lf_batch", half_broken)
+    res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", seed=0, t_end=T_END,
+                   max_gen=5)
+    assert np.isfinite(res.objective) and all(np.isfinite(res.history))
