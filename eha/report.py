@@ -446,8 +446,9 @@ def fdi_table(rows: Sequence[dict], campaign) -> "pd.DataFrame":
     Returns
     -------
     pandas.DataFrame
-        ``case, command, <p>_in, <p>_out, population, err_<p>_pct, mean_err_pct`` (medians
-        over the seeds, ``p`` = bkl, fdj), the spread ``mean_err_pct_min/max``, ``seeds``,
+        ``case, command, <p>_in, <p>_out, population, <p>_lb, <p>_ub, err_<p>_pct,
+        mean_err_pct`` (medians over the seeds, ``p`` = bkl, fdj; bounds of the search), the
+        spread ``mean_err_pct_min/max``, ``seeds``,
         ``seconds`` (median), ``evaluations``, ``method``, ``objective``, then
         ``thesis_<p>_out, thesis_err_<p>_pct, thesis_mean_err_pct, thesis_seconds`` and
         ``at_least_as_accurate`` (our median mean error <= the thesis').
@@ -467,6 +468,8 @@ def fdi_table(rows: Sequence[dict], campaign) -> "pd.DataFrame":
         for n in names:
             row[f"{n.lower()}_out"] = med(r["estimates"][n] for r in rs)
         row["population"] = case.pop
+        for n in names:
+            row[f"{n.lower()}_lb"], row[f"{n.lower()}_ub"] = case.bounds[n]
         for n in names:
             row[f"err_{n.lower()}_pct"] = med(r["errors_pct"][n] for r in rs)
         errs = [float(r["mean_err_pct"]) for r in rs]
