@@ -45,7 +45,8 @@ DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
                                                         "FDJ": (0.0, 8000.0)}
 #: Defaults of the loop (see :func:`explain`).
 DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
-                              "max_steps": 4, "candidates": 6, "noise_factor": 1.25}
+                              "max_steps": 4, "candidates": 6, "noise_factor": 1.25,
+                              "joint": False}
 #: Signals the residual is correlated with (name -> meaning).
 SIGNALS = {
     "position": "LF position xu",
@@ -316,7 +317,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             base: LFParams | None = None, method: str | None = None, pop: int = 20,
             seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
             max_steps: int | None = None, candidates: int | None = None,
-            noise_factor: float | None = None,
+            noise_factor: float | None = None, joint: bool | None = None,
             on_progress: Callable[[str], None] | None = None,
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -348,6 +349,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Effects refitted per round, the best-ranked by their signature (0 = all); 6.
     noise_factor : float
         Stop when the held-out RMSE is below ``noise_factor`` times the noise level; 1.25.
+    joint : bool
+        Refit the parameters of the effects already added in every later round (False: they
+        stay at the estimates of the round that added them; the faults are always refitted).
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -360,7 +364,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     started = time.perf_counter()
     settings = dict(DEFAULTS)
     for key, value in (("min_gain", min_gain), ("penalty", penalty), ("max_steps", max_steps),
-                       ("candidates", candidates), ("noise_factor", noise_factor)):
+                       ("candidates", candidates), ("noise_factor", noise_factor),
+                       ("joint", joint)):
         if value is not None:
             settings[key] = value
     if holdout is not None:
@@ -426,7 +431,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     before = cur
     faults_before = {k: getattr(current, k) for k in bounds}
     noise = noise_level(y)
-    free = dict(bounds)                     # parameters refitted every round
+    # refitted every round: the faults (and, with joint=True, the effects already added; by
+    # default those stay at their estimates, which keeps every GA search low-dimensional)
+    free = dict(bounds)
     steps: list[Step] = []
     rounds: list[Round] = []
     stop = ""
@@ -484,7 +491,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
                           {p: getattr(current, p) for p in bounds}, dict(best.faults),
                           best.gain, best.score))
         current, cur = ev.params, ev
-        free.update(EFFECTS[best.effect].bounds)
+        if settings["joint"]:
+            free.update(EFFECTS[best.effect].bounds)
     for rnd in rounds:
         for c in rnd.candidates:
             c.__dict__.pop("_evaluation", None)
