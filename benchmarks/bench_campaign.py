@@ -2,6 +2,9 @@
 
 Prints, median of ``--repeat`` runs, each into a fresh results folder with a warm numba cache:
 
+* a machine check: how much faster two processes finish two pure-Python loops than one process
+  does (2.0x on an idle 2-core machine): the ceiling for any 2-worker speed-up right now;
+
 * ``thesis-matrix`` (60 runs of 1 s) with 1 and 2 local spawn workers: the end-to-end wall time
   of :func:`eha.runner.run_campaign` (validation, database, starting the pool, the jobs, the
   HF-vs-LF metrics), the pool start-up and the job phase, and the 2-worker speed-ups.
@@ -46,6 +49,22 @@ def median_runs(campaign, workers: int, repeat: int, tmp: Path) -> dict[str, flo
             for k in ("wall_s", "startup_s", "jobs_s")}
 
 
+def machine_speedup(repeat: int) -> float:
+    """Speed-up this machine gives two processes right now: 2 units of a pure-Python loop
+    on 1 process vs on 2 (2.0 on an idle 2-core machine; ~1.0 when it is saturated)."""
+    loop = [sys.executable, "-c", "sum(range(2 * 10**7))"]
+
+    def wall(n_parallel: int, n_units: int) -> float:
+        t0 = time.perf_counter()
+        for _ in range(n_units // n_parallel):
+            procs = [subprocess.Popen(loop) for _ in range(n_parallel)]
+            for p in procs:
+                p.wait()
+        return time.perf_counter() - t0
+
+    return statistics.median(wall(1, 2) / wall(2, 2) for _ in range(repeat))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
@@ -62,6 +81,8 @@ def main() -> None:
                                                      "name": "thesis-matrix-long"}
     with tempfile.TemporaryDirectory(prefix="eha-bench-") as tmp:
         tmp = Path(tmp)
+        print(f"machine check: 2 CPU loops on 2 processes vs 1 -> "
+              f"{machine_speedup(args.repeat):.2f}x available speed-up right now")
         print(f"thesis-matrix: 60 runs x 1 s, median of {args.repeat}")
         res = {}
         for label, camp in (("matrix", matrix), (f"matrix t_end={args.long:g} s", long_table)):
