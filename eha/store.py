@@ -282,11 +282,14 @@ def connect(results: str | Path, read_only: bool = False):
     if read_only and not path.exists():
         raise StoreError(f"{path}: no result database yet; run a campaign first "
                          "(eha campaign run FILE)")
-    if not read_only:
-        path.parent.mkdir(parents=True, exist_ok=True)
     try:
+        if not read_only:
+            path.parent.mkdir(parents=True, exist_ok=True)
         con = duckdb.connect(str(path), read_only=read_only)
-    except duckdb.IOException as exc:
+    except OSError as exc:
+        raise StoreError(f"{path.parent}: cannot create the results folder "
+                         f"({exc.strerror})") from None
+    except duckdb.Error as exc:
         match = _LOCK_RE.search(str(exc))
         if match:
             raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
