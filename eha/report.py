@@ -373,7 +373,8 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     results = Path(results)
     summaries = []
     with LocalPoolExecutor(workers) as pool:
-        for name in THESIS_CAMPAIGNS + [FDI_CAMPAIGN]:   # chapter 5, then chapter 6 (FDI)
+        # chapter 5, then chapter 6 (FDI), then FDI with the LF augmented by eha explain
+        for name in THESIS_CAMPAIGNS + [FDI_CAMPAIGN, AUGMENTED_CAMPAIGN]:
             path = campaigns_dir() / f"{name}.toml"
             summaries.append(run_campaign(path, results, replace=True, progress=progress,
                                           executor=pool))
@@ -432,7 +433,8 @@ def _summary_markdown(results: Path, summaries, nominal: list[dict]) -> Path:
 
 
 # =========================================================================== thesis FDI report
-def fdi_table(rows: Sequence[dict], campaign) -> "pd.DataFrame":
+def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None = None
+              ) -> "pd.DataFrame":
     """The thesis' Figure 6.17 with our results beside the thesis' own, one row per case.
 
     Parameters
@@ -451,7 +453,9 @@ def fdi_table(rows: Sequence[dict], campaign) -> "pd.DataFrame":
         spread ``mean_err_pct_min/max``, ``seeds``,
         ``seconds`` (median), ``evaluations``, ``method``, ``objective``, then
         ``thesis_<p>_out, thesis_err_<p>_pct, thesis_mean_err_pct, thesis_seconds`` and
-        ``at_least_as_accurate`` (our median mean error <= the thesis').
+        ``at_least_as_accurate`` (our median mean error <= the thesis'); with ``augmented``
+        (rows of the same cases run with the LF model augmented by ``eha explain``, campaign
+        :data:`AUGMENTED_CAMPAIGN`) also ``aug_<p>_out, aug_err_<p>_pct, aug_mean_err_pct``.
     """
     import pandas as pd
 
@@ -486,6 +490,13 @@ def fdi_table(rows: Sequence[dict], campaign) -> "pd.DataFrame":
         row["thesis_mean_err_pct"] = th.get("mean_err_pct", np.nan)
         row["thesis_seconds"] = th.get("seconds", np.nan)
         row["at_least_as_accurate"] = bool(row["mean_err_pct"] <= row["thesis_mean_err_pct"])
+        aug = [r for r in augmented or () if int(r["case"]) == case.case]
+        if aug:
+            for n in names:
+                row[f"aug_{n.lower()}_out"] = med(r["estimates"][n] for r in aug)
+            for n in names:
+                row[f"aug_err_{n.lower()}_pct"] = med(r["errors_pct"][n] for r in aug)
+            row["aug_mean_err_pct"] = med(float(r["mean_err_pct"]) for r in aug)
         out.append(row)
     return pd.DataFrame(out)
 
@@ -507,6 +518,9 @@ def plot_fdi_mean_error(table, path: str | Path) -> Path:
                 ms=7, lw=1.5, capsize=4,
                 label=f"eha {table['method'].iloc[0]} (median, min–max of "
                       f"{int(table['seeds'].iloc[0])} seeds)")
+    if "aug_mean_err_pct" in table:
+        ax.plot(x, np.maximum(table["aug_mean_err_pct"], floor), "D-", color="tab:green",
+                ms=6, lw=1.2, label="eha, LF augmented by eha explain (median)")
     ax.set_yscale("log")
     ax.set_xticks(x, [str(c) for c in cases])
     commands = list(table["command"])
@@ -527,11 +541,13 @@ def plot_fdi_mean_error(table, path: str | Path) -> Path:
     return _save(fig, Path(path))
 
 
-def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path) -> dict[str, Path]:
-    """``fdi_table.csv``, ``mean_error.png`` and ``fdi_summary.md`` under ``out``."""
+def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path,
+                        augmented: Sequence[dict] | None = None) -> dict[str, Path]:
+    """``fdi_table.csv``, ``mean_error.png`` and ``fdi_summary.md`` under ``out`` (with the
+    augmented-LF columns when ``augmented`` rows are given)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    table = fdi_table(rows, campaign)
+    table = fdi_table(rows, campaign, augmented)
     if table.empty:
         raise ValueError(f"no FDI results of campaign {campaign.name!r} to report")
     csv_path = out / "fdi_table.csv"
@@ -563,6 +579,8 @@ def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path) -> dict
         "search: the plain LF model (linear P12 law, no leakage) has its best fit a few percent "
         "away from the injected FDJ (see docs/fdi.md).",
         "", f"![mean error]({png.name})", ""]
+    if "aug_mean_err_pct" in table:
+        lines += _augmented_markdown(table)
     cases = plot_fdi_cases(rows, campaign, out / "cases")
     lines += ["## Each case: HF reference against the identified LF model (first seed)", ""]
     lines += [f"![case {c}](cases/{path.name})" for c, path in cases.items()] + [""]
@@ -635,9 +653,45 @@ def thesis_report(results: str | Path = "results", out: str | Path | None = None
                   campaign: str = FDI_CAMPAIGN) -> dict[str, Path]:
     """``eha report thesis``: the FDI table, figure and summary of ``campaign`` from the
     database in ``results``, written to ``out`` (default ``results/reports/thesis``)."""
+    from eha.store import StoreError
+
     rows, camp = fdi_results(results, campaign)
+    try:
+        augmented, _ = fdi_results(results, AUGMENTED_CAMPAIGN)
+    except StoreError:      # not run (yet): the report has the plain columns only
+        augmented = None
     return write_thesis_report(rows, camp, Path(out) if out else
-                               Path(results) / "reports" / "thesis")
+                               Path(results) / "reports" / "thesis", augmented)
+
+
+#: The thesis FDI cases with the LF model augmented by ``eha explain`` on nominal HF data
+#: (campaigns/thesis-fdi-augmented.toml; issue 5, item 6).
+AUGMENTED_CAMPAIGN = "thesis-fdi-augmented"
+
+
+def _augmented_markdown(table) -> list[str]:
+    """Summary section of the augmented-LF columns (goal: mean error <= 1 % on cases 3-12,
+    <= 5 % on case 2)."""
+    fmt = lambda v: f"{v:.3g}"  # noqa: E731
+    body = [[str(r.case), r.command, fmt(r.mean_err_pct), fmt(r.aug_bkl_out), fmt(r.aug_fdj_out),
+             fmt(r.aug_err_bkl_pct), fmt(r.aug_err_fdj_pct), fmt(r.aug_mean_err_pct)]
+            for r in table.itertuples()]
+    late = table[table["case"] >= 3]
+    case2 = table[table["case"] == 2]
+    lines = ["## LF model augmented by `eha explain` (campaign thesis-fdi-augmented)", "",
+             "The same cases with the LF model augmented by the effects `eha explain` adds on a "
+             "nominal HF record (campaigns/thesis-fdi-augmented.toml, docs/explain.md). Medians "
+             "over the seeds.", ""]
+    if not late.empty:
+        lines.append(f"- mean error, cases 3–12: plain **{late['mean_err_pct'].mean():.3g} %**"
+                     f" → augmented **{late['aug_mean_err_pct'].mean():.3g} %** (goal ≤ 1 %); "
+                     f"worst case {late['aug_mean_err_pct'].max():.3g} %")
+    if not case2.empty:
+        lines.append(f"- case 2: plain {case2['mean_err_pct'].iloc[0]:.3g} % → augmented "
+                     f"**{case2['aug_mean_err_pct'].iloc[0]:.3g} %** (goal ≤ 5 %)")
+    return lines + ["", _markdown_table(
+        ["case", "command", "plain mean err [%]", "aug. BKL out [m]", "aug. FDJ out [N]",
+         "aug. BKL err [%]", "aug. FDJ err [%]", "aug. mean err [%]"], body), ""]
 
 
 # =========================================================================== residual loop
