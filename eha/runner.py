@@ -118,10 +118,14 @@ def trace_metrics(trace) -> dict[str, float | None]:
 
 
 def pair_metrics(hf, lf) -> dict[str, float | None]:
-    """HF-vs-LF metrics of one case (same command, faults, seed, t_end)."""
+    """HF-vs-LF metrics of one case (same command, faults, seed, t_end).
+
+    ``hf``, ``lf``: :class:`~eha.simulate.Trace` or mappings with ``"xu"`` and ``"p12"``.
+    """
     import numpy as np
 
-    out = {"rmse_xu_hf_lf": rmse(hf.xu, lf.xu), "max_err_xu_hf_lf": max_abs_error(hf.xu, lf.xu),
+    out = {"rmse_xu_hf_lf": rmse(hf["xu"], lf["xu"]),
+           "max_err_xu_hf_lf": max_abs_error(hf["xu"], lf["xu"]),
            "rmse_p12_hf_lf": rmse(hf["p12"], lf["p12"])}
     return {k: (None if v is None or not np.isfinite(v) else v) for k, v in out.items()}
 
@@ -170,8 +174,8 @@ def worker_info() -> dict[str, Any]:
             "cache_hits": hits, "cache_misses": misses}
 
 
-def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str,
-                    trace_file: str) -> dict[str, Any]:
+def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str, trace_file: str,
+                    want_signals: bool = False) -> dict[str, Any]:
     from eha.commands import make_command
     from eha.simulate import simulate
     from eha.simulate import Trace
@@ -188,7 +192,10 @@ def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str,
     metrics = trace_metrics(trace)
     trace = Trace(trace.data, {**trace.meta, "run_key": run_key, "campaign": campaign})
     write_trace(trace, trace_file, columns=spec["signals"])
-    return {"rows": {"metrics": metrics}, "sim_s": sim_s}
+    out = {"rows": {"metrics": metrics}, "sim_s": sim_s}
+    if want_signals:  # the parent pairs HF and LF of a case without reading the files back
+        out["signals"] = {"xu": trace.xu.copy(), "p12": trace["p12"].copy()}
+    return out
 
 
 #: Worker function of each job kind (see the module docstring).
@@ -222,8 +229,9 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
                               "worker": f"{socket.gethostname()}:{os.getpid()}",
                               "trace_path": None, "error": None, "rows": {}}
     try:
+        extra = {"want_signals": True} if payload.get("want_signals") else {}
         out = JOB_RUNNERS[payload["kind"]](payload["spec"], payload["run_key"],
-                                           payload["campaign"], payload["trace_file"])
+                                           payload["campaign"], payload["trace_file"], **extra)
         result.update(out)
         result["status"] = "done"
         if Path(payload["trace_file"]).exists():
@@ -501,7 +509,9 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
             path = trace_path(db.results, camp.name, j.run_key)
             payloads.append({"kind": j.kind, "spec": j.spec, "run_key": j.run_key,
                              "campaign": camp.name, "trace_file": str(path),
-                             "trace_path": str(path.relative_to(db.results))})
+                             "trace_path": str(path.relative_to(db.results)),
+                             "case_key": j.columns.get("case_key"),
+                             "model": j.columns.get("model")})
         if payloads:
             _execute(payloads, db, summary, workers, scheduler, progress, executor)
         _finish_pairs(db, camp.name)
@@ -528,9 +538,11 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
         summary.startup_s = time.perf_counter() - t0
         bar.update(task, description=f"{summary.campaign} ({ex.workers} workers)")
         buffer: list[dict] = []
+        pairs = _Pairs(payloads)
         last = time.perf_counter()
         try:
             for res in ex.map_unordered(execute_job, payloads):
+                pairs.add(res)
                 buffer.append(res)
                 if res["status"] == "done":
                     summary.done += 1
@@ -538,15 +550,53 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
                     summary.errors.append(f"{res['run_key']}: {res['error']}")
                 bar.advance(task)
                 if len(buffer) >= BATCH_ROWS or time.perf_counter() - last > BATCH_SECONDS:
-                    db.record(buffer)
+                    db.record(buffer, {"metrics": pairs.take()})
                     buffer, last = [], time.perf_counter()
         finally:
-            db.record(buffer)  # also on Ctrl-C: keep what is finished
+            db.record(buffer, {"metrics": pairs.take()})  # on Ctrl-C too: keep what is done
             summary.jobs_s = time.perf_counter() - t0 - summary.startup_s
 
 
+class _Pairs:
+    """HF-vs-LF metrics as results arrive: a case whose HF and LF runs are both in this session
+    pairs the two runs' signals in memory (the workers send them back for those runs only)."""
+
+    def __init__(self, payloads: list[dict]):
+        by_case: dict[str, set] = {}
+        for p in payloads:
+            if p["kind"] == "simulate" and p.get("case_key") and p.get("model"):
+                by_case.setdefault(p["case_key"], set()).add(p["model"])
+        both = {c for c, models in by_case.items() if models >= {"hf", "lf"}}
+        self.case: dict[str, tuple[str, str]] = {}
+        for p in payloads:
+            if p.get("case_key") in both:
+                p["want_signals"] = True
+                self.case[p["run_key"]] = (p["case_key"], p["model"])
+        self.waiting: dict[str, dict[str, tuple[str, dict]]] = {}
+        self.rows: list[dict] = []
+
+    def add(self, result: dict) -> None:
+        signals = result.pop("signals", None)
+        if signals is None or result["status"] != "done" or result["run_key"] not in self.case:
+            return
+        case, model = self.case[result["run_key"]]
+        mine = self.waiting.setdefault(case, {})
+        mine[model] = (result["run_key"], signals)
+        if "hf" in mine and "lf" in mine:
+            (hf_key, hf), (lf_key, lf) = mine.pop("hf"), mine.pop("lf")
+            del self.waiting[case]
+            if len(hf["xu"]) == len(lf["xu"]):
+                m = pair_metrics(hf, lf)
+                self.rows += [{"run_key": hf_key, **m}, {"run_key": lf_key, **m}]
+
+    def take(self) -> list[dict]:
+        rows, self.rows = self.rows, []
+        return rows
+
+
 def _finish_pairs(db, campaign: str) -> int:
-    """HF-vs-LF metrics of every case whose HF and LF runs are both done; returns how many."""
+    """HF-vs-LF metrics of every case whose HF and LF runs are both done but not yet paired
+    (e.g. one of them ran in an earlier session): reads their traces; returns how many."""
     from eha.store import read_trace
 
     rows = []

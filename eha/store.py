@@ -408,14 +408,16 @@ class ResultStore:
         finally:
             self.con.unregister("_p")
 
-    def record(self, results: Sequence[Mapping[str, Any]]) -> None:
+    def record(self, results: Sequence[Mapping[str, Any]],
+               extra: Mapping[str, Sequence[Mapping[str, Any]]] | None = None) -> None:
         """Store finished runs in one transaction.
 
         Each result has ``run_key``, ``status`` and the other ``runs`` columns to update
         (``error``, ``worker``, timings, ``trace_path``), and ``rows``: result-table name ->
-        one row (dict of columns) for that run.
+        one row (dict of columns) for that run. ``extra``: result-table name -> rows upserted
+        after them (e.g. the HF-vs-LF columns of runs recorded now or before).
         """
-        if not results:
+        if not results and not extra:
             return
         run_cols = {"status", "error", "worker", "started_at", "finished_at", "sim_s",
                     "elapsed_s", "trace_path"}
@@ -429,11 +431,15 @@ class ResultStore:
                 per_table.setdefault(table, []).append({"run_key": r["run_key"], **row})
         self.con.execute("BEGIN")
         try:
-            self.con.register("_u", _frame(updates))
-            sets = ", ".join(f"{c} = _u.{c}" for c in sorted(run_cols))
-            self.con.execute(f"UPDATE runs SET {sets} FROM _u WHERE runs.run_key = _u.run_key")
-            self.con.unregister("_u")
+            if updates:
+                self.con.register("_u", _frame(updates))
+                sets = ", ".join(f"{c} = _u.{c}" for c in sorted(run_cols))
+                self.con.execute(f"UPDATE runs SET {sets} FROM _u "
+                                 "WHERE runs.run_key = _u.run_key")
+                self.con.unregister("_u")
             for table, rows in per_table.items():
+                self.upsert(table, rows)
+            for table, rows in (extra or {}).items():
                 self.upsert(table, rows)
             self.con.execute("COMMIT")
         except BaseException:
