@@ -4,8 +4,9 @@ The parent process plans the jobs (:mod:`eha.campaign`), opens ``DIR/eha.duckdb`
 only writer, :class:`eha.store.ResultStore`), skips runs already done, and hands the rest to an
 :class:`Executor`. Workers simulate, compute the run's metrics and write one Parquet trace each
 (atomically, :func:`eha.store.write_trace`); they never touch the database. The parent records
-results in batches, shows a progress bar, and finally computes the HF-vs-LF metrics of every
-case whose two runs are done.
+results in batches, shows a progress bar, and computes the HF-vs-LF metrics of a case as soon
+as its two runs are back (from signals the workers return; traces are read back only for pairs
+split across sessions).
 
 Resume
 ------
