@@ -70,9 +70,7 @@ def plot_traces(traces: Sequence[Trace], path: str | Path, title: str | None = N
     return path
 
 
-def rmse(a: np.ndarray, b: np.ndarray) -> float:
-    """Root-mean-square difference of two equally sampled signals."""
-    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
+from eha.runner import rmse  # noqa: E402  (one definition; re-exported for report users)
 
 
 def nominal_comparison(results: str | Path = "results", t_end: float = 1.0,
