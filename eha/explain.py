@@ -33,8 +33,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from eha.effects import EFFECTS, Effect, get as get_effects
-from eha.measured import MeasuredData
+from eha.effects import COMBINATIONS, EFFECTS, Effect, get as get_effects
+from eha.measured import MeasuredData, noise_level
 from eha.models import O_DXJ, O_P12, O_XU, OUTPUTS
 from eha.params import LF, SPECS, LFParams, ParameterError, resolve
 from eha.simulate import OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch
@@ -47,6 +47,9 @@ DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
 DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
                               "max_steps": 4, "candidates": 6, "noise_factor": 1.25,
                               "joint": False}
+#: A record whose first position is within this distance of its first command starts at rest
+#: on the command (the LF model starts there); otherwise at the measured first position [m].
+START_TOLERANCE = 5e-4
 #: Signals the residual is correlated with (name -> meaning).
 SIGNALS = {
     "position": "LF position xu",
@@ -224,22 +227,6 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
         raise ExplainError(str(exc)) from None
 
 
-def noise_level(xu: np.ndarray) -> float:
-    """Measurement-noise standard deviation [m] estimated from the record itself.
-
-    Robust (median absolute deviation) spread of the fourth difference, divided by sqrt(70):
-    white noise of std s gives fourth differences of std s*sqrt(70), while the actuator's
-    position (a mass behind a valve) is smooth at 1 kHz: a 5 Hz, 1 cm sine contributes
-    (2*pi*5e-3)**4 * 1 cm = 0.01 µm, and the few corners (steps, end stops) are outliers that
-    the median ignores.
-    """
-    d4 = np.diff(np.asarray(xu, dtype=np.float64), 4)
-    if d4.size < 5:
-        return 0.0
-    mad = np.median(np.abs(d4 - np.median(d4)))
-    return float(1.4826 * mad / math.sqrt(70.0))
-
-
 def _rmse(a: np.ndarray, b: np.ndarray) -> float:
     d = np.asarray(a) - np.asarray(b)
     return float(np.sqrt(np.mean(d * d))) if d.size else math.nan
@@ -303,9 +290,13 @@ def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 1e-3) -> b
 
 
 def _initial_position(data: MeasuredData, base: LFParams) -> LFParams:
-    # The LF model starts at rest at XJ0; a record starting at rest sits near its command.
-    x0 = float(np.clip(data.com[0], -base.XJM, base.XJM))
-    return base.replace(XJ0=x0)
+    """The LF model starts at rest at XJ0: on the first command when the record starts near it
+    (the small difference is then left to the model to explain: friction, offset, sensor
+    bias), else at the measured first position (median of 3 samples, against noise), e.g. a
+    command that steps away at t = 0 or a record that starts elsewhere."""
+    measured = float(np.median(data.xu[:3]))
+    start = float(data.com[0]) if abs(measured - data.com[0]) <= START_TOLERANCE else measured
+    return base.replace(XJ0=float(np.clip(start, -base.XJM, base.XJM)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -430,7 +421,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     cur = evaluate_many([current])[0]
     before = cur
     faults_before = {k: getattr(current, k) for k in bounds}
-    noise = noise_level(y)
+    noise = data.info.get("noise_m", noise_level(y))
     # refitted every round: the faults (and, with joint=True, the effects already added; by
     # default those stay at their estimates, which keeps every GA search low-dimensional)
     free = dict(bounds)
@@ -455,22 +446,29 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
         k = int(settings["candidates"])
         chosen = ranked if k <= 0 else ranked[:k]
-        # (c) refit with each candidate switched on
+        # (c) refit with each candidate switched on (and the combinations of COMBINATIONS)
+        names_left = {e.name for e in remaining}
+        for combo in COMBINATIONS:
+            if set(combo) <= names_left:
+                rnd.candidates.append(Candidate("+".join(combo), math.nan, math.nan))
+                chosen = chosen + [rnd.candidates[-1]]
         for cand in chosen:
-            effect = EFFECTS[cand.effect]
+            members = [EFFECTS[name] for name in cand.effect.split("+")]
             t0 = time.perf_counter()
-            start = effect.switch_on(current)
-            trial, _ = refit(start, {**free, **effect.bounds},
-                             f"round {len(rounds)}: refit with {effect.name}")
+            start, free_c = current, dict(free)
+            for effect in members:
+                start = effect.switch_on(start)
+                free_c.update(effect.bounds)
+            trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {cand.effect}")
             ev = evaluate_many([trial])[0]
             cand.refit = True
-            cand.params = {p: getattr(trial, p) for p in effect.params}
+            cand.params = {p: getattr(trial, p) for e in members for p in e.params}
             cand.faults = {p: getattr(trial, p) for p in bounds}
             cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
             cand.gain = 1.0 - ev.rmse_hold / cur.rmse_hold if cur.rmse_hold > 0 else 0.0
-            cand.score = cand.gain - settings["penalty"] * len(effect.params)
-            if effect.params and _at_off(effect, cand.params):
-                # the fit switched the effect off: any gain is the optimizer's, not the effect's
+            cand.score = cand.gain - settings["penalty"] * len(cand.params)
+            if any(e.params and _at_off(e, cand.params) for e in members):
+                # the fit switched an effect off: any gain is the optimizer's, not the effect's
                 cand.score = -math.inf
             cand.seconds = time.perf_counter() - t0
             cand._evaluation = ev          # kept for the step, not reported
@@ -486,13 +484,25 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
                     f"{settings['min_gain']:.0%})")
             break
         ev = best._evaluation
-        steps.append(Step(best.effect, dict(best.params), cur.rmse_all, ev.rmse_all,
-                          cur.rmse_fit, ev.rmse_fit, cur.rmse_hold, ev.rmse_hold,
-                          {p: getattr(current, p) for p in bounds}, dict(best.faults),
-                          best.gain, best.score))
+        members = [EFFECTS[name] for name in best.effect.split("+")]
+        # a combination is reported as one step per effect, in order: each step's "after" is
+        # the combined fit with the later members still off
+        prev, faults0 = cur, {p: getattr(current, p) for p in bounds}
+        for k, effect in enumerate(members):
+            params_k = ev.params
+            for later in members[k + 1:]:
+                params_k = later.switch_off(params_k)
+            ev_k = ev if k == len(members) - 1 else evaluate_many([params_k])[0]
+            gain_k = 1.0 - ev_k.rmse_hold / prev.rmse_hold if prev.rmse_hold > 0 else 0.0
+            steps.append(Step(effect.name, {p: best.params[p] for p in effect.params},
+                              prev.rmse_all, ev_k.rmse_all, prev.rmse_fit, ev_k.rmse_fit,
+                              prev.rmse_hold, ev_k.rmse_hold, faults0, dict(best.faults),
+                              gain_k, gain_k - settings["penalty"] * len(effect.params)))
+            prev, faults0 = ev_k, dict(best.faults)
         current, cur = ev.params, ev
         if settings["joint"]:
-            free.update(EFFECTS[best.effect].bounds)
+            for effect in members:
+                free.update(effect.bounds)
     for rnd in rounds:
         for c in rnd.candidates:
             c.__dict__.pop("_evaluation", None)

@@ -742,7 +742,8 @@ def plot_explain_trace(result, path: str | Path) -> Path:
                 va="center", wrap=True, fontsize=9)
         return _save(fig, Path(path))
     rnd = result.rounds[0]
-    cands = sorted(rnd.candidates, key=lambda c: c.explained)
+    cands = sorted((c for c in rnd.candidates if np.isfinite(c.explained)),  # not combinations
+                   key=lambda c: c.explained)
     names = [c.effect for c in cands]
     y = np.arange(len(cands))
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 0.32 * len(cands) + 2.2),

@@ -63,6 +63,15 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert [s[1] for s in steps] == [s["effect"] for s in doc["steps"]]
 
 
+def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
+    """On the step-rich 'test' command the orifice law and the flapper dynamics each explain
+    little alone; tried together (eha.effects.COMBINATIONS) they are added as two steps."""
+    res = explain(load(_record(tmp_path, "nominal_test", "test", 0.6)), **FAST)
+    assert res.effects[:2] == ["orifice_law", "flapper_dynamics"], res.stop_reason
+    assert res.rmse_before >= 3 * res.rmse_after
+    assert res.steps[0].rmse_after == pytest.approx(res.steps[1].rmse_before)
+
+
 @pytest.mark.parametrize("effect,overrides,param,rel", [
     ("external_load", {"FRC": 2000.0}, "FRC", 0.10),
     ("offset", {"Ofs": 0.3}, "Ofs", 0.10),
@@ -109,7 +118,8 @@ def test_noise_only_adds_nothing(tmp_path):
     res = explain(data, noise_factor=0.0, max_steps=1, **FAST)
     assert res.steps == [] and res.rmse_after == res.rmse_before
     assert "noise level" not in res.stop_reason
-    assert sum(c.refit for c in res.rounds[0].candidates) == FAST["candidates"]
+    # the best-ranked singles and the orifice_law+flapper_dynamics combination were refitted
+    assert sum(c.refit for c in res.rounds[0].candidates) == FAST["candidates"] + 1
 
 
 def test_bad_inputs_raise_one_line(tmp_path):
