@@ -415,8 +415,7 @@ def explain(
                                    "reduction that adds an effect."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
-    """Trace the residual of a measured record to the effects the LF model lacks, add them,
-    and report the error before and after.
+    """Trace a measured record's residual to missing LF effects, add them, report the error.
 
     Example: eha explain data/run1.csv --fit BKL,FDJ --holdout 0.3 --json out.json
     """
