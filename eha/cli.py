@@ -466,6 +466,11 @@ def explain(
     console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held out: "
                   f"{res.holdout}")
     console.print(table)
+    for row in res.steps_table():
+        if row["alternatives"]:
+            console.print(f"step {row['step']} ({row['effect']}, score {row['score']:+.2f}): "
+                          f"nearly as good, not told apart by this record: "
+                          f"{row['alternatives']}")
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
                   f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
                   f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")

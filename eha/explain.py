@@ -50,6 +50,9 @@ DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
 #: A record whose first position is within this distance of its first command starts at rest
 #: on the command (the LF model starts there); otherwise at the measured first position [m].
 START_TOLERANCE = 5e-4
+#: Candidates scoring within this margin (absolute, in relative held-out gain) of the chosen
+#: one are reported as alternatives the record cannot tell apart.
+ALTERNATIVE_MARGIN = 0.05
 #: Signals the residual is correlated with (name -> meaning).
 SIGNALS = {
     "position": "LF position xu",
@@ -109,6 +112,9 @@ class Step:
     faults_after: dict[str, float]
     gain: float
     score: float
+    #: other candidates of the round scoring within ``ALTERNATIVE_MARGIN`` of the chosen one
+    #: (name -> score): the record does not tell them apart (e.g. load, offset, sensor bias)
+    alternatives: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -179,7 +185,8 @@ class ExplainResult:
                  "rmse_before_m": s.rmse_before, "rmse_after_m": s.rmse_after,
                  "faults_before": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_before.items()),
                  "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
-                 "gain": s.gain, "score": s.score}
+                 "gain": s.gain, "score": s.score,
+                 "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in s.alternatives.items())}
                 for i, s in enumerate(self.steps)]
 
 
@@ -484,6 +491,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
                     f"{settings['min_gain']:.0%})")
             break
         ev = best._evaluation
+        alternatives = {c.effect: c.score for c in tried if c is not best
+                        and c.score >= settings["min_gain"]
+                        and best.score - c.score <= ALTERNATIVE_MARGIN}
         members = [EFFECTS[name] for name in best.effect.split("+")]
         # a combination is reported as one step per effect, in order: each step's "after" is
         # the combined fit with the later members still off
@@ -497,7 +507,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             steps.append(Step(effect.name, {p: best.params[p] for p in effect.params},
                               prev.rmse_all, ev_k.rmse_all, prev.rmse_fit, ev_k.rmse_fit,
                               prev.rmse_hold, ev_k.rmse_hold, faults0, dict(best.faults),
-                              gain_k, gain_k - settings["penalty"] * len(effect.params)))
+                              gain_k, gain_k - settings["penalty"] * len(effect.params),
+                              alternatives if k == 0 else {}))
             prev, faults0 = ev_k, dict(best.faults)
         current, cur = ev.params, ev
         if settings["joint"]:
