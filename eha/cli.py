@@ -329,8 +329,9 @@ def fdi(
                                      "(default BKL=0:1.25e-3, FDJ=200:4000, else the range)."),
     base: List[str] = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE "
                                    "(e.g. orifice_law=1)."),
-    method: str = typer.Option("ga+ps", "--method", help="ga (the thesis) or ga+ps "
-                               "(GA + pattern-search polish)."),
+    method: str = typer.Option("ga+ps", "--method", help="ga (the thesis), ga+ps "
+                               "(GA + pattern-search polish) or ps (pattern search from the "
+                               "--base / nominal values)."),
     pop: int = typer.Option(20, "--pop", help="GA population."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
     objective: str = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' "
@@ -468,7 +469,8 @@ def explain(
     console.print(table)
     for row in res.steps_table():
         if row["alternatives"]:
-            console.print(f"step {row['step']} ({row['effect']}, score {row['score']:+.2f}): "
+            console.print(f"step {row['step']} ({row['chosen']}, score "
+                          f"{row['chosen_score']:+.2f}): "
                           f"nearly as good, not told apart by this record: "
                           f"{row['alternatives']}")
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "

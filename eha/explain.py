@@ -11,7 +11,8 @@ b. traces the residual: its correlation with the *signature* of every effect of
    the linearised fit ``r ~ J_faults*d_faults + a*signature`` gives the fraction of the residual
    each effect could explain, which ranks the candidates;
 c. refits the faults together with each of the best-ranked candidates (its parameters free
-   within their bounds) and scores it by the relative reduction of the *held-out* RMSE minus a
+   within their bounds) and scores it by the relative reduction of the RMSE (fitted and
+   *held-out* parts weighted equally, :attr:`Evaluation.rmse_score`) minus a
    penalty per added parameter;
 d. adds the best candidate when that penalised gain is significant (>= ``min_gain``), and
    repeats from (b) with the augmented model;
@@ -50,7 +51,7 @@ DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
 #: A record whose first position is within this distance of its first command starts at rest
 #: on the command (the LF model starts there); otherwise at the measured first position [m].
 START_TOLERANCE = 5e-4
-#: Candidates scoring within this margin (absolute, in relative held-out gain) of the chosen
+#: Candidates scoring within this margin (absolute, in relative gain) of the chosen
 #: one are reported as alternatives the record cannot tell apart.
 ALTERNATIVE_MARGIN = 0.05
 #: Signals the residual is correlated with (name -> meaning).
@@ -77,6 +78,14 @@ class Evaluation:
     rmse_hold: float                # on the held-out part or the validation record [m]
     rmse_all: float                 # whole record [m]
 
+    @property
+    def rmse_score(self) -> float:
+        """What the loop scores and stops on [m]: the fitted and the held-out part weighted
+        equally, ``sqrt((rmse_fit**2 + rmse_hold**2) / 2)``. The held-out part alone can be a
+        quiet stretch (the end of a step sequence) where every candidate is at the noise
+        level; the fitted part alone rewards over-fitting."""
+        return math.sqrt(0.5 * (self.rmse_fit ** 2 + self.rmse_hold ** 2))
+
 
 @dataclass
 class Candidate:
@@ -91,7 +100,7 @@ class Candidate:
     rmse_fit: float = math.nan
     rmse_hold: float = math.nan
     rmse_all: float = math.nan
-    gain: float = math.nan          # relative held-out RMSE reduction
+    gain: float = math.nan          # relative reduction of Evaluation.rmse_score
     score: float = math.nan         # gain - penalty * added parameters
     seconds: float = 0.0
 
@@ -115,6 +124,10 @@ class Step:
     #: other candidates of the round scoring within ``ALTERNATIVE_MARGIN`` of the chosen one
     #: (name -> score): the record does not tell them apart (e.g. load, offset, sensor bias)
     alternatives: dict[str, float] = field(default_factory=dict)
+    #: the candidate accepted in this step's round (a combination adds several steps) and
+    #: its score, the one the alternatives compare with
+    chosen: str = ""
+    chosen_score: float = math.nan
 
 
 @dataclass
@@ -163,14 +176,20 @@ class ExplainResult:
     def effects(self) -> list[str]:
         return [s.effect for s in self.steps]
 
+    def final_params(self, step: Step) -> dict[str, float]:
+        """The parameters of a step's effect in the final model (later steps end with a joint
+        polish that refines earlier estimates; ``step.params`` holds them as first added)."""
+        return {p: getattr(self.after.params, p) for p in step.params}
+
     def to_json(self) -> dict[str, Any]:
-        """The contract of ``eha explain --json`` (issue 5): RMSE over the whole record [m]."""
+        """The contract of ``eha explain --json`` (issue 5): RMSE over the whole record [m],
+        each step's parameters as estimated in the final model."""
         return {
             "rmse_before": self.rmse_before,
             "rmse_after": self.rmse_after,
             "faults_before": dict(self.faults_before),
             "faults_after": dict(self.faults_after),
-            "steps": [{"effect": s.effect, "params": dict(s.params),
+            "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after}
                       for s in self.steps],
         }
@@ -178,14 +197,16 @@ class ExplainResult:
     def steps_table(self) -> list[dict[str, Any]]:
         """One row per added effect, for people (CSV / console)."""
         return [{"step": i + 1, "effect": s.effect,
-                 "params": ", ".join(f"{k}={v:.4g}" for k, v in s.params.items()) or "-",
+                 "params": ", ".join(f"{k}={v:.4g}" for k, v in
+                                     self.final_params(s).items()) or "-",
                  "rmse_fit_before_m": s.rmse_fit_before, "rmse_fit_after_m": s.rmse_fit_after,
                  "rmse_holdout_before_m": s.rmse_hold_before,
                  "rmse_holdout_after_m": s.rmse_hold_after,
                  "rmse_before_m": s.rmse_before, "rmse_after_m": s.rmse_after,
                  "faults_before": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_before.items()),
                  "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
-                 "gain": s.gain, "score": s.score,
+                 "gain": s.gain, "score": s.score, "chosen": s.chosen,
+                 "chosen_score": s.chosen_score,
                  "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in s.alternatives.items())}
                 for i, s in enumerate(self.steps)]
 
@@ -338,15 +359,16 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     method, pop, seed, **fdi_options
         Passed to :func:`eha.fdi.identify` for every fit (same seed for all fits).
     min_gain : float
-        Smallest penalised held-out RMSE reduction (relative) that adds an effect; 0.1.
+        Smallest penalised relative reduction of the scored RMSE (fitted and held-out parts
+        weighted equally) that adds an effect; 0.1.
     penalty : float
-        Relative held-out gain charged per added parameter; 0.02.
+        Relative gain charged per added parameter; 0.02.
     max_steps : int
         Most effects added; 4.
     candidates : int
         Effects refitted per round, the best-ranked by their signature (0 = all); 6.
     noise_factor : float
-        Stop when the held-out RMSE is below ``noise_factor`` times the noise level; 1.25.
+        Stop when the scored RMSE is below ``noise_factor`` times the noise level; 1.25.
     joint : bool
         Refit the parameters of the effects already added in every later round (False: they
         stay at the estimates of the round that added them; the faults are always refitted).
@@ -357,7 +379,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     -------
     ExplainResult
     """
-    from eha.fdi import DEFAULT_METHOD, FDIError, identify
+    from eha.fdi import DEFAULT_METHOD, METHOD_DEFAULTS, FDIError, identify
 
     started = time.perf_counter()
     settings = dict(DEFAULTS)
@@ -414,11 +436,14 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             out.append(Evaluation(p, xu[j], r_fit, r_hold, _rmse(xu[j], y)))
         return out
 
-    def refit(start: LFParams, free: dict[str, tuple[float, float]], label: str):
+    def refit(start: LFParams, free: dict[str, tuple[float, float]], label: str,
+              method: str = method, warm_start: bool = False):
         progress(label)
+        options = fdi_options if method != "ps" else {
+            k: v for k, v in fdi_options.items() if k in METHOD_DEFAULTS["ps"]}
         try:
             res = identify(fit_y, data.command, fit=free, base=start, method=method, pop=pop,
-                           seed=seed, **fdi_options)
+                           seed=seed, warm_start=warm_start, **options)
         except FDIError as exc:
             raise ExplainError(str(exc)) from None
         return start.replace(**res.estimates), res
@@ -439,9 +464,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         if len(steps) >= settings["max_steps"]:
             stop = f"reached max_steps={settings['max_steps']:g}"
             break
-        if cur.rmse_hold <= settings["noise_factor"] * noise:
-            stop = (f"held-out RMSE {cur.rmse_hold:.3g} m is at the noise level "
-                    f"({noise:.3g} m estimated from the record)")
+        if cur.rmse_score <= settings["noise_factor"] * noise:
+            stop = (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts) is at the "
+                    f"noise level ({noise:.3g} m estimated from the record)")
             break
         remaining = [e for e in pool if e.name not in {s.effect for s in steps}]
         if not remaining:
@@ -453,32 +478,65 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
         k = int(settings["candidates"])
         chosen = ranked if k <= 0 else ranked[:k]
-        # (c) refit with each candidate switched on (and the combinations of COMBINATIONS)
-        names_left = {e.name for e in remaining}
-        for combo in COMBINATIONS:
-            if set(combo) <= names_left:
-                rnd.candidates.append(Candidate("+".join(combo), math.nan, math.nan))
-                chosen = chosen + [rnd.candidates[-1]]
-        for cand in chosen:
+        # (c) refit with each candidate switched on; also the combinations of COMBINATIONS,
+        # alone and with each of the effects that best explain the combination's residual (an
+        # effect is often only recognisable once the structure it interacts with is in the
+        # model: with the orifice law a load and a motor offset stop being equivalent)
+        def try_candidate(cand: Candidate, extends: LFParams | None = None) -> Candidate:
+            """Refit the faults with the candidate's effects free, the GA warm-started at the
+            model it extends (``current``, or a combination's fit) with the new effects at
+            their off values (at the probe where off is outside the search bounds): a refit
+            is never worse than what it extends."""
             members = [EFFECTS[name] for name in cand.effect.split("+")]
             t0 = time.perf_counter()
-            start, free_c = current, dict(free)
+            start = extends if extends is not None else current
+            free_c = dict(free)
             for effect in members:
-                start = effect.switch_on(start)
+                if not effect.is_on(start):
+                    start = effect.switch_on(start, {
+                        p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
+                        if lo <= effect.off[p] <= hi})
                 free_c.update(effect.bounds)
-            trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {cand.effect}")
+            trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {cand.effect}",
+                             warm_start=True)
             ev = evaluate_many([trial])[0]
             cand.refit = True
             cand.params = {p: getattr(trial, p) for e in members for p in e.params}
             cand.faults = {p: getattr(trial, p) for p in bounds}
             cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
-            cand.gain = 1.0 - ev.rmse_hold / cur.rmse_hold if cur.rmse_hold > 0 else 0.0
+            cand.gain = 1.0 - ev.rmse_score / cur.rmse_score if cur.rmse_score > 0 else 0.0
             cand.score = cand.gain - settings["penalty"] * len(cand.params)
             if any(e.params and _at_off(e, cand.params) for e in members):
                 # the fit switched an effect off: any gain is the optimizer's, not the effect's
                 cand.score = -math.inf
             cand.seconds = time.perf_counter() - t0
             cand._evaluation = ev          # kept for the step, not reported
+            return cand
+
+        for cand in chosen:
+            try_candidate(cand)
+        names_left = {e.name for e in remaining}
+        for combo in COMBINATIONS:
+            if not set(combo) <= names_left:
+                continue
+            pair = try_candidate(Candidate("+".join(combo), math.nan, math.nan))
+            rnd.candidates.append(pair)
+            chosen.append(pair)
+            # the residual of the combination is traced like any other: the effects that
+            # explain most of it are tried together with the combination
+            rest = [e for e in remaining if e.name not in combo]
+            if not rest:
+                continue
+            combo_free = dict(free)
+            for name in combo:
+                combo_free.update(EFFECTS[name].bounds)
+            on_top = trace_residual(record, pair._evaluation, combo_free, rest, n_fit)
+            ranked_on_top = sorted(on_top.candidates, key=lambda c: -c.explained)
+            for c in ranked_on_top if k <= 0 else ranked_on_top[:k]:
+                cand = try_candidate(Candidate("+".join((*combo, c.effect)), math.nan,
+                                               c.explained), extends=pair._evaluation.params)
+                rnd.candidates.append(cand)
+                chosen.append(cand)
         tried = [c for c in chosen if c.refit and c.score > -math.inf]
         if not tried:
             stop = "no candidate improved the model (every refit switched its effect off)"
@@ -487,7 +545,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         # (d) add the best when significant
         if best.score < settings["min_gain"]:
             stop = (f"no significant effect left: best candidate {best.effect} reduces the "
-                    f"held-out RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
+                    f"RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
                     f"{settings['min_gain']:.0%})")
             break
         ev = best._evaluation
@@ -495,20 +553,44 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
                         and c.score >= settings["min_gain"]
                         and best.score - c.score <= ALTERNATIVE_MARGIN}
         members = [EFFECTS[name] for name in best.effect.split("+")]
-        # a combination is reported as one step per effect, in order: each step's "after" is
-        # the combined fit with the later members still off
+        if len(members) > 1:
+            members, ev = _split_combination(members, ev, cur, evaluate_many, settings["penalty"])
+            if len(members) < len(best.effect.split("+")):
+                # a member did not pay for itself: refit what is left
+                start, free_c = current, dict(free)
+                for effect in members:
+                    start = effect.switch_on(start, {p: best.params[p] for p in effect.params})
+                    free_c.update(effect.bounds)
+                label = "+".join(e.name for e in members)
+                trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {label}")
+                ev = evaluate_many([trial])[0]
+                best.params = {p: getattr(trial, p) for e in members for p in e.params}
+                best.faults = {p: getattr(trial, p) for p in bounds}
+        # polish the faults and every effect in the model jointly, from this fit (a local
+        # search): an effect added earlier was estimated without the later ones
+        joint_free = dict(free)
+        for effect in [EFFECTS[st.effect] for st in steps] + members:
+            joint_free.update(effect.bounds)
+        polished, _ = refit(ev.params, joint_free, f"round {len(rounds)}: joint polish",
+                            method="ps")
+        ev_p = evaluate_many([polished])[0]
+        if ev_p.rmse_score < ev.rmse_score:
+            ev = ev_p
+            best.faults = {p: getattr(polished, p) for p in bounds}
+        # a combination is reported as one step per effect, in the order of their
+        # contribution: each step's "after" is the combined fit with the later members off
         prev, faults0 = cur, {p: getattr(current, p) for p in bounds}
         for k, effect in enumerate(members):
             params_k = ev.params
             for later in members[k + 1:]:
                 params_k = later.switch_off(params_k)
             ev_k = ev if k == len(members) - 1 else evaluate_many([params_k])[0]
-            gain_k = 1.0 - ev_k.rmse_hold / prev.rmse_hold if prev.rmse_hold > 0 else 0.0
-            steps.append(Step(effect.name, {p: best.params[p] for p in effect.params},
+            gain_k = 1.0 - ev_k.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+            steps.append(Step(effect.name, {p: getattr(ev.params, p) for p in effect.params},
                               prev.rmse_all, ev_k.rmse_all, prev.rmse_fit, ev_k.rmse_fit,
                               prev.rmse_hold, ev_k.rmse_hold, faults0, dict(best.faults),
                               gain_k, gain_k - settings["penalty"] * len(effect.params),
-                              alternatives if k == 0 else {}))
+                              alternatives if k == 0 else {}, best.effect, best.score))
             prev, faults0 = ev_k, dict(best.faults)
         current, cur = ev.params, ev
         if settings["joint"]:
@@ -525,6 +607,53 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         settings={**settings, "method": method, "pop": pop, "seed": seed, "n_fit": n_fit,
                   "effects": [e.name for e in pool], **fdi_options},
         seconds=time.perf_counter() - started)
+
+
+def _split_combination(members: Sequence[Effect], combined: Evaluation, before: Evaluation,
+                       evaluate_many: Callable[[list[LFParams]], list[Evaluation]],
+                       penalty: float) -> tuple[list[Effect], Evaluation]:
+    """Drop the members of a winning combination that do not pay for themselves, and order
+    the others for the report.
+
+    A member is kept when switching it off in the combined fit (the others at their values)
+    raises the scored RMSE by at least ``penalty`` per parameter (a pure switch: ``penalty``),
+    relative; the most useful member is always kept. The kept members are ordered: switches
+    without parameters first (the orifice law: the others' parameters were estimated with it
+    on), then, greedily, the one whose switching on (at its combined-fit value) lowers the
+    scored RMSE most, so that the steps' RMSE falls from one to the next.
+
+    Returns
+    -------
+    members : list of Effect
+        The kept members, in order.
+    evaluation : Evaluation
+        ``combined`` when nothing was dropped, else the evaluation of the kept members at their
+        combined-fit values (the caller refits).
+    """
+    def with_only(kept: Sequence[Effect]) -> LFParams:
+        params = combined.params
+        for effect in members:
+            if effect not in kept:
+                params = effect.switch_off(params)
+        return params
+
+    full = combined.rmse_score
+    without = evaluate_many([with_only([m for m in members if m is not e]) for e in members])
+    worth = [1.0 - full / ev.rmse_score if ev.rmse_score > 0 else 0.0 for ev in without]
+    kept = [e for e, w in zip(members, worth) if w >= penalty * max(len(e.params), 1)]
+    if not kept:
+        kept = [members[int(np.argmax(worth))]]
+    order: list[Effect] = []
+    left = list(kept)
+    while left:
+        pool = [e for e in left if not e.params] or left
+        trials = evaluate_many([with_only([*order, e]) for e in pool])
+        effect = pool[int(np.argmin([ev.rmse_score for ev in trials]))]
+        left.remove(effect)
+        order.append(effect)
+    if len(kept) == len(members):
+        return order, combined
+    return order, evaluate_many([with_only(kept)])[0]
 
 
 def signatures(record: _Record, current: LFParams, effects: Sequence[Effect],

@@ -38,7 +38,7 @@ from eha.params import LF, SPECS, LFParams, ParameterError, check_value, resolve
 from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
 
 #: Identification methods (see the module docstring).
-METHODS = ("ga", "ga+ps")
+METHODS = ("ga", "ga+ps", "ps")
 #: The default method (chosen by measurement, docs/fdi.md).
 DEFAULT_METHOD = "ga+ps"
 #: Objective functions: name -> one-line meaning.
@@ -61,6 +61,7 @@ METHOD_DEFAULTS: dict[str, dict[str, float]] = {
     "ga": {"max_gen": 0, "stall": 50, "ftol": 1e-6, "max_evals": 20000},
     "ga+ps": {"max_gen": 40, "stall": 8, "ftol": 1e-3, "step0": 0.02, "xtol": 2e-5,
               "max_evals": 20000},
+    "ps": {"step0": 0.02, "xtol": 2e-5, "max_evals": 20000},
 }
 
 
@@ -245,8 +246,8 @@ def _stalled(history: list[float], stall: int, ftol: float) -> bool:
 
 def _run_ga(obj: BatchObjective, k: int, pop: int, seed: int, max_gen: int, stall: int,
             ftol: float, max_evals: int, history: list[float],
-            on_generation: Callable[[int, float], None] | None = None
-            ) -> tuple[np.ndarray, float]:
+            on_generation: Callable[[int, float], None] | None = None,
+            x0: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     from pymoo.algorithms.soo.nonconvex.ga import GA
     from pymoo.core.problem import Problem
     from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -258,7 +259,12 @@ def _run_ga(obj: BatchObjective, k: int, pop: int, seed: int, max_gen: int, stal
         def _evaluate(self, X, out, *args, **kwargs):
             out["F"] = obj(X)[:, None]   # the whole generation: one parallel numba call
 
-    algorithm = GA(pop_size=pop, eliminate_duplicates=True)
+    if x0 is None:
+        algorithm = GA(pop_size=pop, eliminate_duplicates=True)
+    else:   # first population: x0 and pop - 1 uniform points (seeded)
+        first = np.random.default_rng(seed).random((pop, k))
+        first[0] = x0
+        algorithm = GA(pop_size=pop, sampling=first, eliminate_duplicates=True)
     algorithm.setup(_UnitCube(), termination=MaximumGenerationTermination(max_gen),
                     seed=int(seed), verbose=False)
     while algorithm.has_next():
@@ -304,7 +310,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
              base: LFParams | None = None, method: str = DEFAULT_METHOD, pop: int = 20,
              seed: int = 0, objective: str = "rmse", t_end: float | None = None,
              on_generation: Callable[[int, float], None] | None = None,
-             **options: float) -> FitResult:
+             warm_start: bool = False, **options: float) -> FitResult:
     """Identify LF parameters from a recorded position trace.
 
     Parameters
@@ -319,8 +325,10 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         Default: BKL in [0, 1.25e-3] m and FDJ in [200, 4000] N (the thesis' chirp cases).
     base : LFParams, optional
         Parameters held fixed (nominal LF by default; effects switched on, ...).
-    method : {"ga", "ga+ps"}
-        ``"ga"`` is the thesis' genetic algorithm; ``"ga+ps"`` adds a pattern-search polish.
+    method : {"ga", "ga+ps", "ps"}
+        ``"ga"`` is the thesis' genetic algorithm; ``"ga+ps"`` adds a pattern-search polish;
+        ``"ps"`` is the pattern search alone, a local polish starting from the values of
+        ``base`` (clipped into the bounds): ``pop`` and ``seed`` are then unused.
     pop : int
         GA population size (thesis: 20, or 40 for case 12).
     seed : int
@@ -330,6 +338,9 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         Record length [s]; default ``(len(reference_xu) - 1)*1e-3``.
     on_generation : callable(generation, best_objective), optional
         Progress hook called after each GA generation.
+    warm_start : bool
+        Put the values of ``base`` (clipped into the bounds) in the GA's first population, so
+        the result is never worse than that starting point (``"ps"`` always starts there).
     **options
         Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
         max_evals.
@@ -373,10 +384,17 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     obj = BatchObjective(reference, com, steps_per_out, n_out, names, bounds, base, objective)
     history: list[float] = []
     max_evals = int(opts["max_evals"])
-    max_gen = int(opts["max_gen"]) or 100 * len(names)
-    x, f = _run_ga(obj, len(names), int(pop), seed, max_gen, int(opts["stall"]),
-                   opts["ftol"], max_evals, history, on_generation)
-    if method == "ga+ps":
+    max_gen = int(opts.get("max_gen", 0)) or 100 * len(names)
+    x_base = np.clip((np.array([getattr(base, n) for n in names]) - obj.lo) / obj.span,
+                     0.0, 1.0)
+    if method == "ps":
+        x, f = x_base, float(obj(x_base[None, :])[0])
+        history.append(f)
+    else:
+        x, f = _run_ga(obj, len(names), int(pop), seed, max_gen, int(opts["stall"]),
+                       opts["ftol"], max_evals, history, on_generation,
+                       x0=x_base if warm_start else None)
+    if method in ("ga+ps", "ps"):
         x, f = _pattern_search(obj, x, f, opts["step0"], opts["xtol"], max_evals, history)
     values = obj.physical(x[None, :])[0]
     seconds = time.perf_counter() - start

@@ -846,7 +846,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
                "faults_before": result.faults_before, "faults_after": result.faults_after,
                "effects": result.effects, "stop_reason": result.stop_reason,
                "seconds": result.seconds}
-    step_rows = [{"run_id": run_id, "step": i + 1, "effect": s.effect, "params": s.params,
+    step_rows = [{"run_id": run_id, "step": i + 1, "effect": s.effect,
+                  "params": result.final_params(s),
                   "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
                   "rmse_fit_before": s.rmse_fit_before, "rmse_fit_after": s.rmse_fit_after,
                   "rmse_hold_before": s.rmse_hold_before, "rmse_hold_after": s.rmse_hold_after,
