@@ -401,6 +401,9 @@ def explain(
                                             "held-out data instead of --holdout."),
     prior: Optional[Path] = typer.Option(None, "--prior", help="--json of an earlier run: its "
                                          "effects start switched on (e.g. from nominal data)."),
+    known: List[str] = typer.Option([], "--set", help="Known LF parameter held fixed, "
+                                    "NAME=VALUE, repeatable (a test condition, e.g. a test "
+                                    "load FRC=4000)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write rmse_before/after, "
                                             "faults_before/after and the steps as JSON."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default "
@@ -419,6 +422,9 @@ def explain(
     """Trace a measured record's residual to missing LF effects, add them, report the error.
 
     Example: eha explain data/run1.csv --fit BKL,FDJ --holdout 0.3 --json out.json
+
+    Example (healthy actuator under a known 4 kN test load): eha explain loadtest.csv --set
+    FRC=4000 --json calibration.json
     """
     from eha.explain import ExplainError
     from eha.fdi import FDIError
@@ -427,6 +433,12 @@ def explain(
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")
+    from eha.params import ParameterError, parse_assignments
+
+    try:
+        known_values = parse_assignments(known)
+    except ParameterError as exc:
+        fail(f"--set {exc}")
     if json_out is not None and json_out.suffix.lower() != ".json":
         fail(f"--json {json_out}: the file must end in .json")
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -443,6 +455,7 @@ def explain(
         try:
             run = explain_report(data, fit=fit, effects=effects, holdout=holdout,
                                  validate=validate, prior=prior, json_path=json_out, out=out,
+                                 known=known_values,
                                  results=results, on_progress=step, method=method, pop=pop,
                                  seed=seed, candidates=candidates, max_steps=max_steps,
                                  min_gain=min_gain)

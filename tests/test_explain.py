@@ -157,3 +157,27 @@ def test_bad_inputs_raise_one_line(tmp_path):
         explain(data, holdout=0.9)
     with pytest.raises(ExplainError, match="prior"):
         augmented_base([{"effect": "offset", "params": {"Ofs": 99.0}}])
+
+
+def test_load_test_calibration_finds_the_nominal_leakage_through_the_cli(tmp_path):
+    """A healthy actuator's record under a known 4 kN test load, declared with --set: the
+    HF's nominal leakage (Clk = 1e-13, invisible without a load because the leakage flow is
+    Clk*P12) is found after the orifice law. Measured (population 12): Clk = 9.87e-14,
+    FDJ = 801 N. Tolerances: Clk 30 % (leakage trades off against friction), FDJ 5 %."""
+    data = _record(tmp_path, "loadtest", "mixed", 1.0, {"FRC": 4000.0})
+    js = tmp_path / "cal.json"
+    result = CliRunner().invoke(app, ["explain", str(data), "--set", "FRC=4000", "--pop", "12",
+                                      "--candidates", "4", "--json", str(js), "--out",
+                                      str(tmp_path / "out"), "--results",
+                                      str(tmp_path / "results"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(js.read_text())
+    effects = [s["effect"] for s in doc["steps"]]
+    assert effects[:2] == ["orifice_law", "leakage"]
+    assert "external_load" not in effects           # the known load is not a candidate
+    assert doc["steps"][1]["params"]["Clk"] == pytest.approx(1e-13, rel=0.3)
+    assert doc["faults_after"]["FDJ"] == pytest.approx(800.0, rel=0.05)
+    bad = CliRunner().invoke(app, ["explain", str(data), "--set", "FRC=1e9", "--no-progress",
+                                   "--results", str(tmp_path / "r2")])
+    assert bad.exit_code == 2 and "FRC" in bad.output and "range" in bad.output
+    assert not (tmp_path / "r2").exists()
