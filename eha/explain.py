@@ -38,7 +38,8 @@ from eha.effects import COMBINATIONS, EFFECTS, Effect, get as get_effects
 from eha.measured import MeasuredData, noise_level
 from eha.models import O_DXJ, O_P12, O_XU, OUTPUTS
 from eha.params import LF, SPECS, LFParams, ParameterError, resolve
-from eha.simulate import OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch
+from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
+                          xj0_for_recorded)
 
 #: Search bounds of the declared faults when none are given (wider than the thesis' chirp
 #: cases, for records of unknown actuators).
@@ -272,6 +273,7 @@ class _Record:
 
     def __init__(self, data: MeasuredData, base: LFParams):
         self.data = data
+        self.recorded_start = _recorded_start(data)
         self.base = base
         self.t_end = (len(data) - 1) * OUTPUT_DT
         self.steps_per_out, self.n_out, t_steps = grid(base, self.t_end)
@@ -280,9 +282,13 @@ class _Record:
     def run(self, params: Sequence[LFParams]) -> np.ndarray:
         """Recorded xu of each parameter set, shape (n, n_out)."""
         rows = np.stack([p.to_array() for p in params])
-        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base)
+        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base,
+                                 self.recorded_start)
 
     def full(self, params: LFParams):
+        if self.recorded_start is not None:
+            params = params.replace(XJ0=float(xj0_for_recorded(
+                self.recorded_start, params.sensor_bias, params.sensor_gain, params.XJM)))
         return simulate("lf", self.data.command, params, t_end=self.t_end)
 
 
@@ -317,13 +323,23 @@ def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 1e-3) -> b
                effect.bounds.items())
 
 
-def _initial_position(data: MeasuredData, base: LFParams) -> LFParams:
-    """The LF model starts at rest at XJ0: on the first command when the record starts near it
-    (the small difference is then left to the model to explain: friction, offset, sensor
-    bias), else at the measured first position (median of 3 samples, against noise), e.g. a
-    command that steps away at t = 0 or a record that starts elsewhere."""
+def _recorded_start(data: MeasuredData) -> float | None:
+    """The measured first position (median of 3 samples, against noise) when the record starts
+    away from its command, else None (see :func:`_initial_position`)."""
     measured = float(np.median(data.xu[:3]))
-    start = float(data.com[0]) if abs(measured - data.com[0]) <= START_TOLERANCE else measured
+    return None if abs(measured - data.com[0]) <= START_TOLERANCE else measured
+
+
+def _initial_position(data: MeasuredData, base: LFParams) -> LFParams:
+    """The LF model starts at rest: on the first command when the record starts near it (the
+    small difference is then left to the model to explain: friction, offset, sensor bias),
+    else where its *recorded* position is the measured first position, e.g. a command that
+    steps away at t = 0 or a record that starts elsewhere (every LF run of the loop then sets
+    XJ0 from its own sensor bias and gain, so a sensor bias is not mistaken for a shifted
+    start)."""
+    start = _recorded_start(data)
+    if start is None:
+        start = float(data.com[0])
     return base.replace(XJ0=float(np.clip(start, -base.XJM, base.XJM)))
 
 
@@ -443,7 +459,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             k: v for k, v in fdi_options.items() if k in METHOD_DEFAULTS["ps"]}
         try:
             res = identify(fit_y, data.command, fit=free, base=start, method=method, pop=pop,
-                           seed=seed, warm_start=warm_start, **options)
+                           seed=seed, warm_start=warm_start,
+                           recorded_start=record.recorded_start, **options)
         except FDIError as exc:
             raise ExplainError(str(exc)) from None
         return start.replace(**res.estimates), res
@@ -557,12 +574,14 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             members, ev = _split_combination(members, ev, cur, evaluate_many, settings["penalty"])
             if len(members) < len(best.effect.split("+")):
                 # a member did not pay for itself: refit what is left
-                start, free_c = current, dict(free)
+                # warm start: the combined fit's faults and the kept members' values
+                start, free_c = current.replace(**best.faults), dict(free)
                 for effect in members:
                     start = effect.switch_on(start, {p: best.params[p] for p in effect.params})
                     free_c.update(effect.bounds)
                 label = "+".join(e.name for e in members)
-                trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {label}")
+                trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {label}",
+                                 warm_start=True)
                 ev = evaluate_many([trial])[0]
                 best.params = {p: getattr(trial, p) for e in members for p in e.params}
                 best.faults = {p: getattr(trial, p) for p in bounds}

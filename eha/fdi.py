@@ -201,7 +201,7 @@ class BatchObjective:
 
     def __init__(self, reference: np.ndarray, com: np.ndarray, steps_per_out: int, n_out: int,
                  names: Sequence[str], bounds: Mapping[str, tuple[float, float]],
-                 base: LFParams, objective: str):
+                 base: LFParams, objective: str, recorded_start: float | None = None):
         self.reference = np.ascontiguousarray(reference, dtype=np.float64)
         self.com = com
         self.steps_per_out = steps_per_out
@@ -212,6 +212,7 @@ class BatchObjective:
         self.lo = np.array([bounds[n][0] for n in names])
         self.span = np.array([bounds[n][1] - bounds[n][0] for n in names])
         self.objective = objective
+        self.recorded_start = recorded_start
         self.evaluations = 0
 
     def physical(self, U: np.ndarray) -> np.ndarray:
@@ -224,7 +225,8 @@ class BatchObjective:
         rows = np.tile(self.base_row, (U.shape[0], 1))
         rows[:, self.index] = self.physical(U)
         self.evaluations += U.shape[0]
-        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base)
+        return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base,
+                                 self.recorded_start)
 
     def __call__(self, U: np.ndarray) -> np.ndarray:
         values = objective_values(self.simulate(U), self.reference, self.objective)
@@ -310,7 +312,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
              base: LFParams | None = None, method: str = DEFAULT_METHOD, pop: int = 20,
              seed: int = 0, objective: str = "rmse", t_end: float | None = None,
              on_generation: Callable[[int, float], None] | None = None,
-             warm_start: bool = False, **options: float) -> FitResult:
+             warm_start: bool = False, recorded_start: float | None = None,
+             **options: float) -> FitResult:
     """Identify LF parameters from a recorded position trace.
 
     Parameters
@@ -341,6 +344,10 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     warm_start : bool
         Put the values of ``base`` (clipped into the bounds) in the GA's first population, so
         the result is never worse than that starting point (``"ps"`` always starts there).
+    recorded_start : float, optional
+        The LF model starts at rest where its recorded position (with the candidate's sensor
+        bias and gain) is this value [m], instead of at ``base.XJ0``: for records that start
+        away from their command.
     **options
         Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
         max_evals.
@@ -381,7 +388,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
 
     start = time.perf_counter()
     com = command_on_grid(as_command(command), t_steps)     # sampled once
-    obj = BatchObjective(reference, com, steps_per_out, n_out, names, bounds, base, objective)
+    obj = BatchObjective(reference, com, steps_per_out, n_out, names, bounds, base, objective,
+                         recorded_start)
     history: list[float] = []
     max_evals = int(opts["max_evals"])
     max_gen = int(opts.get("max_gen", 0)) or 100 * len(names)

@@ -146,8 +146,16 @@ def simulate(model: str, command: Command | str = "mixed",
     return Trace(out, meta)
 
 
+def xj0_for_recorded(recorded_start: float, sensor_bias, sensor_gain, XJM):
+    """Initial jack position [m] at which the *recorded* position (``gain*XU + bias``) equals
+    ``recorded_start``, within the stroke ``±XJM`` (scalars or arrays)."""
+    return np.clip((recorded_start - np.asarray(sensor_bias)) / np.asarray(sensor_gain),
+                   -np.asarray(XJM), np.asarray(XJM))
+
+
 def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: int,
-                      n_out: int, base: ModelParams) -> np.ndarray:
+                      n_out: int, base: ModelParams,
+                      recorded_start: float | None = None) -> np.ndarray:
     """Recorded LF position for many parameter vectors in one parallel numba call.
 
     Parameters
@@ -158,14 +166,24 @@ def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: in
         Command on the step grid (:func:`command_on_grid`).
     base : LFParams
         Source of the sensor parameters when they are not varied (they are read per row).
+    recorded_start : float, optional
+        Start each row at rest where its recorded position is this value [m] (XJ0 from the
+        row's sensor bias and gain, :func:`xj0_for_recorded`) instead of at its XJ0: a record
+        that starts away from its command starts at its measured position.
 
     Returns
     -------
     float64 array, shape (n, n_out): recorded xu of each row.
     """
-    out = np.empty((param_rows.shape[0], n_out, len(OUTPUTS)))
-    run_lf_batch(np.ascontiguousarray(param_rows), com, steps_per_out, out)
     from eha.params import LF
+
+    out = np.empty((param_rows.shape[0], n_out, len(OUTPUTS)))
+    if recorded_start is not None:
+        param_rows = np.array(param_rows, dtype=np.float64)
+        param_rows[:, LF.XJ0] = xj0_for_recorded(recorded_start, param_rows[:, LF.sensor_bias],
+                                                 param_rows[:, LF.sensor_gain],
+                                                 param_rows[:, LF.XJM])
+    run_lf_batch(np.ascontiguousarray(param_rows), com, steps_per_out, out)
 
     xu = out[:, :, O_XU]
     t = out[0, :, O_T]
@@ -184,4 +202,5 @@ def grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
 
 
 __all__ = ["Trace", "simulate", "simulate_lf_batch", "command_on_grid", "grid", "measure",
+           "xj0_for_recorded",
            "OUTPUT_DT", "MODEL_VERSION", "O_COM"]

@@ -129,6 +129,9 @@ def test_noise_only_adds_nothing(tmp_path):
 @pytest.mark.parametrize("name, command, t_end, overrides, param, tol", [
     ("load", "mixed", 1.0, {"FRC": 2000.0}, "FRC", 0.10),
     ("bias", "test", 0.6, {"sensor_bias": 1e-4}, "sensor_bias", 0.05),
+    # the command steps away at t = 0: the LF starts where its *recorded* position is the
+    # measured one, so a bias is not taken for a shifted start (was: offset at its bound)
+    ("bias_step", "step_1cm", 0.5, {"sensor_bias": 2e-4}, "sensor_bias", 0.05),
 ])
 def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overrides, param,
                                            tol):
@@ -181,3 +184,20 @@ def test_load_test_calibration_finds_the_nominal_leakage_through_the_cli(tmp_pat
                                    "--results", str(tmp_path / "r2")])
     assert bad.exit_code == 2 and "FRC" in bad.output and "range" in bad.output
     assert not (tmp_path / "r2").exists()
+
+
+def test_batch_runs_start_at_the_recorded_position():
+    """simulate_lf_batch(recorded_start=x0): every row's recorded xu starts at x0 whatever its
+    sensor bias and gain (XJ0 = (x0 - bias)/gain); exact up to float rounding."""
+    from eha.params import LF, LFParams
+    from eha.simulate import command_on_grid, grid, simulate_lf_batch
+    from eha.commands import make_command
+
+    base = LFParams()
+    spo, n_out, t_steps = grid(base, 0.02)
+    com = command_on_grid(make_command("step_1cm"), t_steps)
+    rows = np.stack([base.replace(sensor_bias=b, sensor_gain=g).to_array()
+                     for b, g in [(0.0, 1.0), (2e-4, 1.0), (-1e-3, 1.05)]])
+    xu = simulate_lf_batch(rows, com, spo, n_out, base, recorded_start=3e-3)
+    assert xu[:, 0] == pytest.approx([3e-3] * 3, abs=1e-12)
+    assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
