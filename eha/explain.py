@@ -353,7 +353,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
-            on_progress: Callable[[str], None] | None = None,
+            on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
 
@@ -388,6 +388,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     joint : bool
         Refit the parameters of the effects already added in every later round (False: they
         stay at the estimates of the round that added them; the faults are always refitted).
+    fixed : names, optional
+        LF parameters held at their values in ``base`` (known test conditions, ``eha explain
+        --set``): not fitted, and no effect touching them is a candidate.
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -415,8 +418,16 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         base = _initial_position(data, resolve("lf", {}, base=base) if base else LFParams())
     except ParameterError as exc:
         raise ExplainError(str(exc)) from None
-    # effects already in the base (a prior) or overlapping the declared faults are not tried
-    pool = [e for e in pool if not set(e.params) & set(bounds) and not e.is_on(base)]
+    fixed = set(fixed)
+    for name in sorted(fixed):
+        if name in bounds:
+            raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
+        if name == "XJ0":
+            raise ExplainError("--set XJ0: the initial position is taken from the record")
+    # effects already in the base (a prior), overlapping the declared faults or touching a
+    # known (fixed) parameter are not tried
+    pool = [e for e in pool if not set(e.params) & set(bounds) and not e.is_on(base)
+            and not set(e.off) & fixed]
     progress = on_progress or (lambda message: None)
     n = len(data)
     if validate is not None:
@@ -533,8 +544,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         for cand in chosen:
             try_candidate(cand)
         names_left = {e.name for e in remaining}
+        room = settings["max_steps"] - len(steps)    # a combination adds one step per member
         for combo in COMBINATIONS:
-            if not set(combo) <= names_left:
+            if not set(combo) <= names_left or len(combo) > room:
                 continue
             pair = try_candidate(Candidate("+".join(combo), math.nan, math.nan))
             rnd.candidates.append(pair)
@@ -542,7 +554,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             # the residual of the combination is traced like any other: the effects that
             # explain most of it are tried together with the combination
             rest = [e for e in remaining if e.name not in combo]
-            if not rest:
+            if not rest or len(combo) + 1 > room:
                 continue
             combo_free = dict(free)
             for name in combo:
@@ -558,8 +570,33 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         if not tried:
             stop = "no candidate improved the model (every refit switched its effect off)"
             break
-        best = max(tried, key=lambda c: c.score)
-        # (d) add the best when significant
+        # (d) add the best when significant; a winning combination whose members do not all
+        # pay for themselves is replaced by the kept members as a candidate of their own
+        # (refitted unless already tried), and the choice is made again
+        superseded: set[str] = set()
+        while True:
+            best = max((c for c in tried if c.effect not in superseded),
+                       key=lambda c: c.score)
+            members = [EFFECTS[name] for name in best.effect.split("+")]
+            if len(members) == 1 or best.score < settings["min_gain"]:
+                break
+            kept = _split_combination(members, best._evaluation, evaluate_many,
+                                      settings["penalty"])
+            if len(kept) == len(members):
+                members = kept
+                break
+            superseded.add(best.effect)
+            name = "+".join(e.name for e in kept)
+            known_cand = next((c for c in rnd.candidates if c.effect == name and c.refit), None)
+            if known_cand is None:
+                params = best._evaluation.params
+                for effect in members:
+                    if effect not in kept:
+                        params = effect.switch_off(params)
+                known_cand = try_candidate(Candidate(name, math.nan, math.nan), extends=params)
+                rnd.candidates.append(known_cand)
+            if known_cand.score > -math.inf and known_cand not in tried:
+                tried.append(known_cand)
         if best.score < settings["min_gain"]:
             stop = (f"no significant effect left: best candidate {best.effect} reduces the "
                     f"RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
@@ -567,24 +604,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             break
         ev = best._evaluation
         alternatives = {c.effect: c.score for c in tried if c is not best
-                        and c.score >= settings["min_gain"]
+                        and c.effect not in superseded and c.score >= settings["min_gain"]
                         and best.score - c.score <= ALTERNATIVE_MARGIN}
-        members = [EFFECTS[name] for name in best.effect.split("+")]
-        if len(members) > 1:
-            members, ev = _split_combination(members, ev, cur, evaluate_many, settings["penalty"])
-            if len(members) < len(best.effect.split("+")):
-                # a member did not pay for itself: refit what is left
-                # warm start: the combined fit's faults and the kept members' values
-                start, free_c = current.replace(**best.faults), dict(free)
-                for effect in members:
-                    start = effect.switch_on(start, {p: best.params[p] for p in effect.params})
-                    free_c.update(effect.bounds)
-                label = "+".join(e.name for e in members)
-                trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {label}",
-                                 warm_start=True)
-                ev = evaluate_many([trial])[0]
-                best.params = {p: getattr(trial, p) for e in members for p in e.params}
-                best.faults = {p: getattr(trial, p) for p in bounds}
         # polish the faults and every effect in the model jointly, from this fit (a local
         # search): an effect added earlier was estimated without the later ones
         joint_free = dict(free)
@@ -595,22 +616,22 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         ev_p = evaluate_many([polished])[0]
         if ev_p.rmse_score < ev.rmse_score:
             ev = ev_p
-            best.faults = {p: getattr(polished, p) for p in bounds}
+        faults_after = {p: getattr(ev.params, p) for p in bounds}
         # a combination is reported as one step per effect, in the order of their
         # contribution: each step's "after" is the combined fit with the later members off
         prev, faults0 = cur, {p: getattr(current, p) for p in bounds}
-        for k, effect in enumerate(members):
-            params_k = ev.params
-            for later in members[k + 1:]:
-                params_k = later.switch_off(params_k)
-            ev_k = ev if k == len(members) - 1 else evaluate_many([params_k])[0]
-            gain_k = 1.0 - ev_k.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+        for i, effect in enumerate(members):
+            params_i = ev.params
+            for later in members[i + 1:]:
+                params_i = later.switch_off(params_i)
+            ev_i = ev if i == len(members) - 1 else evaluate_many([params_i])[0]
+            gain_i = 1.0 - ev_i.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
             steps.append(Step(effect.name, {p: getattr(ev.params, p) for p in effect.params},
-                              prev.rmse_all, ev_k.rmse_all, prev.rmse_fit, ev_k.rmse_fit,
-                              prev.rmse_hold, ev_k.rmse_hold, faults0, dict(best.faults),
-                              gain_k, gain_k - settings["penalty"] * len(effect.params),
-                              alternatives if k == 0 else {}, best.effect, best.score))
-            prev, faults0 = ev_k, dict(best.faults)
+                              prev.rmse_all, ev_i.rmse_all, prev.rmse_fit, ev_i.rmse_fit,
+                              prev.rmse_hold, ev_i.rmse_hold, faults0, faults_after,
+                              gain_i, gain_i - settings["penalty"] * len(effect.params),
+                              alternatives if i == 0 else {}, best.effect, best.score))
+            prev, faults0 = ev_i, faults_after
         current, cur = ev.params, ev
         if settings["joint"]:
             for effect in members:
@@ -628,26 +649,18 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         seconds=time.perf_counter() - started)
 
 
-def _split_combination(members: Sequence[Effect], combined: Evaluation, before: Evaluation,
+def _split_combination(members: Sequence[Effect], combined: Evaluation,
                        evaluate_many: Callable[[list[LFParams]], list[Evaluation]],
-                       penalty: float) -> tuple[list[Effect], Evaluation]:
-    """Drop the members of a winning combination that do not pay for themselves, and order
-    the others for the report.
+                       penalty: float) -> list[Effect]:
+    """The members of a winning combination that pay for themselves, ordered for the report.
 
     A member is kept when switching it off in the combined fit (the others at their values)
     raises the scored RMSE by at least ``penalty`` per parameter (a pure switch: ``penalty``),
-    relative; the most useful member is always kept. The kept members are ordered: switches
-    without parameters first (the orifice law: the others' parameters were estimated with it
-    on), then, greedily, the one whose switching on (at its combined-fit value) lowers the
-    scored RMSE most, so that the steps' RMSE falls from one to the next.
-
-    Returns
-    -------
-    members : list of Effect
-        The kept members, in order.
-    evaluation : Evaluation
-        ``combined`` when nothing was dropped, else the evaluation of the kept members at their
-        combined-fit values (the caller refits).
+    relative, or makes the run unstable; the most useful member is always kept. The kept
+    members are ordered: switches without parameters first (the orifice law: the others'
+    parameters were estimated with it on), then, greedily, the one whose switching on (at its
+    combined-fit value) lowers the scored RMSE most, so that the steps' RMSE falls from one to
+    the next.
     """
     def with_only(kept: Sequence[Effect]) -> LFParams:
         params = combined.params
@@ -656,9 +669,12 @@ def _split_combination(members: Sequence[Effect], combined: Evaluation, before: 
                 params = effect.switch_off(params)
         return params
 
+    def score(ev: Evaluation) -> float:
+        return ev.rmse_score if math.isfinite(ev.rmse_score) else math.inf
+
     full = combined.rmse_score
     without = evaluate_many([with_only([m for m in members if m is not e]) for e in members])
-    worth = [1.0 - full / ev.rmse_score if ev.rmse_score > 0 else 0.0 for ev in without]
+    worth = [1.0 - full / score(ev) if score(ev) > 0 else 0.0 for ev in without]
     kept = [e for e, w in zip(members, worth) if w >= penalty * max(len(e.params), 1)]
     if not kept:
         kept = [members[int(np.argmax(worth))]]
@@ -667,12 +683,10 @@ def _split_combination(members: Sequence[Effect], combined: Evaluation, before: 
     while left:
         pool = [e for e in left if not e.params] or left
         trials = evaluate_many([with_only([*order, e]) for e in pool])
-        effect = pool[int(np.argmin([ev.rmse_score for ev in trials]))]
+        effect = pool[int(np.argmin([score(ev) for ev in trials]))]
         left.remove(effect)
         order.append(effect)
-    if len(kept) == len(members):
-        return order, combined
-    return order, evaluate_many([with_only(kept)])[0]
+    return order
 
 
 def signatures(record: _Record, current: LFParams, effects: Sequence[Effect],

@@ -677,7 +677,8 @@ def _augmented_markdown(table) -> list[str]:
     fmt = lambda v: f"{v:.3g}"  # noqa: E731
     body = [[str(r.case), r.command, fmt(r.mean_err_pct), fmt(r.aug_bkl_out), fmt(r.aug_fdj_out),
              fmt(r.aug_err_bkl_pct), fmt(r.aug_err_fdj_pct), fmt(r.aug_mean_err_pct),
-             fmt(r.thesis_mean_err_pct), "yes" if r.aug_at_least_as_accurate is True else "no"]
+             fmt(r.thesis_mean_err_pct),
+             "yes" if r.aug_at_least_as_accurate == True else "no"]  # noqa: E712 (NaN: no)
             for r in table.itertuples()]
     late = table[table["case"] >= 3]
     case2 = table[table["case"] == 2]
@@ -750,7 +751,7 @@ def plot_explain_trace(result, path: str | Path) -> Path:
                 va="center", wrap=True, fontsize=9)
         return _save(fig, Path(path))
     rnd = result.rounds[0]
-    cands = sorted((c for c in rnd.candidates if np.isfinite(c.explained)),  # not combinations
+    cands = sorted((c for c in rnd.candidates if "+" not in c.effect),  # single effects
                    key=lambda c: c.explained)
     names = [c.effect for c in cands]
     y = np.arange(len(cands))
@@ -827,7 +828,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
         except ParameterError as exc:
             raise ExplainError(f"--set {exc}") from None
     result = explain(record, fit=fit, effects=effects, holdout=holdout, validate=check,
-                     base=base, on_progress=on_progress, **options)
+                     base=base, on_progress=on_progress, fixed=tuple(known or ()), **options)
 
     out = Path(out) if out is not None else Path(results) / "explain" / Path(data).stem
     out.mkdir(parents=True, exist_ok=True)

@@ -115,7 +115,7 @@ def test_noise_only_adds_nothing(tmp_path):
     assert res.steps == [] and "noise level" in res.stop_reason
     assert res.rmse_after == res.rmse_before < 1.3 * NOISE
     # without the noise-floor stop, the significance test alone rejects every candidate
-    res = explain(data, noise_factor=0.0, max_steps=1, **FAST)
+    res = explain(data, noise_factor=0.0, max_steps=3, **FAST)
     assert res.steps == [] and res.rmse_after == res.rmse_before
     assert "noise level" not in res.stop_reason
     # refitted: the best-ranked singles, the orifice_law+flapper_dynamics combination, and
@@ -201,3 +201,24 @@ def test_batch_runs_start_at_the_recorded_position():
     xu = simulate_lf_batch(rows, com, spo, n_out, base, recorded_start=3e-3)
     assert xu[:, 0] == pytest.approx([3e-3] * 3, abs=1e-12)
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
+
+
+def test_max_steps_holds_when_a_combination_wins(tmp_path):
+    """A combination adds one step per member, so it is only tried when there is room:
+    nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two)."""
+    data = load(_record(tmp_path, "nominal_test", "test", 0.6))
+    res = explain(data, max_steps=1, **FAST)
+    assert len(res.steps) == 1
+    assert not any("+" in c.effect for c in res.rounds[0].candidates)
+
+
+def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
+    data = load(_record(tmp_path, "nominal", "mixed", 0.3))
+    with pytest.raises(ExplainError, match="--set BKL: also a fitted fault"):
+        explain(data, fixed=["BKL"], **FAST)
+    with pytest.raises(ExplainError, match="--set XJ0"):
+        explain(data, fixed=["XJ0"], **FAST)
+    # FRC held at 0 (its off value): external_load must still not be a candidate
+    res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
+    assert "external_load" not in res.settings["effects"]
+    assert "offset" in res.settings["effects"]
