@@ -49,6 +49,10 @@ DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
 DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
                               "max_steps": 4, "candidates": 6, "noise_factor": 1.25,
                               "joint": False}
+#: Refits of at least this many free parameters (faults + effects) run MULTISTART GA searches
+#: (seeds ``seed``, ``seed + 1000``, ...) and keep the best fit.
+MULTISTART_PARAMS = 5
+MULTISTART = 2
 #: A record whose first position is within this distance of its first command starts at rest
 #: on the command (the LF model starts there); otherwise at the measured first position [m].
 START_TOLERANCE = 5e-4
@@ -468,13 +472,19 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         progress(label)
         options = fdi_options if method != "ps" else {
             k: v for k, v in fdi_options.items() if k in METHOD_DEFAULTS["ps"]}
+        # searches of many parameters get more GA starts (other seeds); the best fit is kept
+        starts = 1 if method == "ps" or len(free) < MULTISTART_PARAMS else MULTISTART
+        best_res = None
         try:
-            res = identify(fit_y, data.command, fit=free, base=start, method=method, pop=pop,
-                           seed=seed, warm_start=warm_start,
-                           recorded_start=record.recorded_start, **options)
+            for i in range(starts):
+                res = identify(fit_y, data.command, fit=free, base=start, method=method,
+                               pop=pop, seed=seed + 1000 * i, warm_start=warm_start,
+                               recorded_start=record.recorded_start, **options)
+                if best_res is None or res.objective < best_res.objective:
+                    best_res = res
         except FDIError as exc:
             raise ExplainError(str(exc)) from None
-        return start.replace(**res.estimates), res
+        return start.replace(**best_res.estimates), best_res
 
     # (a) baseline
     current, _ = refit(base, bounds, "fit the declared faults")
