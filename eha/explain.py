@@ -586,7 +586,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         superseded: set[str] = set()
         while True:
             best = max((c for c in tried if c.effect not in superseded),
-                       key=lambda c: c.score)
+                       key=lambda c: c.score, default=None)
+            if best is None:
+                break
             members = [EFFECTS[name] for name in best.effect.split("+")]
             if len(members) == 1 or best.score < settings["min_gain"]:
                 break
@@ -607,6 +609,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
                 rnd.candidates.append(known_cand)
             if known_cand.score > -math.inf and known_cand not in tried:
                 tried.append(known_cand)
+        if best is None:
+            stop = "no candidate improved the model (every refit switched its effect off)"
+            break
         if best.score < settings["min_gain"]:
             stop = (f"no significant effect left: best candidate {best.effect} reduces the "
                     f"RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
