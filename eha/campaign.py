@@ -74,11 +74,16 @@ from eha.models import OUTPUTS  # noqa: E402  (constant tuple; the package impor
 REQUIRED_SIGNALS = ("t", "com", "xu")
 #: Upper bound on the number of jobs of one campaign (a typo in a grid should not explode).
 MAX_JOBS = 200_000
+#: Most integration steps of one run: the worker holds the command and the time of every step
+#: (16 bytes each), so 4e8 steps (t_end = 3600 s at the nominal DT = 1e-5 s) need about 6.4 GB.
+MAX_STEPS = 400_000_000
 #: Top-level keys of the simulation part of a campaign file.
 TOP_KEYS = ("name", "description", "kind", "models", "commands", "seeds", "t_end", "signals",
             "params", "faults")
 FAULT_KEYS = ("nominal", "grid", "single", "points")
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,80}$")
+# The name is also a folder under traces/: it starts with a letter or digit, so "." and ".."
+# (which would put traces outside that folder) and hidden names are refused.
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
 
 
 class CampaignError(ValueError):
@@ -188,6 +193,9 @@ def load_campaign(path: str | Path) -> Campaign:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise CampaignError([f"{path}: cannot read the campaign file ({exc.strerror})"]) from None
+    except UnicodeDecodeError as exc:
+        raise CampaignError([f"{path}: not UTF-8 text (byte {exc.start}); a campaign file is "
+                             "TOML text"]) from None
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -206,7 +214,8 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
     name = table.get("name")
     if not isinstance(name, str) or not _NAME_RE.match(name):
         problems.append(f"name: {name!r} is not a valid campaign name; required, 1-80 "
-                        "characters from letters, digits, '_', '.', '-'")
+                        "characters from letters, digits, '_', '.', '-', starting with a "
+                        "letter or digit")
         name = "?"
     description = table.get("description", "")
     if not isinstance(description, str):
@@ -268,10 +277,18 @@ def _expand_simulations(table: Mapping[str, Any], name: str,
     models = _models(table.get("models"), problems)
     commands = _commands(table.get("commands"), problems)
     seeds = _seeds(table.get("seeds", [0]), problems)
-    t_end = _t_end(table.get("t_end", 1.0), models, problems)
     signals = _signals(table.get("signals", list(OUTPUTS)), problems)
     fixed = _fixed_params(table.get("params", {}), models, problems)
-    fault_sets = _fault_sets(table.get("faults", {}), models, problems)
+    t_end = _t_end(table.get("t_end", 1.0), models, problems, fixed)
+    # The job limit is checked on the counts, before a fault set or a job is built.
+    per_set = max(1, len(models) * len(commands) * len(seeds))
+    fault_sets = _fault_sets(table.get("faults", {}), models, problems,
+                             limit=max(1, MAX_JOBS // per_set))
+    if fault_sets is None:
+        n_jobs = _fault_set_bound(table.get("faults", {})) * per_set
+        problems.append(f"campaign: expands to up to {n_jobs} jobs; the limit is {MAX_JOBS} "
+                        "(split it into several campaigns)")
+        return []
     if len(problems) > n_before:
         return []
 
@@ -317,12 +334,14 @@ def _distinct(key: str, value: Any, what: str, ok: Callable[[Any], bool],
         problems.append(f"{key}: must be a non-empty list of {what}")
         return []
     out: list = []
+    seen: set = set()  # membership in a set: a list of 10^5 seeds is checked in linear time
     for item in value:
         if not ok(item):
             problems.append(f"{key}: {bad(item)}")
-        elif item in out:
+        elif item in seen:
             problems.append(f"{key}: {item!r} listed twice")
         else:
+            seen.add(item)
             out.append(item)
     return out
 
@@ -378,16 +397,30 @@ def _seeds(value: Any, problems: list[str]) -> list[int]:
                      problems)
 
 
-def _t_end(value: Any, models: list[str], problems: list[str]) -> float:
+def _t_end(value: Any, models: list[str], problems: list[str],
+           fixed: Mapping[str, dict] | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         problems.append(f"t_end: {value!r} is not a number of seconds")
         return 1.0
-    from eha.simulate import grid
+    from eha.simulate import check_grid
 
-    try:  # the simulator's own range check
-        grid(resolve(models[0] if models else "hf"), float(value))
-    except ParameterError as exc:
-        problems.append(str(exc))
+    fixed = fixed or {}
+    for model in models or ["hf"]:
+        try:  # the campaign's own parameters (its DT), not the nominal ones
+            params = resolve(model, dict(fixed.get("all", {})) | dict(fixed.get(model, {})))
+        except ParameterError:
+            continue  # reported by the fault-set check with its context
+        try:  # the simulator's own range check, without allocating the step grid
+            n_steps = check_grid(params, float(value))[2]
+        except ParameterError as exc:
+            problems.append(str(exc))
+            break
+        if n_steps > MAX_STEPS:
+            problems.append(f"t_end: {float(value):g} s at DT={params.DT:g} s ({model.upper()}) "
+                            f"is {n_steps:.3g} integration steps per run; at most "
+                            f"{MAX_STEPS:.3g} (about {16 * MAX_STEPS / 1e9:.1f} GB); shorten "
+                            "t_end or raise DT")
+            break
     return float(value)
 
 
@@ -434,20 +467,45 @@ def _check(where: str, name: str, value: Any, models: list[str], problems: list[
         problems.append(f"{where}: {exc}")
 
 
-def _fault_sets(value: Any, models: list[str],
-                problems: list[str]) -> list[tuple[str, dict[str, float]]]:
+def _fault_set_bound(value: Any) -> int:
+    """Most fault sets ``value`` (the ``[faults]`` table) can expand to, from its counts alone
+    (nothing is built: a 10^7-point grid is refused in microseconds)."""
+    import math
+
+    if not isinstance(value, Mapping):
+        return 0
+
+    def sizes(axes: Any) -> list[int]:
+        if not isinstance(axes, Mapping):
+            return []
+        return [len(v) if isinstance(v, list) else 1 for v in axes.values()]
+
+    grid = math.prod(sizes(value["grid"])) if sizes(value.get("grid")) else 0
+    points = value.get("points", [])
+    return (1 + grid + sum(sizes(value.get("single"))) +
+            (len(points) if isinstance(points, list) else 0))
+
+
+def _fault_sets(value: Any, models: list[str], problems: list[str],
+                limit: int | None = None) -> list[tuple[str, dict[str, float]]] | None:
+    """The fault sets of ``[faults]``; None (nothing built) when they could exceed ``limit``."""
     if not isinstance(value, Mapping):
         problems.append("faults: must be a table with keys " + ", ".join(FAULT_KEYS))
         return []
+    if limit is not None and _fault_set_bound(value) > limit:
+        return None
     for key in value:
         if key not in FAULT_KEYS:
             problems.append(f"faults.{key}: unknown key{_did_you_mean(key, FAULT_KEYS)}; "
                             f"allowed: {', '.join(FAULT_KEYS)}")
     sets: list[dict[str, float]] = []
     labels: list[str] = []
+    known: set[tuple] = set()  # the sets seen, as sorted items: de-duplication in linear time
 
     def add(faults: dict[str, float], label: str | None = None) -> None:
-        if faults not in sets:
+        key = tuple(sorted(faults.items()))
+        if key not in known:
+            known.add(key)
             sets.append(faults)
             labels.append(label or _describe_faults(faults))
 
@@ -475,6 +533,7 @@ def _fault_sets(value: Any, models: list[str],
         problems.append("faults.points: must be a list of tables, e.g. "
                         "[{name = \"worn\", BKL = 1e-3}]")
         points = []
+    named: dict[str, int] = {}
     for i, point in enumerate(points):
         if not isinstance(point, Mapping):
             problems.append(f"faults.points[{i}]: must be a table of NAME = value")
@@ -483,6 +542,11 @@ def _fault_sets(value: Any, models: list[str],
         if label is not None and not isinstance(label, str):
             problems.append(f"faults.points[{i}].name: must be a string")
             label = None
+        if label is not None:
+            if label in named:  # one label would name two fault sets in tables and plots
+                problems.append(f"faults.points[{i}].name: {label!r} is also the name of "
+                                f"faults.points[{named[label]}]; point names must be unique")
+            named.setdefault(label, i)
         faults: dict[str, float] = {}
         for n, x in point.items():
             if n != "name":
@@ -510,15 +574,17 @@ def _fault_axes(where: str, value: Any, models: list[str],
             ok = False
             continue
         checked: list[float] = []
+        seen: set[float] = set()
         for x in values:
             holder: dict[str, float] = {}
             _check(where, n, x, models, problems, holder)
             if n not in holder:
                 ok = False
-            elif holder[n] in checked:
+            elif holder[n] in seen:
                 problems.append(f"{where}.{n}: value {holder[n]:g} listed twice")
                 ok = False
             else:
+                seen.add(holder[n])
                 checked.append(holder[n])
         axes[n] = checked
     return axes if ok else None
@@ -566,8 +632,50 @@ def _expand_fdi(section: Mapping[str, Any], table: Mapping[str, Any],
     try:
         return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
     except FDIError as exc:
-        problems.append(str(exc))
+        problems.extend(_all_fdi_problems(table, str(exc)))
         return []
+
+
+def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> list[str]:
+    """Every problem of an ``[fdi]`` section, one line each.
+
+    :func:`eha.fdi.parse_fdi_campaign` stops at its first problem. The part a message names
+    (``fdi.KEY`` or ``fdi.cases[i]``) is taken out of a copy of the section (a top-level key
+    falls back to its default, a case is dropped) and the copy validated again, until it
+    passes, a message names no part, or the same message comes back.
+    """
+    from eha.fdi import FDIError, fdi_jobs
+
+    section = dict(table.get("fdi", {}))
+    cases = list(enumerate(section.get("cases", []) or []))
+    had_cases = bool(cases)
+    found = [first]
+    message = first
+    for _ in range(most):
+        case = re.search(r"fdi\.cases\[(\d+)\]", message)
+        key = re.search(r"fdi\.(\w+)", message)
+        if case and int(case.group(1)) < len(cases):
+            del cases[int(case.group(1))]
+        elif key and key.group(1) in section and key.group(1) != "cases":
+            del section[key.group(1)]
+        else:
+            break
+        section["cases"] = [c for _, c in cases]
+        try:
+            fdi_jobs({**table, "fdi": section}, source="fdi")
+            break
+        except FDIError as exc:
+            message = str(exc)
+        if had_cases and not cases and "no [[fdi.cases]]" in message:
+            break  # every case was taken out for its own problem: nothing more to learn
+        # report case indices as they are in the file, not in the shortened copy
+        shown = re.sub(r"fdi\.cases\[(\d+)\]",
+                       lambda m: f"fdi.cases[{cases[int(m.group(1))][0]}]"
+                       if int(m.group(1)) < len(cases) else m.group(0), message)
+        if shown in found:
+            break
+        found.append(shown)
+    return found
 
 
 SECTION_KINDS["fdi"] = _expand_fdi

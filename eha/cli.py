@@ -3,26 +3,226 @@ errors to exit codes (2 = bad input, 1 = failure)."""
 
 from __future__ import annotations
 
+import os
+import signal
+import sys
 from pathlib import Path
 from typing import List, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
+from typer.core import TyperGroup
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
-                  help="Model-based prognostics of electro-hydraulic actuators (HF/LF models, "
-                       "fault campaigns, identification).")
 console = Console()
 err_console = Console(stderr=True)
 
 BAD_INPUT = 2
+# The option parser's exceptions: click's, or the copy of click that typer >= 0.20 vendors.
+_CLICK = sys.modules[typer.BadParameter.__module__]
+_NO_ARGS = getattr(_CLICK, "NoArgsIsHelpError", ())
+#: Exit status after SIGTERM (128 + 15, what a shell reports for a terminated process).
+TERMINATED = 143
+#: Exit status after Ctrl-C (128 + SIGINT).
+INTERRUPTED = 130
+#: Plot file types the figures are written in (matplotlib infers the format from the suffix).
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+#: ``--debug`` (or EHA_DEBUG=1): unexpected errors show their traceback.
+_STATE = {"debug": bool(os.environ.get("EHA_DEBUG"))}
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received: unwinds like Ctrl-C (every ``finally`` commits what is finished)."""
+
+
+def _on_sigterm(signum, frame):  # pragma: no cover - exercised by subprocess tests
+    raise Terminated()
+
+
+def _error_line(message: str) -> None:
+    # escape(): a message with brackets ("[fdi]", "[0, 0.1] m") is text, not console markup
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
+                      soft_wrap=True)
+
+
+def _unexpected(exc: BaseException) -> str:
+    """One line for an exception no command anticipated (class 1 of docs/reliability.md)."""
+    import errno
+
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    if isinstance(exc, OSError):
+        what = exc.filename or ""
+        reason = exc.strerror or first or type(exc).__name__
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            return f"{what}: {reason}; free some space and run the same command again"
+        return f"{what}: {reason}" if what else f"{type(exc).__name__}: {reason}"
+    if isinstance(exc, UnicodeDecodeError):
+        return f"input is not UTF-8 text ({first})"
+    if isinstance(exc, MemoryError):
+        return "out of memory; make the input smaller (shorter t_end, fewer runs)"
+    if type(exc).__module__.startswith("duckdb"):
+        return (f"results database: {first}; if the file is damaged, move it away and run "
+                "the campaign again")
+    return (f"internal error ({type(exc).__name__}: {first}); run again with --debug for "
+            "the traceback")
+
+
+class _GuardedGroup(TyperGroup):
+    """The top-level command group: the one guard of the CLI.
+
+    Every command runs inside :meth:`invoke`: SIGTERM unwinds like Ctrl-C (exit 143), Ctrl-C
+    exits 130, and any exception a command did not map to its own message becomes one
+    ``error:`` line and exit 1 (``--debug`` shows the traceback). Usage errors of the option
+    parser (a value outside an option's range) are one line too, exit 2.
+    """
+
+    def invoke(self, ctx):
+        previous = None
+        try:
+            previous = signal.signal(signal.SIGTERM, _on_sigterm)
+        except ValueError:  # not the main thread (e.g. an embedding application)
+            pass
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, typer.Abort, _CLICK.ClickException):
+            raise
+        except Terminated:
+            _error_line("terminated (SIGTERM); finished work is saved")
+            raise typer.Exit(TERMINATED)
+        except KeyboardInterrupt:
+            _error_line("interrupted; finished work is saved")
+            raise typer.Exit(INTERRUPTED)
+        except Exception as exc:
+            if _STATE["debug"]:
+                import traceback
+
+                traceback.print_exc()
+            _error_line(_unexpected(exc))
+            raise typer.Exit(1)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        if not standalone_mode:
+            return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                                standalone_mode=False, **extra)
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                              standalone_mode=False, **extra)
+        except _NO_ARGS as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except _CLICK.ClickException as exc:
+            where = f"{exc.ctx.command_path}: " if getattr(exc, "ctx", None) else ""
+            _error_line(where + exc.format_message().replace("\n", " "))
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            _error_line("aborted")
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+app = typer.Typer(cls=_GuardedGroup, add_completion=False, no_args_is_help=True,
+                  help="Model-based prognostics of electro-hydraulic actuators (HF/LF models, "
+                       "fault campaigns, identification).")
+
+
+@app.callback()
+def _options(debug: bool = typer.Option(False, "--debug", help="Show the traceback of an "
+                                        "unexpected error.")):
+    if debug:
+        _STATE["debug"] = True
 
 
 def fail(message: str, code: int = BAD_INPUT) -> None:
     """Print one line to stderr and exit with ``code``."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _error_line(message)
     raise typer.Exit(code)
+
+
+#: Allowed seeds (numpy's generators take unsigned 32-bit seeds).
+SEED_MAX = 2**32 - 1
+
+
+def _writable_folder(folder: Path, option: str, shown: Path) -> None:
+    """Fail unless ``folder`` is (or can be created as) a writable folder."""
+    probe = folder.absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        fail(f"{option} {shown}: {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        fail(f"{option} {shown}: folder {probe} is not writable")
+
+
+def check_out_file(path: Optional[Path], option: str,
+                   suffixes: tuple[str, ...] | None = None) -> None:
+    """Refuse an output file before any work starts: wrong type, a folder, or a place that
+    cannot be written (a parent that is a file, a read-only folder)."""
+    if path is None:
+        return
+    if suffixes and path.suffix.lower() not in suffixes:
+        fail(f"{option} {path}: unsupported file type {path.suffix or '(none)'!r}; allowed: "
+             f"{', '.join(suffixes)}")
+    if path.is_dir():
+        fail(f"{option} {path}: is a folder; give a file name")
+    if path.exists() and not os.access(path, os.W_OK):
+        fail(f"{option} {path}: the file exists and is not writable")
+    _writable_folder(path.parent, option, path)
+
+
+def check_out_dir(path: Optional[Path], option: str) -> None:
+    """Refuse an output folder before any work starts: a file, or not writable."""
+    if path is None:
+        return
+    if path.exists() and not path.is_dir():
+        fail(f"{option} {path}: is a file, not a folder")
+    _writable_folder(path, option, path)
+
+
+def check_seed(seed: int, option: str = "--seed") -> None:
+    if not 0 <= seed <= SEED_MAX:
+        fail(f"{option} {seed}: allowed range [0, {SEED_MAX}]")
+
+
+def check_names(text: str, option: str) -> None:
+    """Refuse a comma-separated list that names a parameter twice (``--fit BKL,BKL``)."""
+    names = [item.split("=")[0].strip() for item in text.split(",") if item.strip()]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        fail(f"{option} {text}: {', '.join(twice)} given twice; name each parameter once")
+
+
+def _discard_stdout() -> None:
+    """After a failed write to stdout: point fd 1 at /dev/null so that the interpreter's
+    final flush of the unwritten rest does not fail a second time (with a traceback)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def check_prior(path: Path) -> None:
+    """``--prior`` must be the ``--json`` of an earlier ``eha explain``: an object whose
+    ``steps`` is a list of ``{"effect": ..., "params": {...}}`` (or that list itself)."""
+    import json
+
+    try:
+        prior = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        fail(f"--prior {path}: not a readable JSON file "
+             f"({getattr(exc, 'strerror', None) or str(exc).splitlines()[0]})")
+    steps = prior.get("steps") if isinstance(prior, dict) else prior
+    if not isinstance(steps, list) or not all(isinstance(s, dict) and "effect" in s
+                                              for s in steps):
+        keys = ", ".join(sorted(prior)) if isinstance(prior, dict) else type(prior).__name__
+        fail(f"--prior {path}: expected the --json of an earlier eha explain (key 'steps', a "
+             f"list of {{effect, params}}); found {keys or 'an empty object'}")
 
 
 def _input_errors():
@@ -52,6 +252,9 @@ def simulate(
 
     if out.suffix != ".parquet":
         fail(f"--out {out}: the trace file must end in .parquet")
+    check_out_file(out, "--out")
+    check_out_file(plot, "--plot", PLOT_SUFFIXES)
+    check_seed(seed)
     try:
         trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
     except _input_errors() as exc:
@@ -124,6 +327,7 @@ def reproduce(results: Path = typer.Option(Path("results"), "--results",
     """
     from eha.report import reproduce_thesis
 
+    check_out_dir(results, "--results")
     try:
         out = reproduce_thesis(results, workers=workers)
     except _campaign_errors() as exc:
@@ -163,7 +367,7 @@ def _campaign_errors():
 def _fail_lines(text: str, code: int = BAD_INPUT) -> None:
     """One ``error:`` line per problem, then exit with ``code``."""
     for line in text.splitlines() or [text]:
-        err_console.print(f"[bold red]error:[/] {line}", highlight=False, soft_wrap=True)
+        _error_line(line)
     raise typer.Exit(code)
 
 
@@ -226,8 +430,14 @@ def campaign_run(
 
     Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
     """
-    from eha.runner import run_campaign
+    from eha.runner import check_scheduler, run_campaign
 
+    if scheduler is not None:
+        try:
+            check_scheduler(scheduler)
+        except ValueError as exc:
+            fail(str(exc))
+    check_out_dir(results, "--results")
     camp = _load(file)
     try:
         s = run_campaign(camp, results, workers=workers, scheduler=scheduler, replace=replace,
@@ -236,6 +446,9 @@ def campaign_run(
         _fail_lines(str(exc))
     except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
         fail(str(exc), 1)
+    except Terminated:
+        fail("terminated (SIGTERM); finished runs are saved, re-run the same command to resume",
+             TERMINATED)
     except KeyboardInterrupt:
         fail("interrupted; finished runs are saved, re-run the same command to resume", 130)
     if s.changed:
@@ -266,15 +479,21 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
         frame = run_query(results, sql)
     except StoreError as exc:
         fail(str(exc))
-    if format == "csv":
-        typer.echo(frame.to_csv(index=False), nl=False)
-    elif format == "json":
-        typer.echo(frame.to_json(orient="records", date_format="iso"))
-    else:
-        table = Table(*[str(c) for c in frame.columns])
-        for row in frame.itertuples(index=False):
-            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
-        console.print(table)
+    try:
+        if format == "csv":
+            typer.echo(frame.to_csv(index=False), nl=False)
+        elif format == "json":
+            typer.echo(frame.to_json(orient="records", date_format="iso"))
+        else:
+            table = Table(*[str(c) for c in frame.columns])
+            for row in frame.itertuples(index=False):
+                table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+            console.print(table)
+        sys.stdout.flush()  # a full disk or a closed pipe shows here, not silently at exit
+    except OSError as exc:
+        _discard_stdout()
+        fail(f"query: the result could not be written to standard output "
+             f"({exc.strerror or exc})", 1)
 
 
 @app.command()
@@ -288,6 +507,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
     """
     from eha.store import StoreError, export_csv
 
+    check_out_file(csv, "--csv", (".csv",))
     try:
         n = export_csv(results, table, csv)
     except StoreError as exc:
@@ -307,6 +527,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
     from eha.report import plot_campaign
     from eha.store import StoreError
 
+    check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     try:
         paths = plot_campaign(results, campaign, out)
     except StoreError as exc:
@@ -349,6 +570,10 @@ def fdi(
     from eha.measured import MeasuredDataError
     from eha.params import parse_assignments
 
+    check_names(fit, "--fit")
+    check_seed(seed)
+    check_out_file(json_out, "--json", (".json",))
+    check_out_file(plot, "--plot", PLOT_SUFFIXES)
     try:
         with err_console.status(f"identifying ({method}) ...") as status:
             def progress(gen: int, best: float) -> None:
@@ -441,6 +666,19 @@ def explain(
         fail(f"--set {exc}")
     if json_out is not None and json_out.suffix.lower() != ".json":
         fail(f"--json {json_out}: the file must end in .json")
+    check_out_file(json_out, "--json")
+    check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
+    check_out_dir(results, "--results")
+    check_names(fit, "--fit")
+    check_seed(seed)
+    if candidates < 0:
+        fail(f"--candidates {candidates}: allowed range [0, ...] (0 = all)")
+    if max_steps < 0:
+        fail(f"--max-steps {max_steps}: allowed range [0, ...]")
+    if not 0.0 <= min_gain <= 1.0:  # also refuses nan
+        fail(f"--min-gain {min_gain}: allowed range [0, 1]")
+    if prior is not None:
+        check_prior(prior)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
@@ -515,6 +753,7 @@ def report_thesis(results: Path = typer.Option(Path("results"), "--results",
     from eha.report import thesis_report
     from eha.store import StoreError
 
+    check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
     try:
         paths = thesis_report(results, out)
     except StoreError as exc:

@@ -2,8 +2,9 @@
 
 A measured record is a CSV (or TSV/TXT) or Parquet table with at least the columns ``t`` [s],
 ``com`` [m] and ``xu`` [m], optionally ``p12`` [Pa] and ``xs`` [m]; SI units. Column names are
-matched case-insensitively, ignoring a trailing unit in brackets (``"t [s]"``, ``"xu (m)"``),
-and through the aliases of :data:`ALIASES`.
+matched case-insensitively, through the aliases of :data:`ALIASES`; a trailing unit in
+brackets (``"t [ms]"``, ``"xu (mm)"``) is honoured: values are converted to SI with
+:data:`UNITS`, and a unit not listed there is refused.
 
 Validation (:func:`validate`) reports every problem at once, one line each:
 
@@ -13,6 +14,8 @@ Validation (:func:`validate`) reports every problem at once, one line each:
 - sampling is irregular: an interval differs from the median interval by more than
   :data:`SAMPLING_TOLERANCE` (20 %), e.g. a gap of missing samples;
 - fewer than :data:`MIN_SAMPLES` samples, or a record shorter than :data:`MIN_DURATION`;
+- sampling the models cannot resolve: a median interval above :data:`MAX_PERIOD` (10 ms),
+  e.g. time in milliseconds read as seconds;
 - values outside physical ranges (:data:`PHYSICAL_RANGES`, e.g. |xu| <= 0.2 m, the jack end
   stop; a record in millimetres fails here, and the message says so).
 
@@ -54,6 +57,17 @@ MIN_SAMPLES = 50
 MIN_DURATION = 0.05
 #: Longest record accepted [s] (the simulator's limit).
 MAX_DURATION = 3600.0
+#: Coarsest sampling accepted [s]: the models output at 1 kHz and the actuator responds within
+#: tens of ms; a slower record cannot be compared with them (and time in ms read as seconds
+#: looks like a record sampled at 1 Hz).
+MAX_PERIOD = 0.01
+#: Units accepted in a header (``"xu [mm]"``), per column: unit (lower case) -> factor to SI.
+_LENGTH = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6}
+UNITS: dict[str, dict[str, float]] = {
+    "t": {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6},
+    "com": _LENGTH, "xu": _LENGTH, "xs": _LENGTH,
+    "p12": {"pa": 1.0, "kpa": 1e3, "mpa": 1e6, "bar": 1e5, "psi": 6894.757293168},
+}
 #: Physical range of each column (SI): jack stroke, supply pressure, spool stroke.
 PHYSICAL_RANGES: dict[str, tuple[float, float, str]] = {
     "com": (-0.2, 0.2, "m"),
@@ -117,6 +131,30 @@ class MeasuredData:
                             cut["xs"], self.source, dict(self.info))
 
 
+def header_unit(header: str) -> str | None:
+    """The unit declared at the end of a header in brackets (``"xu [mm]"`` -> ``"mm"``)."""
+    match = re.search(r"[\[(]\s*([^\])]*?)\s*[\])]\s*$", str(header))
+    return match.group(1) if match else None
+
+
+def unit_scales(mapping: dict[str, str]) -> tuple[dict[str, float], list[str]]:
+    """Factor to SI of each mapped column from its header's unit; ``(scales, problems)``."""
+    scales: dict[str, float] = {}
+    problems: list[str] = []
+    for name, header in mapping.items():
+        unit = header_unit(header)
+        if unit is None:
+            continue
+        allowed = UNITS.get(name, {})
+        factor = allowed.get(unit.lower())
+        if factor is None:
+            problems.append(f"column {name}: unit {unit!r} in header {header!r} is not "
+                            f"supported; allowed: {', '.join(dict.fromkeys(allowed))}")
+        else:
+            scales[name] = factor
+    return scales, problems
+
+
 def _canonical(header: str) -> str:
     name = re.sub(r"\s*[\[(].*?[\])]\s*$", "", str(header)).strip().lower()
     return re.sub(r"[\s\-]+", "_", name)
@@ -143,8 +181,11 @@ def match_columns(headers: list[str]) -> tuple[dict[str, str], list[str]]:
     return mapping, problems
 
 
-def validate(columns: dict[str, Any], source: str = "data") -> dict[str, np.ndarray]:
-    """Check canonical columns (name -> values); return float64 arrays or raise.
+def validate(columns: dict[str, Any], source: str = "data",
+             scales: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """Check canonical columns (name -> values); return float64 arrays (SI) or raise.
+
+    ``scales``: factor to SI of a column given in other units (from its header).
 
     Raises
     ------
@@ -154,7 +195,7 @@ def validate(columns: dict[str, Any], source: str = "data") -> dict[str, np.ndar
     problems: list[str] = []
     arrays: dict[str, np.ndarray] = {}
     for name, values in columns.items():
-        numeric = _to_float(values)
+        numeric = _to_float(values) * (scales or {}).get(name, 1.0)
         bad = ~np.isfinite(numeric)
         if bad.any():
             first = int(np.argmax(bad))
@@ -173,6 +214,11 @@ def validate(columns: dict[str, Any], source: str = "data") -> dict[str, np.ndar
                             f"{t[i + 1]:g} s after {t[i]:g} s)")
         else:
             med = float(np.median(dt))
+            if med > MAX_PERIOD:
+                problems.append(f"column t: sampling period {med:g} s ({1 / med:.3g} Hz) is "
+                                f"coarser than the models resolve (at most {MAX_PERIOD:g} s); "
+                                "time in milliseconds? declare it in the header, e.g. "
+                                "'t [ms]'")
             dev = np.abs(dt - med) / med
             if dev.max() > SAMPLING_TOLERANCE:
                 i = int(np.argmax(dev))
@@ -226,7 +272,8 @@ def _to_float(values: Any) -> np.ndarray:
         return pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(dtype=np.float64)
 
 
-def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data") -> MeasuredData:
+def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
+                scales: dict[str, float] | None = None) -> MeasuredData:
     """Validate arrays and resample them onto the 1 kHz model grid.
 
     Parameters
@@ -237,6 +284,8 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data") -> Measured
         Command and measured position [m].
     p12, xs : arrays, optional
         Load pressure [Pa], spool position [m].
+    scales : dict, optional
+        Factor to SI of columns given in other units (e.g. ``{"xu": 1e-3}`` for mm).
     """
     columns = {"t": t, "com": com, "xu": xu}
     if p12 is not None:
@@ -246,7 +295,7 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data") -> Measured
     lengths = {k: len(v) for k, v in columns.items()}
     if len(set(lengths.values())) > 1:
         raise MeasuredDataError(source, [f"columns have different lengths: {lengths}"])
-    arrays = validate(columns, source)
+    arrays = validate(columns, source, scales)
     t_raw = arrays["t"] - arrays["t"][0]
     n_out = int(np.floor(t_raw[-1] / OUTPUT_DT + 1e-9)) + 1
     grid = np.arange(n_out) * OUTPUT_DT
@@ -292,11 +341,12 @@ def load(path: str | Path) -> MeasuredData:
         raise MeasuredDataError(source, [f"cannot read the table: {first}"]) from None
     headers = [str(c) for c in frame.columns]
     mapping, problems = match_columns(headers)
-    if problems:
-        raise MeasuredDataError(source, problems)
+    scales, unit_problems = unit_scales(mapping)
+    if problems or unit_problems:
+        raise MeasuredDataError(source, problems + unit_problems)
     cols = {name: frame[header].to_numpy() for name, header in mapping.items()}
     return from_arrays(cols["t"], cols["com"], cols["xu"], cols.get("p12"), cols.get("xs"),
-                       source=source)
+                       source=source, scales=scales)
 
 
 __all__ = ["MeasuredData", "MeasuredDataError", "load", "from_arrays", "validate",

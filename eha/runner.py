@@ -133,14 +133,39 @@ def pair_metrics(hf, lf) -> dict[str, float | None]:
 
 # =========================================================================== worker side
 def _init_worker() -> None:
-    """Pool-worker initialiser: one numba thread per process, then :func:`warm_worker`."""
+    """Pool-worker initialiser: one numba thread per process, exit when the parent dies, then
+    :func:`warm_worker`."""
     import signal
 
     os.environ["NUMBA_NUM_THREADS"] = str(WORKER_NUMBA_THREADS)
     # Ctrl-C goes to the whole terminal process group: the parent handles it (commits what is
     # finished, stops the pool); workers would only print tracebacks.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
     warm_worker()
+
+
+def _exit_with_parent() -> None:
+    """Exit this worker as soon as its parent process is gone (killed with SIGKILL, say).
+
+    An idle worker waits on the task queue, whose write end every worker also holds, so it
+    would never see end-of-file and would block for good (and the resource tracker with it).
+    A daemon thread waits on the parent's sentinel instead and ends the process; a run it
+    interrupts is not recorded and is re-run by the next ``eha campaign run``.
+    """
+    import multiprocessing
+    import threading
+    from multiprocessing.connection import wait
+
+    parent = multiprocessing.parent_process()
+    if parent is None or parent.sentinel is None:
+        return
+
+    def watch() -> None:
+        wait([parent.sentinel])
+        os._exit(1)
+
+    threading.Thread(target=watch, name="eha-parent-watch", daemon=True).start()
 
 
 def warm_worker() -> str:
@@ -193,7 +218,7 @@ def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str, trace_
     metrics = trace_metrics(trace)
     trace = Trace(trace.data, {**trace.meta, "run_key": run_key, "campaign": campaign})
     write_trace(trace, trace_file, columns=spec["signals"])
-    out = {"rows": {"metrics": metrics}, "sim_s": sim_s}
+    out = {"rows": {"metrics": metrics}, "sim_s": sim_s, "trace_rows": len(trace)}
     if want_signals:  # the parent pairs HF and LF of a case without reading the files back
         out["signals"] = {"xu": trace.xu.copy(), "p12": trace["p12"].copy()}
     return out
@@ -211,11 +236,26 @@ def _run_fdi(spec: Mapping[str, Any], run_key: str, campaign: str,
     row, fitted = run_job(spec)
     write_trace(Trace(fitted.data, {**fitted.meta, "run_key": run_key, "campaign": campaign}),
                 trace_file)
-    return {"rows": {"fdi_results": row}, "sim_s": row["seconds"]}
+    return {"rows": {"fdi_results": row}, "sim_s": row["seconds"], "trace_rows": len(fitted)}
 
 
 JOB_RUNNERS: dict[str, Callable[..., dict[str, Any]]] = {"simulate": _run_simulation,
                                                          "fdi": _run_fdi}
+
+
+def _lazy(module: str, name: str) -> Callable[..., dict[str, Any]]:
+    """A job function imported from ``module`` only when a worker first runs it."""
+    def call(*args, **kwargs):
+        import importlib
+
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+    call.__name__ = name
+    return call
+
+
+# prognostics (eha rul: assess one record; eha fleet simulate: write one record)
+JOB_RUNNERS["health"] = _lazy("eha.prognostics_jobs", "run_health_job")
+JOB_RUNNERS["fleet_record"] = _lazy("eha.fleet", "run_record_job")
 
 
 def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
@@ -237,6 +277,8 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
         result["status"] = "done"
         if Path(payload["trace_file"]).exists():
             result["trace_path"] = payload["trace_path"]
+            # recorded with the run: the resume checks the file against it (docs/reliability.md)
+            result["trace_bytes"] = Path(payload["trace_file"]).stat().st_size
     except Exception as exc:  # recorded, the campaign goes on
         result["status"] = "failed"
         result["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
@@ -259,11 +301,19 @@ class Executor:
     def __enter__(self) -> "Executor":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *exc) -> None:
+        # Ctrl-C, SIGTERM or exit: what is finished is committed already (the runner's
+        # ``finally``); the runs still in the workers are not, so stop them now rather than
+        # wait for them.
+        if exc_type is not None and not issubclass(exc_type, Exception):
+            self.abort()
         self.close()
 
     def close(self) -> None:  # pragma: no cover - overridden
         pass
+
+    def abort(self) -> None:
+        """Stop the running jobs at once (their runs stay pending and are re-run)."""
 
     def warm_up(self) -> None:
         """Start the workers and load the kernels before timing or submitting jobs."""
@@ -359,6 +409,13 @@ class LocalPoolExecutor(Executor):
         # The workers exit on their own once told to; the parent goes on meanwhile.
         self._pool.shutdown(wait=False, cancel_futures=True)
 
+    def abort(self) -> None:
+        for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
+            try:
+                proc.terminate()
+            except (OSError, ValueError, AttributeError):  # already gone
+                pass
+
 
 class DaskExecutor(Executor):
     """Jobs on a Dask distributed cluster (``scheduler``: ``tcp://HOST:PORT`` or a Client).
@@ -377,7 +434,7 @@ class DaskExecutor(Executor):
         else:
             try:
                 self.client, self._own = Client(scheduler, timeout="10s"), True
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError, TypeError) as exc:
                 raise RuntimeError(f"--scheduler {scheduler}: cannot connect "
                                    f"({type(exc).__name__}: {exc})") from None
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
@@ -398,6 +455,25 @@ class DaskExecutor(Executor):
     def close(self) -> None:
         if self._own:
             self.client.close()
+
+
+def check_scheduler(address: str) -> str:
+    """Refuse a ``--scheduler`` that is not a Dask address (``tcp://HOST:PORT``) before any
+    work starts; returns it.
+
+    Raises
+    ------
+    ValueError
+        One line naming the option and the expected form.
+    """
+    import re
+
+    ok = re.fullmatch(r"(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                      r":(\d{1,5})", address.strip())
+    if not ok or not 0 < int(ok.group(1)) < 65536:
+        raise ValueError(f"--scheduler {address!r}: not a scheduler address; expected "
+                         "tcp://HOST:PORT (PORT in [1, 65535])")
+    return address
 
 
 def make_executor(workers: int = 2, scheduler: Any = None) -> Executor:
@@ -605,8 +681,8 @@ def _finish_pairs(db, campaign: str) -> int:
         try:
             hf = read_trace(db.results / hf_path)
             lf = read_trace(db.results / lf_path)
-        except OSError:
-            continue  # a trace vanished: the run is re-run next time
+        except Exception:  # vanished or damaged (ArrowInvalid): not paired now; the resume
+            continue       # re-runs a damaged trace (eha.store.trace_intact)
         if len(hf) != len(lf):
             continue
         m = pair_metrics(hf, lf)

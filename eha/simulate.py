@@ -71,13 +71,19 @@ class Trace:
                                     schema=schema)
 
 
-def _grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
+def check_grid(params: ModelParams, t_end: float) -> tuple[int, int, int]:
+    """``(steps_per_out, n_out, n_steps)`` of a run, checked but not allocated (a campaign
+    validates t_end = 3600 s without building its 3.6e8-step grid)."""
     if not np.isfinite(t_end) or not 1e-3 <= t_end <= 3600.0:
         raise ParameterError(f"t_end={t_end:g} is out of range; allowed range [0.001, 3600] s")
     steps_per_out = int(round(OUTPUT_DT / params.DT))
     n_intervals = int(round(t_end / OUTPUT_DT))
-    t_steps = np.arange(n_intervals * steps_per_out + 1) * params.DT
-    return steps_per_out, n_intervals + 1, t_steps
+    return steps_per_out, n_intervals + 1, n_intervals * steps_per_out + 1
+
+
+def _grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
+    steps_per_out, n_out, n_steps = check_grid(params, t_end)
+    return steps_per_out, n_out, np.arange(n_steps) * params.DT
 
 
 def measure(t: np.ndarray, xu: np.ndarray, params: ModelParams) -> np.ndarray:
