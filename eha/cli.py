@@ -762,5 +762,132 @@ def report_thesis(results: Path = typer.Option(Path("results"), "--results",
         console.print(f"{kind}: {path}")
 
 
+# --------------------------------------------------------------------------- prognostics
+fleet_app = typer.Typer(no_args_is_help=True,
+                        help="Simulated fleets of degrading actuators (the prognostics test "
+                             "bench).\n\nExample: eha fleet simulate examples/fleet-demo.toml "
+                             "--out results/fleet-demo")
+app.add_typer(fleet_app, name="fleet")
+
+
+@fleet_app.command("simulate")
+def fleet_simulate(
+    file: Path = typer.Argument(..., help="Fleet TOML file (format in docs/prognostics.md)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: records/, manifest.csv, "
+                             "truth.json, eha.duckdb."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Simulate a fleet: HF check records with sensor noise, the manifest and the truth.
+
+    Example: eha fleet simulate examples/fleet-demo.toml --out results/fleet-demo
+    """
+    from eha.fleet import FleetError, load_fleet, simulate_fleet
+
+    try:
+        fleet = load_fleet(file)
+    except FleetError as exc:
+        _fail_lines(str(exc))
+    try:
+        res = simulate_fleet(fleet, out, workers=workers, progress=progress)
+    except FleetError as exc:
+        _fail_lines(str(exc))
+    except _campaign_errors() as exc:
+        _fail_lines(str(exc))
+    except KeyboardInterrupt:
+        fail("interrupted; finished records are kept, re-run the same command to resume", 130)
+    s = res.summary
+    console.print(f"{fleet.name}: {res.actuators} actuators, {res.records} records "
+                  f"({s.done} simulated now, {s.skipped} already there, {s.failed} failed), "
+                  f"{res.censored} without end of life within max_cycles, {s.wall_s:.1f} s")
+    console.print(f"manifest: {res.manifest}\ntruth: {res.truth}")
+    if s.failed:
+        raise typer.Exit(1)
+
+
+@app.command()
+def rul(
+    manifest: Path = typer.Argument(..., help="Manifest CSV: actuator, cycle, record "
+                                    "(records relative to its folder)."),
+    limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
+                                    "fault (SI, repeatable), e.g. FDJ=2000."),
+    fit: str = typer.Option("BKL,FDJ", "--fit", help="Faults identified and tracked "
+                            "(comma-separated; limited faults are added)."),
+    bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
+                                     "(default: eha fdi's, widened to twice the limit)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions "
+                                            "(and metrics) as JSON."),
+    results: Path = typer.Option(Path("results"), "--results", help="Folder of eha.duckdb "
+                                 "(tables health_checks, rul_predictions)."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="True end of life: truth.json "
+                                         "of eha fleet simulate, or CSV actuator,eol; adds the "
+                                         "prognostic metrics."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the PNG plots and "
+                                         "the fleet summary table."),
+    laws: str = typer.Option("linear,exponential,power", "--laws", help="Degradation laws "
+                             "averaged by evidence."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the identifications and RUL draws."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+    skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
+                                      "monitoring model does not explain out of the fits."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Remaining useful life from health histories: assess each record, fit degradation
+    trends, predict when each limited fault reaches its limit (median, 5 %, 95 %).
+
+    Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
+    --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul
+    """
+    from eha.fdi import FDIError, parse_bounds
+    from eha.manifest import ManifestError
+    from eha.prognostics import PrognosticsError
+    from eha.prognostics_jobs import parse_limits, run_rul
+
+    try:
+        res = run_rul(manifest, parse_limits(limit),
+                      fit=[n.strip() for n in fit.split(",") if n.strip()],
+                      bounds=parse_bounds(bounds), results=results, json_out=json_out,
+                      truth=truth, plots=plots, seed=seed, workers=workers,
+                      laws=[x.strip() for x in laws.split(",") if x.strip()],
+                      skip_flagged=skip_flagged, progress=progress)
+    except ManifestError as exc:
+        _fail_lines(str(exc))
+    except (PrognosticsError, FDIError) as exc:
+        fail(str(exc))
+    except _campaign_errors() as exc:
+        _fail_lines(str(exc))
+    except KeyboardInterrupt:
+        fail("interrupted; finished assessments are saved, re-run to resume", 130)
+    table = Table("actuator", "checks", "last cycle", "RUL median", "RUL 5 %", "RUL 95 %",
+                  "driver")
+    fmt = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
+    for aid, preds in res.predictions.items():
+        last = preds[-1] if preds else None
+        table.add_row(aid, str(len(preds)), fmt(last.cycle if last else None),
+                      fmt(last.rul if last else None), fmt(last.rul_lo if last else None),
+                      fmt(last.rul_hi if last else None), (last.driver if last else None)
+                      or "-")
+    console.print(table)
+    if res.metrics:
+        f = res.metrics["fleet"]
+        pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
+        console.print(f"alpha-lambda (alpha 0.2) over lambda in [0.5, 0.95]: "
+                      f"{pct(f.get('alpha_lambda_fraction'))} of "
+                      f"{f.get('alpha_lambda_checks')} checks; at 0.5: "
+                      f"{pct(f['alpha_lambda'].get('0.5'))}, at 0.75: "
+                      f"{pct(f['alpha_lambda'].get('0.75'))}; 90 % interval coverage "
+                      f"{pct(f.get('coverage'))}; median width at lambda 0.5: "
+                      f"{f.get('median_width_rel_at_0.5') or float('nan'):.2f} x true RUL")
+    console.print(f"{res.assessed} records assessed now, {res.reused} reused; "
+                  f"{res.seconds['total']:.1f} s -> {results}/eha.duckdb ({res.run_id})")
+    for kind, path in res.paths.items():
+        if kind != "database":
+            console.print(f"{kind}: {path}")
+    for line in res.failed:
+        err_console.print(f"failed: {line}", highlight=False, soft_wrap=True)
+    if res.failed:
+        raise typer.Exit(1)
+
+
 def main() -> None:  # pragma: no cover
     app(prog_name="eha")
