@@ -61,7 +61,7 @@ def _unexpected(exc: BaseException) -> str:
         return f"input is not UTF-8 text ({first})"
     if isinstance(exc, MemoryError):
         return "out of memory; make the input smaller (shorter t_end, fewer runs)"
-    if type(exc).__module__.startswith("duckdb"):
+    if any("duckdb" in cls.__module__ for cls in type(exc).__mro__):
         return (f"results database: {first}; if the file is damaged, move it away and run "
                 "the campaign again")
     return (f"internal error ({type(exc).__name__}: {first}); run again with --debug for "
@@ -443,7 +443,9 @@ def campaign_run(
         s = run_campaign(camp, results, workers=workers, scheduler=scheduler, replace=replace,
                          progress=progress)
     except _campaign_errors() as exc:
-        _fail_lines(str(exc))
+        from eha.store import StoreWriteError
+
+        _fail_lines(str(exc), 1 if isinstance(exc, StoreWriteError) else BAD_INPUT)
     except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
         fail(str(exc), 1)
     except Terminated:
@@ -887,6 +889,43 @@ def rul(
         err_console.print(f"failed: {line}", highlight=False, soft_wrap=True)
     if res.failed:
         raise typer.Exit(1)
+
+
+@app.command()
+def limits(
+    fault: str = typer.Option(..., "--fault", help="HF fault parameter, e.g. FDJ or BKL."),
+    require: str = typer.Option(..., "--require", help="Failure condition METRIC(COMMAND) "
+                                "OP VALUE, e.g. 'lag(mixed) > 0.02' (docs/prognostics.md)."),
+    lo: float = typer.Option(..., "--lo", help="Fault value where the requirement holds."),
+    hi: float = typer.Option(..., "--hi", help="Fault value where it fails."),
+    set_: List[str] = typer.Option([], "--set", help="Other HF parameter NAME=VALUE held "
+                                   "fixed (repeatable)."),
+    tol: float = typer.Option(1e-3, "--tol", help="Bisection stops below tol*(hi-lo)."),
+    seed: int = typer.Option(0, "--seed", help="HF dither seed."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time [s]."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
+):
+    """Derive a fault limit from a performance requirement by HF simulation (bisection).
+
+    Example: eha limits --fault FDJ --require "lag(mixed) > 0.02" --lo 200 --hi 20000
+    """
+    from eha.params import parse_assignments
+    from eha.prognostics import PrognosticsError
+    from eha.prognostics_limits import derive_limit
+
+    try:
+        res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_), tol=tol,
+                           seed=seed, t_end=t_end)
+    except (PrognosticsError, *_input_errors()) as exc:
+        fail(str(exc))
+    console.print(f"{fault} limit for '{res.requirement}': {res.limit:.6g} "
+                  f"({len(res.points)} HF runs, bracket [{lo:g}, {hi:g}], tol {tol:g})")
+    if json_out is not None:
+        import json
+
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(res.to_dict(), indent=1))
+        console.print(f"json: {json_out}")
 
 
 def main() -> None:  # pragma: no cover

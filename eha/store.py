@@ -310,6 +310,11 @@ class StoreError(RuntimeError):
     """The result database cannot be used (locked, missing, bad query); one-line message."""
 
 
+class StoreWriteError(StoreError):
+    """The result database could not be written (disk full, I/O error): a failure of the
+    machine, not of the input (the CLI exits 1, not 2); committed results are kept."""
+
+
 def db_path(results: str | Path) -> Path:
     """``DIR/eha.duckdb``."""
     return Path(results) / DB_NAME
@@ -414,7 +419,7 @@ class ResultStore:
 
                 con.close()
                 if isinstance(exc, duckdb.Error):
-                    raise StoreError(f"{db_path(self.results)}: could not checkpoint "
+                    raise StoreWriteError(f"{db_path(self.results)}: could not checkpoint "
                                      f"({str(exc).splitlines()[0]}); the committed results "
                                      "are kept in its .wal file; free some space and run the "
                                      "same command again") from None
@@ -617,6 +622,8 @@ def query(results: str | Path, sql: str):
         if ".parquet" in first:  # a stored trace is damaged: the resume re-runs it
             first += ("; a stored trace is damaged, run its campaign again (eha campaign run) "
                       "to re-run it")
+        elif "Corrupt" in first or "checksum" in first:
+            first += "; the database file is damaged: move it away and run the campaigns again"
         raise StoreError(f"query: {first}") from None
     finally:
         con.close()
