@@ -50,6 +50,25 @@ OBJECTIVES = {
 NOT_FITTABLE = ("DT", "orifice_law")
 #: Default fitted parameters (the two faults of the thesis).
 DEFAULT_FIT = ("BKL", "FDJ")
+#: Default nominal coverage of every parameter interval.
+DEFAULT_LEVEL = 0.9
+#: The LF model calibrated by ``eha explain`` on a healthy actuator in a 4 kN load test
+#: (campaigns/thesis-fdi-augmented.toml, docs/explain.md): orifice law, leakage, flapper
+#: dynamics. ``base_model="calibrated"`` selects it.
+CALIBRATED_LF: dict[str, float] = {"orifice_law": 1.0, "Clk": 9.662e-14, "SNF": 3445.5,
+                                   "ZF": 0.8109}
+#: Named LF bases: ``plain`` is the thesis' LF model.
+BASE_MODELS: dict[str, dict[str, float]] = {"plain": {}, "calibrated": CALIBRATED_LF}
+
+
+def model_form_of(base: LFParams) -> str:
+    """Which measured model-form terms apply to ``base``: the named base whose structural
+    settings (orifice law, flapper dynamics) it shares, else ``"none"``."""
+    for name, values in BASE_MODELS.items():
+        ref = resolve("lf", values)
+        if base.orifice_law == ref.orifice_law and (base.SNF > 0) == (ref.SNF > 0):
+            return name
+    return "none"
 
 #: Option defaults of each method. ``max_gen``: generation limit; ``stall``/``ftol``: stop when
 #: the best objective improved by less than ``ftol`` (relative) over ``stall`` generations
@@ -97,6 +116,21 @@ class FitResult:
         ``name -> (lower, upper)`` search bounds.
     options : dict
         Method options actually used (after defaults).
+    level : float or None
+        Nominal coverage of ``intervals`` (None: intervals not computed).
+    intervals : dict
+        ``name -> (lo, hi)``: interval of each estimate at ``level`` (eha.intervals).
+    std : dict
+        Standard uncertainty of each estimate (noise, residual and model-form terms).
+    flagged : bool
+        The residual stays well above the record's noise: the model does not explain the
+        record, the intervals are wide and the numbers are not to be trusted.
+    noise_rmse : float or None
+        Sensor noise estimated from the record [m].
+    model_form : str
+        Which measured model-form terms entered the intervals (eha.intervals.MODEL_FORM).
+    notes : tuple of str
+        Warnings of the interval estimate (flag, unconstrained parameters).
     """
 
     names: tuple[str, ...]
@@ -110,6 +144,13 @@ class FitResult:
     seed: int
     bounds: dict[str, tuple[float, float]]
     options: dict[str, float] = field(default_factory=dict)
+    level: float | None = None
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    std: dict[str, float] = field(default_factory=dict)
+    flagged: bool = False
+    noise_rmse: float | None = None
+    model_form: str = "none"
+    notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form (lists instead of tuples)."""
@@ -117,6 +158,8 @@ class FitResult:
         d["names"] = list(self.names)
         d["history"] = list(self.history)
         d["bounds"] = {k: list(v) for k, v in self.bounds.items()}
+        d["intervals"] = {k: list(v) for k, v in self.intervals.items()}
+        d["notes"] = list(self.notes)
         return d
 
 
@@ -313,7 +356,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
              seed: int = 0, objective: str = "rmse", t_end: float | None = None,
              on_generation: Callable[[int, float], None] | None = None,
              warm_start: bool = False, recorded_start: float | None = None,
-             **options: float) -> FitResult:
+             level: float | None = DEFAULT_LEVEL, noise: float | None = None,
+             model_form: str | None = None, **options: float) -> FitResult:
     """Identify LF parameters from a recorded position trace.
 
     Parameters
@@ -348,6 +392,14 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         The LF model starts at rest where its recorded position (with the candidate's sensor
         bias and gain) is this value [m], instead of at ``base.XJ0``: for records that start
         away from their command.
+    level : float or None
+        Nominal coverage of the parameter intervals (default 0.9; None skips them: the
+        residual loop's inner refits). Costs one batch of ``2k + 1`` LF runs.
+    noise : float, optional
+        Sensor noise of the record [m] (default: estimated from ``reference_xu``; give it when
+        the record was resampled, :func:`eha.measured.noise_level` on the raw samples).
+    model_form : str, optional
+        Key of :data:`eha.intervals.MODEL_FORM` (default: recognised from ``base``).
     **options
         Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
         max_evals.
@@ -358,6 +410,13 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     """
     if method not in METHODS:
         raise FDIError(f"method {method!r}: allowed {', '.join(METHODS)}")
+    if level is not None:
+        from eha.intervals import check_level
+
+        try:
+            level = check_level(level)
+        except ValueError as exc:
+            raise FDIError(str(exc)) from None
     if objective not in OBJECTIVES:
         raise FDIError(f"objective {objective!r}: allowed {', '.join(OBJECTIVES)}")
     if not isinstance(pop, (int, np.integer)) or not 4 <= pop <= 10000:
@@ -405,12 +464,22 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     if method in ("ga+ps", "ps"):
         x, f = _pattern_search(obj, x, f, opts["step0"], opts["xtol"], max_evals, history)
     values = obj.physical(x[None, :])[0]
+    extra: dict[str, Any] = {}
+    if level is not None:
+        from eha.intervals import estimate_intervals
+
+        form = model_form if model_form is not None else model_form_of(base)
+        iv = estimate_intervals(reference, obj.simulate, x, names, obj.lo, obj.span,
+                                level=level, noise=noise, model_form=form)
+        extra = {"level": iv.level, "intervals": iv.bounds, "std": iv.std,
+                 "flagged": iv.flagged, "noise_rmse": iv.noise_rmse, "model_form": form,
+                 "notes": iv.notes}
     seconds = time.perf_counter() - start
     return FitResult(names=names, estimates={n: float(v) for n, v in zip(names, values)},
                      objective=float(f), objective_name=objective,
                      evaluations=int(obj.evaluations), seconds=float(seconds),
                      history=tuple(history), method=method, seed=int(seed), bounds=bounds,
-                     options=opts)
+                     options=opts, **extra)
 
 
 def hf_reference(command: Command | str, faults: Mapping[str, float] | None = None,

@@ -1,0 +1,202 @@
+"""Interval benchmark (issue 9, item 1): do nominal-90 % intervals contain the truth?
+
+HF records with random faults — BKL uniform in 0-1 mm, FDJ in 200-3200 N, and in every third
+record one more fault (GM, Kintas, Clk, Ofs or FSS at a random degraded level) — on chirp_1cm
+and mixed (alternating), 1 s, random dither and noise seeds, 1 µm white sensor noise. Each
+record is assessed three ways, side by side:
+
+``health``      what the tool does by default on a measured record (``eha health check``):
+                the hypothesis bank on the LF calibrated by ``eha explain``, all seven faults;
+``calibrated``  ``eha fdi --data`` (BKL, FDJ) on the calibrated LF;
+``plain``       the same on the thesis' plain LF.
+
+Prints per method and parameter the coverage of the nominal intervals, the median width
+(relative for FDJ >= 400 N, µm for BKL) and the time per record.
+
+    python benchmarks/bench_intervals.py                 # 120 records
+    python benchmarks/bench_intervals.py --records 30 --methods health
+    python benchmarks/bench_intervals.py --json
+    python benchmarks/bench_intervals.py --calibrate     # model-form floors (other seeds)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+
+import numpy as np
+
+#: Degraded levels of the faults of item 4 (drawn uniformly; Ofs with a random sign).
+EXTRA_LEVELS = {"GM": (0.006, 0.009), "Kintas": (0.2, 0.6), "Clk": (5e-13, 3e-12),
+                "Ofs": (0.05, 0.3), "FSS": (15.0, 40.0)}
+COMMANDS = ("chirp_1cm", "mixed")
+METHODS = ("health", "calibrated", "plain")
+
+
+def draw_record(i: int, seed_block: int, extra: bool = True) -> tuple[str, dict, int]:
+    """Command, faults and seed of record ``i`` (reproducible)."""
+    rng = np.random.default_rng([seed_block, i])
+    faults = {"BKL": float(rng.uniform(0.0, 1e-3)), "FDJ": float(rng.uniform(200.0, 3200.0))}
+    if extra and i % 3 == 2:
+        name = list(EXTRA_LEVELS)[int(rng.integers(len(EXTRA_LEVELS)))]
+        value = float(rng.uniform(*EXTRA_LEVELS[name]))
+        if name == "Ofs" and rng.random() < 0.5:
+            value = -value
+        faults[name] = value
+    return COMMANDS[i % len(COMMANDS)], faults, seed_block + i
+
+
+def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
+    from eha.fdi import BASE_MODELS, identify
+    from eha.health import CORE_FAULTS, FAULTS, assess_record
+    from eha.measured import from_arrays, synthetic_record
+    from eha.params import resolve
+
+    command, faults, seed = draw_record(i, seed_block, extra)
+    df = synthetic_record(command, faults, t_end=1.0, noise=1e-6, seed=seed)
+    rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
+                      source=f"record {i}")
+    truth = {n: float(faults.get(n, FAULTS[n].healthy)) for n in FAULTS}
+    row = {"i": i, "command": command, "faults": faults, "seed": seed, "truth": truth,
+           "methods": {}}
+    for method in methods:
+        t0 = time.perf_counter()
+        if method == "health":
+            a = assess_record(rec, seed=seed)
+            est, iv, flagged = a.estimates, a.intervals, a.flagged
+            extra_info = {"weights": a.weights(), "rmse": a.residual_rmse}
+        else:
+            base = resolve("lf", BASE_MODELS[method])
+            res = identify(rec.xu, rec.command, {n: FAULTS[n].bounds for n in CORE_FAULTS},
+                           base=base, seed=seed, noise=rec.info["noise_m"])
+            est, iv, flagged = res.estimates, res.intervals, res.flagged
+            extra_info = {"rmse": res.objective, "hac": res.std}
+        row["methods"][method] = {"estimates": est, "intervals": {k: list(v) for k, v in
+                                                                  iv.items()},
+                                  "flagged": flagged, "seconds": time.perf_counter() - t0,
+                                  **extra_info}
+    return row
+
+
+def summarise(rows: list[dict], level: float = 0.9) -> dict:
+    out: dict = {}
+    for method in rows[0]["methods"]:
+        m: dict = {"params": {}}
+        names = rows[0]["methods"][method]["intervals"].keys()
+        for name in names:
+            inside, widths = [], []
+            for r in rows:
+                lo, hi = r["methods"][method]["intervals"][name]
+                t = r["truth"][name]
+                inside.append(lo <= t <= hi)
+                if name == "FDJ" and t >= 400:
+                    widths.append((hi - lo) / t)
+                elif name == "BKL":
+                    widths.append(hi - lo)
+            with_extra = [ok for ok, r in zip(inside, rows) if len(r["faults"]) > 2]
+            m["params"][name] = {
+                "coverage": float(np.mean(inside)), "n": len(inside),
+                "coverage_without_extra": float(np.mean([ok for ok, r in zip(inside, rows)
+                                                         if len(r["faults"]) == 2] or [np.nan])),
+                "coverage_with_extra": float(np.mean(with_extra)) if with_extra else None,
+                "median_width": float(np.median(widths)) if widths else None,
+                "width_unit": {"FDJ": "fraction of FDJ (FDJ >= 400 N)", "BKL": "m"}.get(name),
+            }
+        secs = [r["methods"][method]["seconds"] for r in rows]
+        m["seconds_median"] = float(statistics.median(secs))
+        m["seconds_max"] = float(max(secs))
+        m["flagged"] = int(sum(r["methods"][method]["flagged"] for r in rows))
+        out[method] = m
+    return out
+
+
+def calibrate(rows: list[dict], method: str = "calibrated", level: float = 0.9) -> dict:
+    """Smallest model-form floors (relative, absolute) that bring each parameter's coverage on
+    these records to ``level`` (records without an extra fault)."""
+    from eha.intervals import normal_quantile
+
+    z = normal_quantile(level)
+    found = {}
+    for name in ("BKL", "FDJ"):
+        data = []
+        for r in rows:
+            mm = r["methods"][method]
+            s = mm["hac"][name]
+            data.append((mm["estimates"][name], r["truth"][name], s))
+        best = None
+        for rel in (0.0, 0.001, 0.002, 0.003, 0.005, 0.01, 0.02, 0.05):
+            for ab in (0.0, 1e-7, 3e-7, 5e-7, 1e-6, 2e-6) if name == "BKL" else (0.0, 1.0, 2.0,
+                                                                                 5.0):
+                cov = np.mean([abs(e - t) <= z * np.sqrt(s * s + (rel * e) ** 2 + ab * ab)
+                               for e, t, s in data])
+                width = np.median([np.sqrt(s * s + (rel * e) ** 2 + ab * ab) for e, t, s in data])
+                if cov >= level and (best is None or width < best[2]):
+                    best = (rel, ab, width, cov)
+        found[name] = {"rel": best[0], "abs": best[1], "coverage": best[3]} if best else None
+    return found
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--records", type=int, default=120)
+    ap.add_argument("--seed-block", type=int, default=10_000,
+                    help="seeds of the records start here (calibration uses 0)")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--json", action="store_true", help="print the figures as JSON only")
+    ap.add_argument("--rows", default=None, help="also write every record's result (JSONL)")
+    ap.add_argument("--calibrate", action="store_true",
+                    help="measure the model-form floors on records without extra faults")
+    args = ap.parse_args()
+    methods = [m for m in args.methods.split(",") if m]
+    if args.calibrate:
+        methods, block, extra = ["calibrated"], 0, False
+    else:
+        block, extra = args.seed_block, True
+    from rich.progress import Progress
+
+    from eha.health import assess_record  # noqa: F401  (JIT warm-up below)
+
+    run_record(0, 999_999, methods[:1], extra=False)   # numba cache load outside the timing
+    rows = []
+    t0 = time.perf_counter()
+    sink = open(args.rows, "w") if args.rows else None
+    with Progress(disable=args.json, transient=True) as bar:
+        task = bar.add_task("records", total=args.records)
+        for i in range(args.records):
+            rows.append(run_record(i, block, methods, extra))
+            if sink:
+                sink.write(json.dumps(rows[-1]) + "\n")
+                sink.flush()
+            bar.advance(task)
+    wall = time.perf_counter() - t0
+    if args.calibrate:
+        out = {"floors": calibrate(rows), "records": len(rows)}
+        print(json.dumps(out, indent=2))
+        return
+    out = {"records": len(rows), "wall_s": wall, "level": 0.9, "noise_m": 1e-6,
+           "commands": list(COMMANDS), "methods": summarise(rows)}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return
+    print(f"{len(rows)} records ({', '.join(COMMANDS)}, a third with one more fault), "
+          f"1 µm noise, nominal level 90 %, {wall:.0f} s")
+    print(f"{'method':<11} {'param':<7} {'coverage':>8} {'no extra':>8} {'extra':>7} "
+          f"{'median width':>18}")
+    for method, m in out["methods"].items():
+        for name, p in m["params"].items():
+            w = p["median_width"]
+            wt = "" if w is None else (f"{100 * w:.2f} % of FDJ" if name == "FDJ"
+                                       else f"{1e6 * w:.2f} µm")
+            ce = "" if p["coverage_with_extra"] is None else f"{p['coverage_with_extra']:.2f}"
+            print(f"{method:<11} {name:<7} {p['coverage']:>8.2f} "
+                  f"{p['coverage_without_extra']:>8.2f} {ce:>7} {wt:>18}")
+        print(f"{method:<11} time per record: median {m['seconds_median']:.1f} s, max "
+              f"{m['seconds_max']:.1f} s; flagged {m['flagged']}")
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()
