@@ -1,0 +1,299 @@
+"""Hardening (issue 12) with real processes: dead parents, SIGTERM, Ctrl-C inside the final
+commit, damaged traces and databases, a full disk, no writable numba cache (classes 1, 2, 3 and
+7 of docs/reliability.md). Real DuckDB files, real Parquet, real subprocesses."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from conftest import error_line, files_under, run_eha, write_campaign
+from eha.store import query, trace_intact, write_trace
+
+POSIX = os.name == "posix"
+MINI = '''
+    name = "mini"
+    models = ["hf", "lf"]
+    commands = ["ramp"]
+    t_end = 0.05
+    [faults]
+    grid = {BKL = [1e-4, 5e-4]}
+'''
+# Long enough runs to be caught in the middle (DT ten times finer than nominal).
+LONG = '''
+    name = "long"
+    models = ["hf", "lf"]
+    commands = ["ramp", "mixed"]
+    t_end = 1.0
+    [params]
+    DT = 1e-6
+    [faults]
+    grid = {BKL = [1e-4, 5e-4], FDJ = [400.0, 800.0]}
+'''
+
+
+@pytest.fixture(scope="module")
+def mini_done(tmp_path_factory):
+    """A finished 4-run campaign (results folder and file); tests work on copies."""
+    root = tmp_path_factory.mktemp("mini")
+    camp = write_campaign(root, MINI, "mini.toml")
+    proc = run_eha("campaign", "run", camp, "--results", root / "results", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    return camp, root / "results"
+
+
+def copy_results(mini_done, tmp_path):
+    camp, results = mini_done
+    shutil.copytree(results, tmp_path / "results")
+    return camp, tmp_path / "results"
+
+
+def runs(results):
+    return query(results, "SELECT r.run_key, r.model, r.case_key, r.trace_path, r.status, "
+                          "m.rmse_xu_com, m.rmse_xu_hf_lf FROM runs r JOIN metrics m "
+                          "USING (run_key) ORDER BY run_key")
+
+
+def group_gone(pgid, timeout):
+    """Wait until no process of group ``pgid`` is left; True if so within ``timeout`` s."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def start_long(tmp_path, traces=1):
+    camp = write_campaign(tmp_path, LONG, "long.toml")
+    results = tmp_path / "results"
+    proc = subprocess.Popen([sys.executable, "-m", "eha", "campaign", "run", str(camp),
+                             "--results", str(results), "--workers", "2", "--no-progress"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    folder = results / "traces" / "long"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:  # workers busy, first runs back
+        if folder.is_dir() and len(list(folder.glob("*.parquet"))) >= traces:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, "the campaign ended before it could be interrupted"
+    return camp, results, proc
+
+
+def resume_all(camp, results, total=16):
+    proc = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    got = query(results, "SELECT status, count(*) AS n FROM runs GROUP BY status")
+    assert got.to_dict("records") == [{"status": "done", "n": total}]
+    assert not [p for p in files_under(results) if p.name.endswith(".tmp")]
+
+
+# =========================================================================== class 2
+@pytest.mark.slow
+@pytest.mark.skipif(not POSIX, reason="POSIX signals")
+def test_workers_exit_when_only_the_parent_is_killed(tmp_path):
+    """SIGKILL of the parent alone (not its group): the workers and the resource tracker used
+    to block for good; now every process of the group is gone within seconds."""
+    camp, results, proc = start_long(tmp_path)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    alive = not group_gone(proc.pid, 15)
+    if alive:
+        os.killpg(proc.pid, signal.SIGKILL)
+    assert not alive, "workers outlived their parent"
+    resume_all(camp, results)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not POSIX, reason="POSIX signals")
+def test_sigterm_saves_says_one_line_and_exits_143(tmp_path):
+    camp, results, proc = start_long(tmp_path, traces=4)  # a commit of finished runs is due
+    t0 = time.time()
+    os.kill(proc.pid, signal.SIGTERM)   # the parent only, as a service manager would
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and time.time() - t0 < 15
+    assert err.strip().splitlines() == ["error: terminated (SIGTERM); finished runs are saved, "
+                                        "re-run the same command to resume"]
+    alive = not group_gone(proc.pid, 15)
+    if alive:
+        os.killpg(proc.pid, signal.SIGKILL)
+    assert not alive
+    done = query(results, "SELECT count(*) AS n FROM runs WHERE status = 'done'")["n"][0]
+    assert 1 <= done < 16  # what finished is saved, the rest was stopped
+    resume_all(camp, results)
+
+
+# =========================================================================== class 1
+CTRL_C_IN_COMMIT = textwrap.dedent('''
+    import os, signal
+    from eha import runner, store
+    from eha.cli import app
+
+    upsert = store.ResultStore.upsert
+
+    def interrupted_upsert(self, table, rows):
+        # Ctrl-C arrives inside the transaction of the final commit
+        if table == "metrics" and rows and not os.environ.get("EHA_TEST_FIRED"):
+            os.environ["EHA_TEST_FIRED"] = "1"
+            os.kill(os.getpid(), signal.SIGINT)
+        return upsert(self, table, rows)
+
+    store.ResultStore.upsert = interrupted_upsert
+    runner.BATCH_ROWS, runner.BATCH_SECONDS = 10**6, 1e9   # one commit, at the end
+    app(prog_name="eha")
+''')
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not POSIX, reason="POSIX signals")
+def test_ctrl_c_during_the_final_commit(tmp_path):
+    camp = write_campaign(tmp_path, MINI, "mini.toml")
+    results = tmp_path / "results"
+    proc = subprocess.run([sys.executable, "-c", CTRL_C_IN_COMMIT, "campaign", "run", str(camp),
+                           "--results", str(results), "--no-progress"],
+                          capture_output=True, text=True, timeout=300)
+    line = error_line(proc, 130)
+    assert "interrupted" in line
+    # the interrupted transaction was rolled back whole: no run is half-recorded
+    got = query(results, "SELECT r.status, m.run_key IS NOT NULL AS has_metrics FROM runs r "
+                         "LEFT JOIN metrics m USING (run_key)")
+    assert set(map(tuple, got.values.tolist())) <= {("done", True), ("pending", False)}
+    resume_all(camp, results, total=4)
+
+
+@pytest.mark.slow
+def test_damaged_database_gives_one_line(mini_done, tmp_path):
+    camp, results = copy_results(mini_done, tmp_path)
+    db = results / "eha.duckdb"
+    size = db.stat().st_size
+    with open(db, "r+b") as fh:   # damage blocks in the middle of the file
+        fh.seek(size // 2)
+        fh.write(os.urandom(16384))
+    q = run_eha("query", "SELECT * FROM metrics", "--results", results)
+    line = error_line(q)
+    assert "Corrupt database file" in line or "damaged" in line
+    r = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
+    line = error_line(r, 1)
+    assert "eha.duckdb" in line or "results database" in line
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not POSIX, reason="RLIMIT_FSIZE")
+def test_full_disk_at_the_checkpoint_loses_nothing(tmp_path):
+    """Files may not grow past 300 kB (as on a full disk): the traces and the write-ahead log
+    fit, DuckDB's checkpoint does not. One line, exit 1; the next run finds every run done."""
+    import resource
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a failed write, not a killed process
+        resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, 300_000))
+
+    camp = write_campaign(tmp_path, MINI, "mini.toml")
+    results = tmp_path / "results"
+    proc = subprocess.run([sys.executable, "-m", "eha", "campaign", "run", str(camp),
+                           "--results", str(results), "--no-progress"], capture_output=True,
+                          text=True, preexec_fn=small_disk, timeout=300)
+    line = error_line(proc, 1)
+    assert "could not checkpoint" in line and "free some space" in line
+    again = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
+    assert again.returncode == 0 and "0 run now, 4 already done" in again.stdout, again.stderr
+
+
+# =========================================================================== class 3
+@pytest.mark.slow
+def test_truncated_trace_of_a_done_run_is_re_run(mini_done, tmp_path):
+    camp, results = copy_results(mini_done, tmp_path)
+    before = runs(results)
+    victim = results / before["trace_path"][0]
+    victim.write_bytes(victim.read_bytes()[:2000])       # truncated, e.g. by a full disk
+    q = run_eha("query", "SELECT count(*) FROM traces", "--results", results)
+    assert "run its campaign again" in error_line(q, 2)
+    r = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
+    assert r.returncode == 0 and "1 run now, 3 already done" in r.stdout, r.stderr
+    assert runs(results).equals(before)
+    assert query(results, "SELECT count(*) AS n FROM traces")["n"][0] == 4 * 51
+
+
+@pytest.mark.slow
+def test_damaged_trace_whose_partner_is_re_run(mini_done, tmp_path):
+    """The LF trace of a case is gone (re-run) and its HF partner's, recorded done, is
+    overwritten with garbage of the same size: both are re-run and paired again."""
+    camp, results = copy_results(mini_done, tmp_path)
+    before = runs(results)
+    case = before["case_key"][0]
+    pair = before[before["case_key"] == case]
+    hf = results / pair[pair["model"] == "hf"]["trace_path"].iloc[0]
+    lf = results / pair[pair["model"] == "lf"]["trace_path"].iloc[0]
+    lf.unlink()
+    hf.write_bytes(os.urandom(hf.stat().st_size))
+    r = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
+    assert r.returncode == 0 and "2 run now, 2 already done" in r.stdout, r.stderr
+    assert runs(results).equals(before)
+
+
+def test_trace_intact_checks_size_rows_and_footer(tmp_path):
+    from eha.simulate import Trace
+    import numpy as np
+
+    path = write_trace(Trace(np.zeros((51, 9))), tmp_path / "t.parquet")
+    size = path.stat().st_size
+    assert trace_intact(path, size, 51) and trace_intact(path)
+    assert not trace_intact(path, size + 1, 51) and not trace_intact(path, size, 50)
+    path.write_bytes(path.read_bytes()[:-20] + b"\0" * 20)   # same size, footer damaged
+    assert not trace_intact(path, size, 51)
+    assert not trace_intact(tmp_path / "missing.parquet")
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+def test_query_reports_a_failed_output_write(tmp_path):
+    from eha.store import ResultStore
+
+    results = tmp_path / "results"
+    ResultStore(results).close()   # an empty database: the header row alone must fail
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "eha", "query", "SELECT * FROM runs",
+                               "--results", str(results), "--format", "csv"], stdout=full,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "error: query: the result could not be written to standard output (No space left on "
+        "device)"]
+
+
+# =========================================================================== class 7
+@pytest.mark.slow
+def test_numba_cache_falls_back_to_a_temporary_folder(tmp_path):
+    """Neither the package folder nor $HOME can hold numba's cache (here: a file stands where
+    each cache folder would be created, which stops root too): the kernels are cached under
+    $TMPDIR/eha-numba-<user> instead of every command failing."""
+    import eha
+
+    pkg = tmp_path / "pkg"
+    shutil.copytree(os.path.dirname(eha.__file__), pkg / "eha",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    (pkg / "eha" / "models" / "__pycache__").write_text("not a folder")
+    home = tmp_path / "home"
+    home.write_text("not a folder")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR",
+                                                             "XDG_CACHE_HOME")}
+    env.update(HOME=str(home), TMPDIR=str(tmp), PYTHONPATH=str(pkg))
+    out = tmp_path / "lf.parquet"
+    proc = subprocess.run([sys.executable, "-m", "eha", "simulate", "--model", "lf",
+                           "--command", "ramp", "--t-end", "0.01", "--out", str(out)],
+                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert out.exists()
+    cached = list(tmp.glob("eha-numba-*/**/*.nbi"))
+    assert cached, "no kernel was cached in the temporary folder"
