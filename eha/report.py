@@ -107,8 +107,8 @@ THESIS_CAMPAIGNS = ["thesis-nominal", "thesis-single-fault", "thesis-matrix"]
 
 
 def campaigns_dir() -> Path:
-    """The repository's ``campaigns/`` folder (next to the ``eha`` package)."""
-    return Path(__file__).resolve().parents[1] / "campaigns"
+    """The thesis campaign files, shipped in the package (``campaigns/`` links to them)."""
+    return Path(__file__).resolve().parent / "campaigns"
 
 
 def _fmt_value(name: str, value: float) -> str:
