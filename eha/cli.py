@@ -7,7 +7,7 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import List, Optional
+from typing import Annotated, Any, Callable, List, Optional
 
 import typer
 from rich.console import Console
@@ -135,6 +135,41 @@ def _options(debug: bool = typer.Option(False, "--debug", help="Show the traceba
                                         "unexpected error.")):
     if debug:
         _STATE["debug"] = True
+
+
+# ---- shared option types: one definition of each option that several commands take
+#: Default results folder (database eha.duckdb, traces/, plots/, reports/).
+RESULTS = Path("results")
+ResultsOption = Annotated[Path, typer.Option(
+    "--results", help="Results folder (eha.duckdb, traces/, plots/, reports/).")]
+#: Default number of local worker processes.
+WORKERS = 2
+WorkersOption = Annotated[int, typer.Option("--workers", min=1,
+                                            help="Local worker processes.")]
+
+
+def library_default(module: str, name: str,
+                    pick: Callable[[Any], Any] | None = None) -> Callable[[], Any]:
+    """A default read from the library (``module.name``, optionally through ``pick``) when
+    the option is parsed: the CLI does not retype it, and ``eha --help`` does not pay for
+    importing the numerical modules."""
+    def default() -> Any:
+        import importlib
+
+        value = getattr(importlib.import_module(module), name)
+        return pick(value) if pick is not None else value
+
+    default.__name__ = f"{module}.{name}"
+    return default
+
+
+def signature_default(module: str, function: str, parameter: str) -> Callable[[], Any]:
+    """The default of ``parameter`` in the library function's signature (see
+    :func:`library_default`)."""
+    import inspect
+
+    return library_default(module, function,
+                           lambda fn: inspect.signature(fn).parameters[parameter].default)
 
 
 def fail(message: str, code: int = BAD_INPUT) -> None:
@@ -312,9 +347,7 @@ def commands():
 
 
 @app.command()
-def reproduce(results: Path = typer.Option(Path("results"), "--results",
-                                           help="Output directory."),
-              workers: int = typer.Option(2, "--workers", min=1, help="Worker processes.")):
+def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS):
     """Reproduce thesis chapters 5 and 6: all thesis campaigns, figures and reports.
 
     Runs the nominal, single-fault, matrix and FDI campaigns and writes the reports, the FDI
@@ -392,7 +425,7 @@ def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.
 
 @campaign_app.command("plan")
 def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
-                  workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+                  workers: WorkersOption = WORKERS,
                   jobs: bool = typer.Option(False, "--jobs", help="List every job.")):
     """Show what a campaign would run: job counts and an estimated wall time.
 
@@ -417,8 +450,8 @@ def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
 @campaign_app.command("run")
 def campaign_run(
     file: Path = typer.Argument(..., help="Campaign TOML file."),
-    workers: int = typer.Option(2, "--workers", min=1, help="Local worker processes."),
-    results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+    workers: WorkersOption = WORKERS,
+    results: ResultsOption = RESULTS,
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                             help="Dask scheduler tcp://HOST:PORT (eha[dask])."),
     replace: bool = typer.Option(False, "--replace",
@@ -466,7 +499,7 @@ def campaign_run(
 
 @app.command()
 def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
-          results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+          results: ResultsOption = RESULTS,
           format: str = typer.Option("table", "--format", help="table, csv or json.")):
     """Query the result database read-only; Parquet traces are the view `traces`.
 
@@ -502,7 +535,7 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
 def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs, metrics, "
                                                  "traces, ...)."),
            csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
-           results: Path = typer.Option(Path("results"), "--results", help="Results folder.")):
+           results: ResultsOption = RESULTS):
     """Export a table of the result database to CSV.
 
     Example: eha export metrics --csv results/metrics.csv
@@ -519,7 +552,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
 
 @app.command()
 def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),
-         results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
+         results: ResultsOption = RESULTS,
          out: Optional[Path] = typer.Option(None, "--out",
                                             help="Folder (default RESULTS/plots/CAMPAIGN).")):
     """Campaign figures (PNG): HF vs LF xu and P12 per fault set, RMSE summary.
@@ -547,15 +580,23 @@ def fdi(
                                    "NAME=VALUE (repeatable)."),
     data: Optional[Path] = typer.Option(None, "--data", help="Measured record instead of an "
                                         "HF reference: CSV/Parquet with t, com, xu (SI)."),
-    fit: str = typer.Option("BKL,FDJ", "--fit", help="LF parameters to identify."),
+    fit: str = typer.Option(
+        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+                                                            ",".join),
+        help="LF parameters to identify."),
     bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
                                      "(default BKL=0:1.25e-3, FDJ=200:4000, else the range)."),
     base: List[str] = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE "
                                    "(e.g. orifice_law=1)."),
-    method: str = typer.Option("ga+ps", "--method", help="ga (the thesis), ga+ps "
+    method: str = typer.Option(
+        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+        help="ga (the thesis), ga+ps "
                                "(GA + pattern-search polish) or ps (pattern search from the "
                                "--base / nominal values)."),
-    pop: int = typer.Option(20, "--pop", help="GA population."),
+    pop: int = typer.Option(
+        ..., "--pop", default_factory=signature_default("eha.fdi", "identify_source",
+                                                              "pop"),
+        help="GA population."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
     objective: str = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' "
                                   "mean absolute error)."),
@@ -635,15 +676,28 @@ def explain(
                                             "faults_before/after and the steps as JSON."),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default "
                                        "RESULTS/explain/<file stem>)."),
-    results: Path = typer.Option(Path("results"), "--results", help="Folder of eha.duckdb."),
-    method: str = typer.Option("ga+ps", "--method", help="Optimizer of every fit (eha fdi)."),
-    pop: int = typer.Option(20, "--pop", help="GA population of every fit."),
+    results: ResultsOption = RESULTS,
+    method: str = typer.Option(
+        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+        help="Optimizer of every fit (eha fdi)."),
+    pop: int = typer.Option(
+        ..., "--pop", default_factory=signature_default("eha.explain", "explain", "pop"),
+        help="GA population of every fit."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result)."),
-    candidates: int = typer.Option(6, "--candidates", help="Effects refitted per round, the "
-                                   "best-ranked by signature (0 = all)."),
-    max_steps: int = typer.Option(4, "--max-steps", help="Most effects added."),
-    min_gain: float = typer.Option(0.1, "--min-gain", help="Smallest penalised held-out RMSE "
-                                   "reduction that adds an effect."),
+    candidates: int = typer.Option(
+        ..., "--candidates", default_factory=library_default(
+                                       "eha.explain", "DEFAULTS", lambda d: int(d["candidates"])),
+        help="Effects refitted per round, the best-ranked by "
+                                        "signature (0 = all)."),
+    max_steps: int = typer.Option(
+        ..., "--max-steps", default_factory=library_default(
+                                      "eha.explain", "DEFAULTS", lambda d: int(d["max_steps"])),
+        help="Most effects added."),
+    min_gain: float = typer.Option(
+        ..., "--min-gain", default_factory=library_default(
+                                       "eha.explain", "DEFAULTS", lambda d: d["min_gain"]),
+        help="Smallest penalised held-out RMSE reduction that adds "
+                                        "an effect."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
     """Trace a measured record's residual to missing LF effects, add them, report the error.
@@ -741,8 +795,7 @@ app.add_typer(report_app, name="report")
 
 
 @report_app.command("thesis")
-def report_thesis(results: Path = typer.Option(Path("results"), "--results",
-                                               help="Results folder (eha.duckdb)."),
+def report_thesis(results: ResultsOption = RESULTS,
                   out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
                                                      "(default RESULTS/reports/thesis).")):
     """Thesis FDI table (Figure 6.17) beside the thesis' own values, figures, summary.
@@ -832,6 +885,9 @@ def rul(
     workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
     skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
                                       "monitoring model does not explain out of the fits."),
+    limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
+                                                "of the assessment's systematic error "
+                                                "(default 0.05)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
@@ -851,7 +907,7 @@ def rul(
                       bounds=parse_bounds(bounds), results=results, json_out=json_out,
                       truth=truth, plots=plots, seed=seed, workers=workers,
                       laws=[x.strip() for x in laws.split(",") if x.strip()],
-                      skip_flagged=skip_flagged, progress=progress)
+                      skip_flagged=skip_flagged, progress=progress, limit_error=limit_error)
     except ManifestError as exc:
         _fail_lines(str(exc))
     except (PrognosticsError, FDIError) as exc:
