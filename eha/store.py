@@ -599,11 +599,14 @@ def _create_traces_view(con, results: Path) -> None:
                     f"NULL::VARCHAR AS run_key, {cols} WHERE false")
 
 
-def query(results: str | Path, sql: str):
+def query(results: str | Path, sql: str,
+          params: Sequence[Any] | Mapping[str, Any] | None = None):
     """Run ``sql`` on a read-only connection to ``DIR/eha.duckdb``; returns a pandas DataFrame.
 
     The Parquet traces are visible as the view ``traces`` (columns ``campaign``, ``run_key``
-    and the stored signals).
+    and the stored signals). Values go in ``params``, never into the SQL text: ``?``
+    placeholders with a sequence, ``$name`` with a mapping, e.g.
+    ``query(results, "SELECT * FROM runs WHERE campaign = ?", ["thesis-matrix"])``.
 
     Raises
     ------
@@ -616,7 +619,7 @@ def query(results: str | Path, sql: str):
     con = connect(results, read_only=True)
     try:
         _create_traces_view(con, results)
-        return con.execute(sql).df()
+        return (con.execute(sql, params) if params is not None else con.execute(sql)).df()
     except duckdb.Error as exc:
         first = str(exc).splitlines()[0]
         if ".parquet" in first:  # a stored trace is damaged: the resume re-runs it

@@ -297,3 +297,24 @@ def test_numba_cache_falls_back_to_a_temporary_folder(tmp_path):
     assert out.exists()
     cached = list(tmp.glob("eha-numba-*/**/*.nbi"))
     assert cached, "no kernel was cached in the temporary folder"
+
+
+def test_query_takes_parameters_instead_of_quoted_sql(tmp_path):
+    """Values travel as parameters: a name with a quote is data, not SQL."""
+    from datetime import datetime
+
+    from eha.store import ResultStore
+
+    results = tmp_path / "results"
+    with ResultStore(results) as db:
+        for name in ("plain", "it's"):
+            db.register_campaign({"name": name, "description": "", "source": "",
+                                  "spec_hash": "h", "model_version": "1", "n_runs": 1,
+                                  "definition": {},
+                                  "created_at": datetime(2026, 1, 1),
+                                  "updated_at": datetime(2026, 1, 1)})
+    got = query(results, "SELECT name FROM campaigns WHERE name = ?", ["it's"])
+    assert got["name"].tolist() == ["it's"]
+    got = query(results, "SELECT count(*) AS n FROM campaigns WHERE name = $n",
+                {"n": "x' OR '1'='1"})
+    assert got["n"][0] == 0
