@@ -52,11 +52,12 @@ def _unexpected(exc: BaseException) -> str:
 
     first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     if isinstance(exc, OSError):
-        what = exc.filename or ""
+        # no file name: a stream (standard output, a pipe) failed
+        what = exc.filename or "writing the output"
         reason = exc.strerror or first or type(exc).__name__
         if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
             return f"{what}: {reason}; free some space and run the same command again"
-        return f"{what}: {reason}" if what else f"{type(exc).__name__}: {reason}"
+        return f"{what}: {reason}"
     if isinstance(exc, UnicodeDecodeError):
         return f"input is not UTF-8 text ({first})"
     if isinstance(exc, MemoryError):
@@ -98,6 +99,8 @@ class _GuardedGroup(TyperGroup):
                 import traceback
 
                 traceback.print_exc()
+            if isinstance(exc, OSError) and _stdout_failed():
+                exc = OSError(exc.errno, exc.strerror, "standard output")
             _error_line(_unexpected(exc))
             raise typer.Exit(1)
         finally:
@@ -121,6 +124,9 @@ class _GuardedGroup(TyperGroup):
             sys.exit(exc.exit_code)
         except typer.Abort:
             _error_line("aborted")
+            sys.exit(1)
+        if _stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
+            _error_line("the output could not be written to standard output")
             sys.exit(1)
         sys.exit(rv if isinstance(rv, int) else 0)
 
@@ -229,6 +235,17 @@ def check_names(text: str, option: str) -> None:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         fail(f"{option} {text}: {', '.join(twice)} given twice; name each parameter once")
+
+
+def _stdout_failed() -> bool:
+    """Flush stdout; True (and stdout discarded) when it cannot be written (a full disk, a
+    closed pipe)."""
+    try:
+        sys.stdout.flush()
+        return False
+    except (OSError, ValueError):
+        _discard_stdout()
+        return True
 
 
 def _discard_stdout() -> None:

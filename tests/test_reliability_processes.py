@@ -270,6 +270,18 @@ def test_query_reports_a_failed_output_write(tmp_path):
         "device)"]
 
 
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [["params"], ["commands"]])
+def test_any_command_reports_a_failed_output_write(args):
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "eha", *args], stdout=full,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "error: writing the output: No space left on device; free some space and run the "
+        "same command again"]
+
+
 # =========================================================================== class 7
 @pytest.mark.slow
 def test_numba_cache_falls_back_to_a_temporary_folder(tmp_path):
