@@ -28,6 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.prognostics import LAWS, PrognosticsError, histories_from_checks, predict_history
+from eha.prognostics import LIMIT_ERROR as PRED_LIMIT_ERROR
 
 #: Identification method of the health assessment (eha.fdi.METHODS).
 HEALTH_METHOD = "ga+ps"
@@ -228,7 +229,8 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
             results: str | Path = "results", json_out: str | Path | None = None,
             truth: str | Path | None = None, plots: str | Path | None = None,
             seed: int = 0, workers: int = 2, laws: Sequence[str] = LAWS,
-            skip_flagged: bool = False, progress: bool = True) -> RulResult:
+            skip_flagged: bool = False, progress: bool = True,
+            limit_error: float | None = None) -> RulResult:
     """Assess, predict, store and (optionally) evaluate and plot one manifest.
 
     Parameters
@@ -255,6 +257,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Degradation laws averaged.
     skip_flagged : bool
         Leave records whose identification is flagged out of the fits.
+    limit_error : float, optional
+        Relative std of the assessment's systematic error (default
+        :data:`eha.prognostics.LIMIT_ERROR`).
 
     Raises
     ------
@@ -266,6 +271,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
 
     t0 = time.perf_counter()
     manifest = read_manifest(manifest_path)
+    if limit_error is not None and not 0 <= limit_error < 1:
+        raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
+                               "(relative standard deviation)")
     if not limits:
         raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
                                "limit), e.g. --limit FDJ=2000")
@@ -304,13 +312,16 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
             out_acts[aid] = {"predictions": []}
             preds_all[aid] = []
             continue
-        preds, _ = predict_history(aid, hist[aid], limits, seed=seed, laws=laws)
+        preds, _ = predict_history(aid, hist[aid], limits, seed=seed, laws=laws,
+                                   limit_error=limit_error)
         preds_all[aid] = preds
         out_acts[aid] = {"predictions": [p.to_dict() for p in preds]}
     t_predict = time.perf_counter() - t1
     output = {"unit": "cycle", "limits": dict(limits), "fit": names,
               "bounds": {k: list(v) for k, v in chosen.items()}, "laws": list(laws),
-              "seed": seed, "run_id": camp.name, "manifest": str(manifest.source),
+              "seed": seed,
+              "limit_error": PRED_LIMIT_ERROR if limit_error is None else limit_error,
+              "run_id": camp.name, "manifest": str(manifest.source),
               "actuators": out_acts}
     metrics = None
     if truth_eol is not None:

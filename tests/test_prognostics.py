@@ -298,3 +298,27 @@ def test_fleet_simulate_then_rul_end_to_end(tmp_path):
     assert q.output.strip().splitlines()[-1] == "8"
     res = runner.invoke(app, args)           # resumes: nothing assessed again
     assert res.exit_code == 0 and "0 records assessed now, 8 reused" in res.output
+
+
+# ----------------------------------------------------------------------------- limits
+def test_limit_by_bisection_brackets_the_failure_and_is_reproducible():
+    from eha.prognostics_limits import derive_limit, metric_of, parse_requirement
+
+    res = derive_limit("FDJ", "lag(mixed) > 0.02", 200, 20000, tol=1e-3, t_end=1.0)
+    req = parse_requirement("lag(mixed) > 0.02")
+    width = 1e-3 * (20000 - 200)
+    assert req.failed(metric_of(req, "FDJ", res.limit, {}))
+    assert not req.failed(metric_of(req, "FDJ", res.limit - width, {}))
+    assert 3000 < res.limit < 10000          # measured 6000.8 N
+    assert derive_limit("FDJ", "lag(mixed) > 0.02", 200, 20000).limit == res.limit
+
+
+def test_limit_input_errors_are_one_line():
+    for args, text in [(["--require", "lag(mixed) >> 2"], "METRIC(COMMAND) OP VALUE"),
+                       (["--require", "lag(nosuch) > 0.02"], "nosuch"),
+                       (["--require", "lag(mixed) > 0.02", "--hi", "300"], "raise --hi")]:
+        base = ["limits", "--fault", "FDJ", "--lo", "200", "--hi", "20000"]
+        res = runner.invoke(app, base[:-2] + (["--hi", "20000"] if "--hi" not in args else [])
+                            + args)
+        assert res.exit_code == 2, res.output
+        assert text in res.output and "Traceback" not in res.output
