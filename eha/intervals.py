@@ -255,8 +255,15 @@ def estimate_intervals(reference: np.ndarray, simulate_unit: Callable[[np.ndarra
     reference = np.asarray(reference, dtype=np.float64)
     y0, jac = jacobian(simulate_unit, np.asarray(x, dtype=np.float64), np.asarray(span))
     resid = reference - y0
-    rmse = float(np.sqrt(np.mean(resid * resid)))
     noise = float(noise_level(reference) if noise is None else noise)
+    if not np.all(np.isfinite(resid)):
+        # the estimate itself is unstable (NaN/inf trace): nothing is known
+        full = {n: (float(lo[i]), float(lo[i] + span[i])) for i, n in enumerate(names)}
+        inf = {n: math.inf for n in names}
+        return Intervals(level=level, bounds=full, std=inf, hac_std=inf, noise_rmse=noise,
+                         residual_rmse=math.inf, lag=0, flagged=True, model_form=model_form,
+                         notes=("the model is unstable at the estimate: no interval",))
+    rmse = float(np.sqrt(np.mean(resid * resid)))
     lag = bandwidth(resid)
     notes: list[str] = []
     active = np.any(jac != 0.0, axis=0) & np.all(np.isfinite(jac), axis=0)

@@ -71,13 +71,19 @@ def test_thesis_ga_history_and_batches(lf_reference, monkeypatch):
 
     monkeypatch.setattr(fdi, "simulate_lf_batch", counting)
     res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", pop=20, seed=3,
-                   t_end=T_END, max_gen=15)
+                   t_end=T_END, max_gen=15, level=None)   # the GA alone (intervals: below)
     hist = np.array(res.history)
     assert len(hist) == 15                           # stopped on the generation limit
     assert np.all(np.diff(hist) <= 0)                # elitist: the best never worsens
     # one batch call per generation, never one call per individual
     assert len(calls) == len(hist) and calls[0] == 20 and sum(calls) == res.evaluations
     assert res.estimates["BKL"] == pytest.approx(2e-4, rel=0.1)
+    # the intervals cost exactly one more batch: the estimate and 2k central differences
+    calls.clear()
+    res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", pop=20, seed=3,
+                   t_end=T_END, max_gen=15)
+    assert len(calls) == len(hist) + 1 and calls[-1] == 1 + 2 * 2
+    assert sum(calls) == res.evaluations and set(res.intervals) == set(BOUNDS)
 
 
 def test_same_seed_same_result(lf_reference):
