@@ -33,6 +33,7 @@ def _record(tmp_path, name, command, t_end, overrides=None, model="hf", seed=1):
     return path
 
 
+@pytest.mark.slow
 def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     """Plain nominal HF data: the missing physics is the orifice law (the 'mixed' command
     opens the spool beyond XSS); found first, RMSE falls >= 3x; all outputs written."""
@@ -63,6 +64,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert [s[1] for s in steps] == [s["effect"] for s in doc["steps"]]
 
 
+@pytest.mark.slow
 def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
     """On the step-rich 'test' command the orifice law and the flapper dynamics each explain
     little alone; tried together (eha.effects.COMBINATIONS) they are added as two steps."""
@@ -78,6 +80,7 @@ def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
     ("hinge_moment", {"Kaer": 1.5e5}, "Kaer", 0.10),
     ("sensor_bias", {"sensor_bias": 1e-4}, "sensor_bias", 0.05),
 ])
+@pytest.mark.slow
 def test_undeclared_effect_is_found_first(tmp_path, effect, overrides, param, rel):
     data = load(_record(tmp_path, effect, "test", 0.6, overrides))
     # one step: only the first effect added is checked (and it alone must cut the RMSE 3x)
@@ -88,6 +91,7 @@ def test_undeclared_effect_is_found_first(tmp_path, effect, overrides, param, re
     assert res.faults_after["BKL"] == pytest.approx(1e-4, rel=0.15)
 
 
+@pytest.mark.slow
 def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
     """Leakage trades off against jack friction (both soften the position loop), so the GA
     estimates Clk only to within a factor of 3 (docs/explain.md, limits)."""
@@ -98,6 +102,7 @@ def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
     assert res.rmse_before >= 3 * res.rmse_after
 
 
+@pytest.mark.slow
 def test_validation_record_instead_of_holdout(tmp_path):
     data = load(_record(tmp_path, "bias", "test", 0.6, {"sensor_bias": -1e-4}))
     check = load(_record(tmp_path, "bias2", "mixed", 0.5, {"sensor_bias": -1e-4}, seed=2))
@@ -107,6 +112,7 @@ def test_validation_record_instead_of_holdout(tmp_path):
     assert res.steps[0].params["sensor_bias"] == pytest.approx(-1e-4, rel=0.05)
 
 
+@pytest.mark.slow
 def test_noise_only_adds_nothing(tmp_path):
     """An LF record (the model is exact) plus noise: nothing to explain."""
     data = load(_record(tmp_path, "noise", "mixed", 1.0, model="lf"))
@@ -133,6 +139,7 @@ def test_noise_only_adds_nothing(tmp_path):
     # measured one, so a bias is not taken for a shifted start (was: offset at its bound)
     ("bias_step", "step_1cm", 0.5, {"sensor_bias": 2e-4}, "sensor_bias", 0.05),
 ])
+@pytest.mark.slow
 def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overrides, param,
                                            tol):
     """No prior: the HF-LF structure and the undeclared effect are found together (the
@@ -162,6 +169,7 @@ def test_bad_inputs_raise_one_line(tmp_path):
         augmented_base([{"effect": "offset", "params": {"Ofs": 99.0}}])
 
 
+@pytest.mark.slow
 def test_load_test_calibration_finds_the_nominal_leakage_through_the_cli(tmp_path):
     """A healthy actuator's record under a known 4 kN test load, declared with --set: the
     HF's nominal leakage (Clk = 1e-13, invisible without a load because the leakage flow is
@@ -203,6 +211,7 @@ def test_batch_runs_start_at_the_recorded_position():
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
 
 
+@pytest.mark.slow
 def test_max_steps_holds_when_a_combination_wins(tmp_path):
     """A combination adds one step per member, so it is only tried when there is room:
     nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two)."""

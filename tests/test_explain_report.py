@@ -36,6 +36,7 @@ def test_augmented_campaign_file_is_the_thesis_cases_with_an_explain_base():
     assert aug.base["orifice_law"] == 1 and aug.base["SNF"] > 0 and aug.base["Clk"] > 0
 
 
+@pytest.mark.slow
 def test_report_has_augmented_columns_and_summary(tmp_path):
     camp = load_fdi_campaign(ROOT / "campaigns" / "thesis-fdi.toml")
     plain = _rows(camp, lambda case, seed: (10.0 + seed, -4.0))

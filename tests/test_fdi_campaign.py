@@ -59,6 +59,7 @@ def campaign_results(tmp_path_factory):
     return path, results, first, second
 
 
+@pytest.mark.slow
 def test_campaign_runs_into_fdi_results(campaign_results):
     path, results, first, second = campaign_results
     assert first.total == 4 and first.done == 4 and first.failed == 0
@@ -81,6 +82,7 @@ def test_campaign_runs_into_fdi_results(campaign_results):
         assert abs(r.err_bkl_pct) < 5 and abs(r.err_fdj_pct) < 10
 
 
+@pytest.mark.slow
 def test_same_seed_same_row_in_a_fresh_database(campaign_results, tmp_path):
     path, results, *_ = campaign_results
     again = tmp_path / "again"
@@ -91,6 +93,7 @@ def test_same_seed_same_row_in_a_fresh_database(campaign_results, tmp_path):
     pd.testing.assert_frame_equal(a, b)
 
 
+@pytest.mark.slow
 def test_thesis_report_files(campaign_results, tmp_path):
     _, results, *_ = campaign_results
     paths = thesis_report(results, tmp_path / "report", campaign="fdi-test")
@@ -127,6 +130,7 @@ def test_thesis_campaign_file_expands_to_60_jobs():
     assert len({j.run_key for j in camp.jobs}) == 60
 
 
+@pytest.mark.slow
 def test_cli_fdi_against_hf_and_bad_input(tmp_path):
     out = tmp_path / "fit.json"
     proc = _eha("fdi", "--command", "chirp_1cm", "--set", "BKL=5e-4", "--set", "FDJ=200",
@@ -143,6 +147,7 @@ def test_cli_fdi_against_hf_and_bad_input(tmp_path):
     assert proc.stderr.count("\n") == 1 and "FDJ" in proc.stderr and "below" in proc.stderr
 
 
+@pytest.mark.slow
 def test_cli_fdi_against_a_measured_csv(tmp_path):
     from eha.simulate import simulate
 

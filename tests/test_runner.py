@@ -53,6 +53,7 @@ def test_execute_job_records_a_failure_instead_of_raising(tmp_path):
     assert res["rows"] == {} and res["trace_path"] is None
 
 
+@pytest.mark.slow
 def test_campaign_run_rows_traces_metrics_and_resume(tmp_path):
     path = write(tmp_path)
     results = tmp_path / "results"
@@ -98,6 +99,7 @@ def test_campaign_run_rows_traces_metrics_and_resume(tmp_path):
     assert query(results, "SELECT count(*) AS n FROM runs")["n"][0] == 8
 
 
+@pytest.mark.slow
 def test_changed_campaign_is_reported_then_replaced(tmp_path):
     path = write(tmp_path)
     results = tmp_path / "results"
@@ -134,6 +136,7 @@ def test_changed_campaign_is_reported_then_replaced(tmp_path):
     assert len(list((results / "traces" / "mini").glob("*.parquet"))) == 8
 
 
+@pytest.mark.slow
 def test_pool_workers_use_one_numba_thread_and_the_kernel_cache():
     with LocalPoolExecutor(2) as ex:
         ex.warm_up()
@@ -142,6 +145,7 @@ def test_pool_workers_use_one_numba_thread_and_the_kernel_cache():
     assert all(i["cache_misses"] == 0 and i["cache_hits"] >= 2 for i in infos), infos
 
 
+@pytest.mark.slow
 def test_dask_scheduler_option_on_a_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     path = write(tmp_path)

@@ -8,6 +8,8 @@ import sys
 import textwrap
 import time
 
+import pytest
+
 from eha.store import StoreError, query
 
 CAMPAIGN = textwrap.dedent("""
@@ -71,6 +73,7 @@ def state(results):
                               "elapsed_s"])
 
 
+@pytest.mark.slow
 def test_kill_minus_9_at_any_moment_then_resume_equals_uninterrupted(tmp_path):
     campaign = tmp_path / "killme.toml"
     campaign.write_text(CAMPAIGN)
