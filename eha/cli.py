@@ -89,10 +89,10 @@ class _GuardedGroup(TyperGroup):
         except (typer.Exit, typer.Abort, _CLICK.ClickException):
             raise
         except Terminated:
-            _error_line("terminated (SIGTERM); finished work is saved")
+            _error_line("terminated (SIGTERM); outputs are written only when complete")
             raise typer.Exit(TERMINATED)
         except KeyboardInterrupt:
-            _error_line("interrupted; finished work is saved")
+            _error_line("interrupted (Ctrl-C); outputs are written only when complete")
             raise typer.Exit(INTERRUPTED)
         except Exception as exc:
             if _STATE["debug"]:
@@ -621,10 +621,19 @@ def fdi(
                                 help="Simulated time of the HF reference, in seconds."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG: reference vs identified LF."),
+    level: float = typer.Option(
+        ..., "--level", default_factory=library_default("eha.fdi", "DEFAULT_LEVEL"),
+        help="Nominal coverage of the parameter intervals, in (0, 1)."),
+    base_model: Optional[str] = typer.Option(
+        None, "--base-model", help="LF model: plain (the thesis') or calibrated (by eha "
+        "explain). Default: plain against an HF reference, calibrated on --data."),
 ):
-    """Identify LF fault parameters from an HF reference or a measured record.
+    """Identify LF fault parameters, each with an interval, from an HF reference or a
+    measured record.
 
     Example: eha fdi --command chirp_1cm --set BKL=1e-4 --set FDJ=800 --fit BKL,FDJ --seed 0
+
+    Example: eha fdi --data record.csv --fit BKL,FDJ,Clk --level 0.95 --json fit.json
     """
     from eha.fdi import FDIError, identify_source, parse_bounds
     from eha.measured import MeasuredDataError
@@ -644,19 +653,24 @@ def fdi(
                                   fit=[n.strip() for n in fit.split(",") if n.strip()],
                                   bounds=parse_bounds(bounds), base=parse_assignments(base),
                                   method=method, pop=pop, seed=seed, objective=objective,
-                                  t_end=t_end, on_generation=progress)
+                                  t_end=t_end, on_generation=progress, level=level,
+                                  base_model=base_model)
     except (FDIError, MeasuredDataError, *_input_errors()) as exc:
         fail(str(exc))
     res = run.result
-    table = Table("parameter", "bounds", "injected", "identified", "error [%]")
+    table = Table("parameter", "bounds", "injected", "identified",
+                  f"{100 * res.level:g} % interval", "error [%]")
     for name in res.names:
         lo, hi = res.bounds[name]
+        ilo, ihi = res.intervals[name]
         table.add_row(name, f"[{lo:g}, {hi:g}]",
                       f"{run.truth[name]:.6g}" if run.truth else "-",
-                      f"{res.estimates[name]:.6g}",
+                      f"{res.estimates[name]:.6g}", f"[{ilo:.5g}, {ihi:.5g}]",
                       f"{run.errors_pct[name]:+.3f}" if run.errors_pct else "-")
-    console.print(f"reference: {run.source}")
+    console.print(f"reference: {run.source}; LF model: {run.base_model}")
     console.print(table)
+    for note in res.notes:
+        err_console.print(f"warning: {escape(note)}", highlight=False)
     mean = f"mean error {run.mean_err_pct:.3f} %, " if run.mean_err_pct is not None else ""
     console.print(f"{mean}{res.objective_name} {res.objective:.4g} m, {res.evaluations} "
                   f"evaluations, {res.seconds:.2f} s ({res.method}, seed {res.seed})")

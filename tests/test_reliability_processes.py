@@ -133,6 +133,24 @@ def test_sigterm_saves_says_one_line_and_exits_143(tmp_path):
     resume_all(camp, results)
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(not POSIX, reason="POSIX signals")
+def test_sigterm_of_any_command_is_one_line_and_143(tmp_path):
+    """SIGTERM during an identification: exit 143, one line, no half-written output."""
+    out = tmp_path / "fdi.json"
+    proc = subprocess.Popen([sys.executable, "-m", "eha", "fdi", "--command", "mixed",
+                             "--t-end", "1.0", "--pop", "60", "--json", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6)   # imported and identifying
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    lines = [ln for ln in err.strip().splitlines() if ln.startswith("error:")]
+    assert lines == ["error: terminated (SIGTERM); outputs are written only when complete"]
+    assert "Traceback" not in err and not out.exists()
+
+
 # =========================================================================== class 1
 CTRL_C_IN_COMMIT = textwrap.dedent('''
     import os, signal
