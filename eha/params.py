@@ -208,17 +208,55 @@ LF = IntEnum("LF", [(p.name, i) for i, p in enumerate(specs_for("lf"))], module=
 _CLASSES = {"hf": HFParams, "lf": LFParams}
 
 
-def parse_assignment(text: str) -> tuple[str, float]:
-    """Parse ``NAME=VALUE`` (e.g. ``BKL=1e-4``) into a name and a float."""
+def parse_name_value(text: str, option: str = "--set", form: str = "VALUE"
+                     ) -> tuple[str, float | tuple[float, float] | None]:
+    """The one parser of ``NAME=VALUE`` and ``NAME=LO:HI`` command-line items.
+
+    Parameters
+    ----------
+    text : str
+        ``"BKL=1e-4"`` (``form="VALUE"``), ``"BKL=0:1e-3"`` (``form="LO:HI"``), or, with
+        ``form="[LO:HI]"``, also a bare ``"BKL"`` (value None: the caller's default).
+    option : str
+        Named in the message of a malformed item.
+
+    Returns
+    -------
+    (name, value)
+        ``value`` is a float, a ``(lo, hi)`` tuple, or None.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the option or the parameter and the expected form.
+    """
     name, sep, value = text.partition("=")
     name = name.strip()
-    if not sep or not name:
-        raise ParameterError(f"--set {text!r}: expected NAME=VALUE, for example BKL=1e-4")
+    if not name or (not sep and form != "[LO:HI]"):
+        example = "BKL=1e-4" if form == "VALUE" else "BKL=0:1.25e-3"
+        raise ParameterError(f"{option} {text!r}: expected NAME={form.strip('[]')}, for "
+                             f"example {example}")
+    if not sep:
+        return name, None
+    if form == "VALUE":
+        try:
+            return name, float(value)
+        except ValueError:
+            raise ParameterError(f"{name}: value {value.strip()!r} is not a number") from None
+    lo, colon, hi = value.partition(":")
     try:
-        number = float(value)
+        if not colon:
+            raise ValueError
+        return name, (float(lo), float(hi))
     except ValueError:
-        raise ParameterError(f"{name}: value {value.strip()!r} is not a number") from None
-    return name, number
+        raise ParameterError(f"{option} {text!r}: expected NAME=LO:HI, for example "
+                             "BKL=0:1.25e-3") from None
+
+
+def parse_assignment(text: str) -> tuple[str, float]:
+    """Parse ``NAME=VALUE`` (e.g. ``BKL=1e-4``) into a name and a float."""
+    name, value = parse_name_value(text, "--set", "VALUE")
+    return name, value
 
 
 def parse_assignments(items: Iterable[str]) -> dict[str, float]:

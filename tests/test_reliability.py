@@ -319,3 +319,17 @@ def test_fdi_fit_named_twice(tmp_path):
     line = error_line(invoke_eha("fdi", "--command", "ramp", "--fit", "BKL,FDJ,BKL", "--json",
                               tmp_path / "r.json"), 2)
     assert "--fit BKL,FDJ,BKL: BKL given twice" in line and not files_under(tmp_path)
+
+
+def test_one_name_value_parser():
+    from eha.params import ParameterError, parse_assignment, parse_name_value
+
+    assert parse_assignment(" BKL =1e-4") == ("BKL", 1e-4)
+    assert parse_name_value("BKL=0:1e-3", "--bounds", "LO:HI") == ("BKL", (0.0, 1e-3))
+    assert parse_name_value("FDJ", "--fit", "[LO:HI]") == ("FDJ", None)
+    for text, form, message in [("BKL", "VALUE", "--x 'BKL': expected NAME=VALUE"),
+                                ("FDJ=abc", "VALUE", "FDJ: value 'abc' is not a number"),
+                                ("BKL=1", "LO:HI", "--x 'BKL=1': expected NAME=LO:HI"),
+                                ("=1:2", "[LO:HI]", "expected NAME=LO:HI")]:
+        with pytest.raises(ParameterError, match=message):
+            parse_name_value(text, "--x", form)
