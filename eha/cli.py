@@ -754,8 +754,8 @@ def explain(
     if json_out is not None and json_out.suffix.lower() != ".json":
         fail(f"--json {json_out}: the file must end in .json")
     check_out_file(json_out, "--json")
-    check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
     check_out_dir(results, "--results")
+    check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
     check_names(fit, "--fit")
     check_seed(seed)
     if candidates < 0:
