@@ -125,25 +125,39 @@ def test_output_path_under_a_file_is_refused_before_any_work(tmp_path, command):
     assert files_under(tmp_path) == before and blocker.read_text() == "a file, not a folder"
 
 
-@pytest.mark.skipif(ROOT_IS_ROOT or os.name == "nt",
-                    reason="root writes into read-only folders; the file-as-folder test "
-                           "covers the same check")
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A folder nobody may write into: mode 0555, or (for root, whom modes do not stop) a
+    read-only tmpfs mounted there; skipped where neither is possible."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if not ROOT_IS_ROOT:
+        if os.name == "nt":
+            pytest.skip("POSIX permissions")
+        ro.chmod(0o555)
+        yield ro
+        ro.chmod(0o755)
+        return
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)],
+                             capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip("running as root without a read-only mount")
+    try:
+        yield ro
+    finally:
+        subprocess.run(["umount", str(ro)], capture_output=True)
+
+
 @pytest.mark.parametrize("command", [
     lambda ro, d: ["export", "runs", "--csv", ro / "x.csv"],
     lambda ro, d: ["plot", "c", "--out", ro / "plots"],
     lambda ro, d: ["explain", d, "--out", ro / "e"],
     lambda ro, d: ["simulate", "--t-end", "0.01", "--out", ro / "x.parquet"],
 ])
-def test_read_only_folder_is_refused_before_any_work(tmp_path, command):
-    ro = tmp_path / "ro"
-    ro.mkdir()
+def test_read_only_folder_is_refused_before_any_work(tmp_path, read_only_dir, command):
     data = record_csv(tmp_path / "rec.csv")
-    ro.chmod(0o555)
-    try:
-        line = error_line(run_eha(*command(ro, data)), 2)
-    finally:
-        ro.chmod(0o755)
-    assert "not writable" in line and not files_under(ro)
+    line = error_line(run_eha(*command(read_only_dir, data)), 2)
+    assert "not writable" in line and not files_under(read_only_dir)
 
 
 # =========================================================================== class 4: units
