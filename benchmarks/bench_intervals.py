@@ -67,7 +67,8 @@ def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
         if method == "health":
             a = assess_record(rec, seed=seed)
             est, iv, flagged = a.estimates, a.intervals, a.flagged
-            extra_info = {"weights": a.weights(), "rmse": a.residual_rmse}
+            extra_info = {"weights": a.weights(), "rmse": a.residual_rmse,
+                          "assessment": a.to_dict()}
         else:
             base = resolve("lf", BASE_MODELS[method])
             res = identify(rec.xu, rec.command, {n: FAULTS[n].bounds for n in CORE_FAULTS},
@@ -113,29 +114,51 @@ def summarise(rows: list[dict], level: float = 0.9) -> dict:
     return out
 
 
-def calibrate(rows: list[dict], method: str = "calibrated", level: float = 0.9) -> dict:
-    """Smallest model-form floors (relative, absolute) that bring each parameter's coverage on
-    these records to ``level`` (records without an extra fault)."""
-    from eha.intervals import normal_quantile
+#: Candidate floors of the calibration: relative (fraction of the estimate) x absolute (unit
+#: of the parameter).
+FLOOR_GRID = {
+    "BKL": ((0.0, 0.001, 0.002, 0.003, 0.005, 0.01), (0.0, 2e-7, 5e-7, 1e-6, 2e-6)),
+    "FDJ": ((0.0, 0.001, 0.002, 0.003, 0.005, 0.01, 0.02), (0.0, 1.0, 2.0, 5.0)),
+    "GM": ((0.0, 0.002, 0.005, 0.01, 0.02, 0.05), (0.0, 1e-5, 3e-5, 1e-4)),
+    "Kintas": ((0.0, 0.01, 0.02, 0.05, 0.1), (0.0, 0.002, 0.005, 0.01, 0.02, 0.05)),
+    "Clk": ((0.0, 0.02, 0.05, 0.1, 0.2, 0.5), (0.0, 1e-14, 3e-14, 1e-13, 3e-13)),
+    "Ofs": ((0.0, 0.01, 0.02, 0.05, 0.1), (0.0, 0.001, 0.002, 0.005, 0.01, 0.02)),
+    "FSS": ((0.0, 0.01, 0.02, 0.05, 0.1), (0.0, 0.2, 0.5, 1.0, 2.0, 5.0)),
+}
 
-    z = normal_quantile(level)
+
+def calibrate(rows: list[dict], level: float = 0.9) -> dict:
+    """Smallest model-form floors that bring each fault's coverage on these records to
+    ``level``: the health assessment's mixture intervals recomputed from each hypothesis'
+    HAC part with candidate floors (eha.intervals.total_std, eha.health.fault_components: the
+    tool's own definitions)."""
+    from eha.health import FAULTS, fault_components, mixture_interval
+    from eha.intervals import ModelForm, inflation, total_std
+
     found = {}
-    for name in ("BKL", "FDJ"):
-        data = []
-        for r in rows:
-            mm = r["methods"][method]
-            s = mm["hac"][name]
-            data.append((mm["estimates"][name], r["truth"][name], s))
+    for name, (rels, abss) in FLOOR_GRID.items():
         best = None
-        for rel in (0.0, 0.001, 0.002, 0.003, 0.005, 0.01, 0.02, 0.05):
-            for ab in (0.0, 1e-7, 3e-7, 5e-7, 1e-6, 2e-6) if name == "BKL" else (0.0, 1.0, 2.0,
-                                                                                 5.0):
-                cov = np.mean([abs(e - t) <= z * np.sqrt(s * s + (rel * e) ** 2 + ab * ab)
-                               for e, t, s in data])
-                width = np.median([np.sqrt(s * s + (rel * e) ** 2 + ab * ab) for e, t, s in data])
+        for rel in rels:
+            for ab in abss:
+                term = ModelForm(rel=rel, abs=ab)
+                inside, widths = [], []
+                for r in rows:
+                    a = r["methods"]["health"]["assessment"]
+                    hyps = []
+                    for h in a["hypotheses"]:
+                        widen = inflation(h["rmse"] / a["noise_rmse"])
+                        std = {n: total_std(h["hac_std"][n], h["estimates"][n], term, widen)
+                               if n == name else h["std"][n] for n in h["estimates"]}
+                        hyps.append((h["fault"], h["weight"], h["estimates"], std))
+                    lo, hi = mixture_interval(fault_components(name, hyps), level,
+                                              FAULTS[name].bounds)
+                    inside.append(lo <= r["truth"][name] <= hi)
+                    widths.append(hi - lo)
+                cov, width = float(np.mean(inside)), float(np.median(widths))
                 if cov >= level and (best is None or width < best[2]):
                     best = (rel, ab, width, cov)
-        found[name] = {"rel": best[0], "abs": best[1], "coverage": best[3]} if best else None
+        found[name] = ({"rel": best[0], "abs": best[1], "coverage": best[3],
+                        "median_width": best[2]} if best else None)
     return found
 
 
@@ -148,13 +171,19 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print the figures as JSON only")
     ap.add_argument("--rows", default=None, help="also write every record's result (JSONL)")
     ap.add_argument("--calibrate", action="store_true",
-                    help="measure the model-form floors on records without extra faults")
+                    help="measure the model-form floors on calibration records (seeds from 0)")
+    ap.add_argument("--from-rows", default=None,
+                    help="calibrate from the JSONL of an earlier --rows run (no new records)")
     args = ap.parse_args()
     methods = [m for m in args.methods.split(",") if m]
     if args.calibrate:
-        methods, block, extra = ["calibrated"], 0, False
+        methods, block, extra = ["health"], 0, True
     else:
         block, extra = args.seed_block, True
+    if args.from_rows:
+        rows = [json.loads(line) for line in open(args.from_rows)]
+        print(json.dumps({"floors": calibrate(rows), "records": len(rows)}, indent=2))
+        return
     from rich.progress import Progress
 
     from eha.health import assess_record  # noqa: F401  (JIT warm-up below)

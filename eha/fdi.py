@@ -50,6 +50,13 @@ OBJECTIVES = {
 NOT_FITTABLE = ("DT", "orifice_law")
 #: Default fitted parameters (the two faults of the thesis).
 DEFAULT_FIT = ("BKL", "FDJ")
+#: Default search bounds of the fault parameters: the thesis' chirp cases for BKL and FDJ, and
+#: for the other faults the LF model carries a range that spans healthy to severely degraded
+#: (motor gain down to 30 %, clogging to 0.9, leakage to 50x nominal, offset +-1 mA, spool
+#: friction to 8.5x nominal; docs/health.md).
+SEARCH_BOUNDS: dict[str, tuple[float, float]] = {
+    "BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0), "GM": (0.003, 0.012), "Kintas": (0.0, 0.9),
+    "Clk": (0.0, 5e-12), "Ofs": (-1.0, 1.0), "FSS": (0.0, 60.0)}
 #: Default nominal coverage of every parameter interval.
 DEFAULT_LEVEL = 0.9
 #: The LF model calibrated by ``eha explain`` on a healthy actuator in a 4 kN load test
@@ -59,6 +66,9 @@ CALIBRATED_LF: dict[str, float] = {"orifice_law": 1.0, "Clk": 9.662e-14, "SNF": 
                                    "ZF": 0.8109}
 #: Named LF bases: ``plain`` is the thesis' LF model.
 BASE_MODELS: dict[str, dict[str, float]] = {"plain": {}, "calibrated": CALIBRATED_LF}
+#: The base of :func:`identify_source`: against an HF reference (the thesis reproduction) and
+#: on a measured record (where the plain LF's structural bias would dominate the interval).
+DEFAULT_BASE_MODEL = {"hf": "plain", "data": "calibrated"}
 
 
 def model_form_of(base: LFParams) -> str:
@@ -122,6 +132,8 @@ class FitResult:
         ``name -> (lo, hi)``: interval of each estimate at ``level`` (eha.intervals).
     std : dict
         Standard uncertainty of each estimate (noise, residual and model-form terms).
+    hac_std : dict
+        Its residual (HAC) part alone, before floors and widening (diagnostics, calibration).
     flagged : bool
         The residual stays well above the record's noise: the model does not explain the
         record, the intervals are wide and the numbers are not to be trusted.
@@ -147,6 +159,7 @@ class FitResult:
     level: float | None = None
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     std: dict[str, float] = field(default_factory=dict)
+    hac_std: dict[str, float] = field(default_factory=dict)
     flagged: bool = False
     noise_rmse: float | None = None
     model_form: str = "none"
@@ -201,14 +214,13 @@ def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, f
 
 
 def default_bounds(names: Iterable[str]) -> dict[str, tuple[float, float]]:
-    """Bounds of the thesis' chirp cases for BKL/FDJ, else the parameter's allowed range."""
-    thesis = {"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)}
+    """:data:`SEARCH_BOUNDS` for the faults, else the parameter's allowed range."""
     out = {}
     for name in names:
         spec = SPECS.get(name)
         if spec is None:
             raise FDIError(f"fit {name}: unknown parameter (see `eha params --model lf`)")
-        out[name] = thesis.get(name, (spec.lo, spec.hi))
+        out[name] = SEARCH_BOUNDS.get(name, (spec.lo, spec.hi))
     return out
 
 
@@ -472,6 +484,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         iv = estimate_intervals(reference, obj.simulate, x, names, obj.lo, obj.span,
                                 level=level, noise=noise, model_form=form)
         extra = {"level": iv.level, "intervals": iv.bounds, "std": iv.std,
+                 "hac_std": iv.hac_std,
                  "flagged": iv.flagged, "noise_rmse": iv.noise_rmse, "model_form": form,
                  "notes": iv.notes}
     seconds = time.perf_counter() - start
@@ -644,7 +657,7 @@ def load_fdi_campaign(path: str | Path) -> FDICampaign:
 
 def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
              objective: str = "rmse", t_end: float = 1.0, base: LFParams | None = None,
-             **options: float) -> dict[str, Any]:
+             level: float | None = DEFAULT_LEVEL, **options: float) -> dict[str, Any]:
     """Run one case with one seed: HF reference (dither seed ``seed``), then identification.
 
     Returns
@@ -656,7 +669,7 @@ def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
     """
     ref = hf_reference(case.command, case.faults, seed=seed, t_end=t_end)
     res = identify(ref.xu, case.command, case.bounds, base=base, method=method, pop=case.pop,
-                   seed=seed, objective=objective, t_end=t_end, **options)
+                   seed=seed, objective=objective, t_end=t_end, level=level, **options)
     truth = {n: float(case.faults.get(n, LFParams().as_dict()[n])) for n in res.names}
     errors = percent_errors(truth, res.estimates)
     return {"case": case.case, "command": case.command, "seed": int(seed), "method": method,
@@ -665,7 +678,9 @@ def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
             "objective": res.objective, "evaluations": res.evaluations,
             "seconds": res.seconds, "pop": case.pop,
             "bounds": {k: list(v) for k, v in res.bounds.items()},
-            "history": list(res.history)}
+            "history": list(res.history), "level": res.level,
+            "intervals": {k: list(v) for k, v in res.intervals.items()},
+            "flagged": res.flagged, "noise_rmse": res.noise_rmse}
 
 
 def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
@@ -717,7 +732,7 @@ def fdi_jobs(table: Mapping[str, Any], source: str = "campaign") -> list[dict[st
                     "bounds": {k: list(v) for k, v in case.bounds.items()}, "pop": case.pop,
                     "seed": seed, "method": camp.method, "objective": camp.objective,
                     "t_end": camp.t_end, "base": camp.base,
-                    "options": METHOD_DEFAULTS[camp.method]}
+                    "options": METHOD_DEFAULTS[camp.method], "level": DEFAULT_LEVEL}
             jobs.append({"kind": "fdi", "spec": spec,
                          "identity": {"hf": resolve("hf", case.faults).as_dict()},
                          "columns": {"model": "lf", "command": case.command,
@@ -741,7 +756,9 @@ def result_row(row: Mapping[str, Any]) -> dict[str, Any]:
             "fdj_est": est.get("FDJ"), "err_fdj_pct": err.get("FDJ"),
             "mean_err_pct": float(row["mean_err_pct"]), "objective": float(row["objective"]),
             "evaluations": int(row["evaluations"]), "seconds": float(row["seconds"]),
-            "pop": int(row["pop"]), "history": list(row.get("history", []))}
+            "pop": int(row["pop"]), "history": list(row.get("history", [])),
+            "level": row.get("level"), "intervals": dict(row.get("intervals") or {}),
+            "flagged": bool(row.get("flagged", False)), "noise_rmse": row.get("noise_rmse")}
 
 
 def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
@@ -751,7 +768,8 @@ def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
                    bounds={k: tuple(v) for k, v in spec["bounds"].items()}, pop=int(spec["pop"]))
     base = resolve("lf", spec.get("base") or {})
     row = run_case(case, int(spec["seed"]), spec["method"], spec["objective"],
-                   float(spec["t_end"]), base=base, **spec.get("options", {}))
+                   float(spec["t_end"]), base=base, level=spec.get("level", DEFAULT_LEVEL),
+                   **spec.get("options", {}))
     fitted = simulate("lf", case.command, base.replace(**row["estimates"]),
                       t_end=float(spec["t_end"]))
     meta = {**fitted.meta, "fdi": {"case": case.case, "seed": row["seed"],
@@ -774,7 +792,9 @@ def rows_from_results(frame) -> list[dict[str, Any]]:
                      "mean_err_pct": float(rec["mean_err_pct"]),
                      "objective": float(rec["objective"]),
                      "evaluations": int(rec["evaluations"]), "seconds": float(rec["seconds"]),
-                     "pop": int(rec["pop"]), "bounds": load(rec["bounds"])})
+                     "pop": int(rec["pop"]), "bounds": load(rec["bounds"]),
+                     "level": rec.get("level"), "intervals": load(rec.get("intervals")),
+                     "flagged": rec.get("flagged")})
     return rows
 
 
@@ -814,9 +834,12 @@ class Identification:
     errors_pct: dict[str, float] | None = None
     mean_err_pct: float | None = None
 
+    base_model: str = "plain"
+
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, **self.result.to_dict(), "truth": self.truth,
-                "errors_pct": self.errors_pct, "mean_err_pct": self.mean_err_pct}
+                "errors_pct": self.errors_pct, "mean_err_pct": self.mean_err_pct,
+                "base_model": self.base_model}
 
 
 def identify_source(command: str | None = None, faults: Mapping[str, float] | None = None,
@@ -826,11 +849,15 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
                     pop: int = 20, seed: int = 0, objective: str = "rmse",
                     t_end: float = 1.0,
                     on_generation: Callable[[int, float], None] | None = None,
+                    level: float | None = DEFAULT_LEVEL, base_model: str | None = None,
                     **options: float) -> Identification:
     """Identify ``fit`` against an HF reference (``command`` + injected ``faults``, dither seed
     ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu; eha.measured).
 
-    ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed;
+    ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed
+    on top of ``base_model`` (:data:`BASE_MODELS`; default :data:`DEFAULT_BASE_MODEL`: the
+    thesis' plain LF against an HF reference, the calibrated LF on a measured record, where the
+    plain LF biases FDJ by 4-25 %); ``level`` is the intervals' nominal coverage;
     ``on_generation`` is :func:`identify`'s progress hook.
     """
     if (command is None) == (data is None):
@@ -843,10 +870,15 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
         raise FDIError(f"--bounds {sorted(extra)[0]}: not among the fitted parameters "
                        f"({', '.join(names)})")
     chosen = {**default_bounds(names), **{k: tuple(v) for k, v in (bounds or {}).items()}}
+    if base_model is None:
+        base_model = DEFAULT_BASE_MODEL["data" if data is not None else "hf"]
+    if base_model not in BASE_MODELS:
+        raise FDIError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     try:
-        lf_base = resolve("lf", dict(base or {}))
+        lf_base = resolve("lf", {**BASE_MODELS[base_model], **dict(base or {})})
     except ParameterError as exc:
         raise FDIError(f"--base {exc}") from None
+    noise = None
     truth = None
     if data is not None:
         from eha.measured import load
@@ -860,6 +892,7 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
         reference = Trace(ref_data, {"model": "measured", "source": str(data),
                                      "command": cmd.describe(), "params": {}})
         t_end, source = rec.t_end, str(data)
+        noise = rec.info.get("noise_m")    # on the raw samples, before resampling
     else:
         cmd = as_command(command)
         reference = hf_reference(cmd, faults, seed=seed, t_end=t_end)
@@ -868,10 +901,11 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
         source = f"HF {command} " + (", ".join(f"{k}={v:g}" for k, v in (faults or {}).items())
                                      or "nominal") + f", seed {seed}"
     res = identify(reference.xu, cmd, chosen, base=lf_base, method=method, pop=pop, seed=seed,
-                   objective=objective, t_end=t_end, on_generation=on_generation, **options)
+                   objective=objective, t_end=t_end, on_generation=on_generation, level=level,
+                   noise=noise, **options)
     fitted = simulate("lf", cmd, lf_base.replace(**res.estimates), t_end=t_end)
     errors = mean = None
     if truth is not None:
         errors = percent_errors(truth, res.estimates)
         mean = mean_error_pct(errors)
-    return Identification(res, reference, fitted, source, truth, errors, mean)
+    return Identification(res, reference, fitted, source, truth, errors, mean, base_model)
