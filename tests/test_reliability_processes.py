@@ -267,8 +267,13 @@ def test_trace_intact_checks_size_rows_and_footer(tmp_path):
     size = path.stat().st_size
     assert trace_intact(path, size, 51) and trace_intact(path)
     assert not trace_intact(path, size + 1, 51) and not trace_intact(path, size, 50)
-    path.write_bytes(path.read_bytes()[:-20] + b"\0" * 20)   # same size, footer damaged
-    assert not trace_intact(path, size, 51)
+    assert trace_intact(path, size, 50, deep=False)           # the cheap check: no rows
+    good = path.read_bytes()
+    path.write_bytes(good[:-20] + b"\0" * 20)   # same size, footer damaged
+    assert not trace_intact(path, size, 51) and not trace_intact(path, size, deep=False)
+    cut = size - 200   # same size, zeros inside the footer (the schema and row count)
+    path.write_bytes(good[:cut] + b"\0" * 150 + good[cut + 150:])
+    assert path.stat().st_size == size and not trace_intact(path, size, 51)
     assert not trace_intact(tmp_path / "missing.parquet")
 
 
