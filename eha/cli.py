@@ -318,8 +318,8 @@ def simulate(
         from eha.report import plot_traces
 
         plot_traces([trace], plot)
-    console.print(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
-                  + (f", plot {plot}" if plot else ""))
+    console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
+                         + (f", plot {plot}" if plot else "")))
 
 
 @app.command()
@@ -437,7 +437,7 @@ def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.
     Example: eha campaign validate campaigns/thesis-matrix.toml
     """
     camp = _load(file)
-    console.print(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs")
+    console.print(escape(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs"))
 
 
 @campaign_app.command("plan")
@@ -506,10 +506,10 @@ def campaign_run(
     if s.changed:
         console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
                       "it no longer has, kept the shared ones")
-    console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already done, "
-                  f"{s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
-    for line in s.errors:
-        err_console.print(f"failed: {line}", highlight=False, soft_wrap=True)
+    console.print(escape(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
+                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb"))
+    for line in s.errors:  # a worker's message is text, brackets included
+        err_console.print(f"failed: {escape(line)}", highlight=False, soft_wrap=True)
     if s.failed:
         raise typer.Exit(1)
 
@@ -564,7 +564,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
         n = export_csv(results, table, csv)
     except StoreError as exc:
         fail(str(exc))
-    console.print(f"{table}: {n} rows -> {csv}")
+    console.print(escape(f"{table}: {n} rows -> {csv}"))
 
 
 @app.command()
@@ -585,7 +585,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
     except StoreError as exc:
         fail(str(exc))
     for p in paths:
-        console.print(str(p))
+        console.print(escape(str(p)))
 
 
 # --------------------------------------------------------------------------- fault identification
@@ -848,6 +848,179 @@ def report_thesis(results: ResultsOption = RESULTS,
         console.print(f"{kind}: {path}")
 
 
+@report_app.command("health")
+def report_health(results: ResultsOption = RESULTS,
+                  campaign: str = typer.Option("health-detection", "--campaign",
+                                               help="Detection campaign (as in the database)."),
+                  alpha: float = typer.Option(
+                      ..., "--alpha", default_factory=library_default("eha.detection",
+                                                                      "DEFAULT_ALPHA"),
+                      help="Probability that a healthy check raises any alarm, in (0, 1)."),
+                  out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
+                                                     "(default RESULTS/reports/health).")):
+    """Detection performance of a detection campaign: ROC curves, minimum detectable faults,
+    isolation confusion matrices (CSV and PNG).
+
+    Run the campaign first: eha campaign run campaigns/health-detection.toml
+
+    Example: eha report health --campaign health-detection --results results
+    """
+    from eha.detection import DetectionError
+    from eha.monitoring import health_report
+    from eha.store import StoreError
+
+    if not 0 < alpha < 1:
+        fail(f"--alpha {alpha!r}: allowed range (0, 1)")
+    check_out_dir(out if out is not None else results / "reports" / "health", "--out")
+    try:
+        paths = health_report(results, campaign, out, alpha)
+    except (DetectionError, StoreError) as exc:
+        fail(str(exc))
+    for kind, path in paths.items():
+        console.print(f"{kind}: {path}")
+
+
+# --------------------------------------------------------------------------- health
+health_app = typer.Typer(no_args_is_help=True,
+                         help="Health assessment: calibrate thresholds on a healthy fleet, "
+                              "check a record (every fault with an interval, healthy or "
+                              "degraded, which fault).\n\nExample: eha health check record.csv "
+                              "--calibration results/health/calibration-chirp_1cm.json")
+app.add_typer(health_app, name="health")
+
+
+@health_app.command("calibrate")
+def health_calibrate(
+    command: str = typer.Option("chirp_1cm", "--command",
+                                help="Command of the checks (a preset, `eha commands`)."),
+    actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
+                                  help="Healthy actuators in the fleet."),
+    alpha: float = typer.Option(
+        ..., "--alpha", default_factory=library_default("eha.detection", "DEFAULT_ALPHA"),
+        help="Probability that a healthy check raises any alarm, in (0, 1)."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
+    noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),
+    seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
+                             "noise, optimizer)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
+                                       "RESULTS/health/calibration-COMMAND.json)."),
+    results: ResultsOption = RESULTS,
+    workers: WorkersOption = WORKERS,
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Run a healthy fleet (manufacturing dispersion, sensor noise, dither) through the
+    campaign runner and set each fault's threshold for the false-alarm probability --alpha.
+
+    Dispersion (eha.detection.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
+    FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
+
+    Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
+    """
+    from eha.campaign import CampaignError
+    from eha.detection import DetectionError
+    from eha.monitoring import calibrate_fleet
+    from eha.store import StoreError
+
+    check_seed(seed)
+    check_out_file(out, "--out", (".json",))
+    check_out_dir(results, "--results")
+    if not 0 < alpha < 1:
+        fail(f"--alpha {alpha!r}: allowed range (0, 1)")
+    if not 0.2 <= t_end <= 10:
+        fail(f"--t-end {t_end!r}: allowed range [0.2, 10] s")
+    if not 0 <= noise <= 1e-3:
+        fail(f"--noise {noise!r}: allowed range [0, 0.001] m")
+    try:
+        res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
+                              noise=noise, alpha=alpha, out=out, results=results,
+                              workers=workers, progress=progress)
+    except (DetectionError, CampaignError, StoreError, *_input_errors()) as exc:
+        fail(str(exc))
+    except KeyboardInterrupt:
+        fail("interrupted; finished assessments are saved, re-run the same command to resume",
+             INTERRUPTED)
+    cal = res["calibration"]
+    from eha.detection import alarm_value
+
+    table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
+                  "alarms in fleet")
+    for name, thr in cal.thresholds.items():
+        h = cal.healthy[name]
+        table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}", alarm_value(name, thr),
+                      f"{cal.false_alarms['per_fault'][name]:.3f}")
+    console.print(table)
+    console.print(f"{actuators} healthy actuators on {command}; any-fault alarms in the fleet "
+                  f"{cal.false_alarms['any']:.3f} (target {alpha:g}); calibration: "
+                  f"{res['path']}; database {results}/eha.duckdb (health_thresholds, "
+                  f"health_assessments)")
+
+
+@health_app.command("check")
+def health_check(
+    record: Path = typer.Argument(..., help="Record: CSV/TSV/Parquet with t, com, xu (SI)."),
+    calibration: Optional[Path] = typer.Option(None, "--calibration", help="Thresholds from "
+                                               "eha health calibrate (without it: estimates "
+                                               "and intervals, no verdict)."),
+    level: Optional[float] = typer.Option(None, "--level", help="Nominal coverage of the "
+                                          "intervals, in (0, 1) (default: the calibration's, "
+                                          "else 0.9)."),
+    seed: int = typer.Option(0, "--seed", help="Optimizer seed."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the check as JSON."),
+    results: ResultsOption = RESULTS,
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
+):
+    """Assess a record: every fault's estimate with its interval, healthy or degraded (with a
+    calibration), and which fault(s) are isolated.
+
+    Example: eha health check record.csv --calibration results/health/calibration-chirp_1cm.json
+    --json check.json
+    """
+    from eha.detection import DetectionError
+    from eha.measured import MeasuredDataError
+    from eha.monitoring import check_record
+
+    check_seed(seed)
+    check_out_file(json_out, "--json", (".json",))
+    check_out_dir(results, "--results")
+    if level is not None and not 0 < level < 1:
+        fail(f"--level {level!r}: allowed range (0, 1)")
+    try:
+        with err_console.status("assessing ...") as status:
+            run = check_record(record, calibration, level=level, seed=seed, json_path=json_out,
+                               results=results,
+                               on_progress=(lambda m: status.update(f"assessing: {m}"))
+                               if progress else None)
+    except MeasuredDataError as exc:
+        _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))
+    except (DetectionError, *_input_errors()) as exc:
+        fail(str(exc))
+    from eha.detection import alarm_value
+
+    a = run.assessment
+    table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",
+                  "verdict", "hypothesis weight")
+    for v in run.verdicts:
+        verdict = "-" if v.degraded is None else ("DEGRADED" if v.degraded else "healthy")
+        if v.name in run.isolated:
+            verdict += " (isolated)"
+        table.add_row(v.name, f"{v.estimate:.5g}", f"[{v.interval[0]:.4g}, {v.interval[1]:.4g}]",
+                      f"{v.healthy:.4g}", "-" if v.threshold is None else
+                      alarm_value(v.name, v.threshold),
+                      verdict, "-" if v.weight is None else f"{v.weight:.2f}")
+    console.print(f"record: {record}; calibration: {run.calibration or 'none (no verdicts)'}")
+    console.print(table)
+    status_text = run.to_dict()["status"]
+    console.print(f"status: {status_text}; isolated: {', '.join(run.isolated) or 'none'}; "
+                  f"residual {1e6 * a.residual_rmse:.3g} µm, noise {1e6 * a.noise_rmse:.3g} µm, "
+                  f"{a.seconds:.1f} s (seed {a.seed})")
+    for note in a.notes:
+        err_console.print(f"warning: {escape(note)}", highlight=False)
+    for kind, path in run.paths.items():
+        console.print(f"{kind}: {path}")
+    if run.db_error:
+        fail(f"results database not written: {run.db_error}", code=1)
+
+
 # --------------------------------------------------------------------------- prognostics
 fleet_app = typer.Typer(no_args_is_help=True,
                         help="Simulated fleets of degrading actuators (the prognostics test "
@@ -918,7 +1091,7 @@ def rul(
                                       "monitoring model does not explain out of the fits."),
     limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
                                                 "of the assessment's systematic error "
-                                                "(default 0.05)."),
+                                                "(default 0.03)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
