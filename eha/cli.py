@@ -125,6 +125,16 @@ class _GuardedGroup(TyperGroup):
         except typer.Abort:
             _error_line("aborted")
             sys.exit(1)
+        except KeyboardInterrupt:  # while the arguments were parsed, before invoke
+            _error_line("interrupted (Ctrl-C)")
+            sys.exit(INTERRUPTED)
+        except Exception as exc:  # e.g. a default read from the library failed to import
+            if _STATE["debug"] or "--debug" in (args if args is not None else sys.argv):
+                import traceback
+
+                traceback.print_exc()
+            _error_line(_unexpected(exc))
+            sys.exit(1)
         if _stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
             _error_line("the output could not be written to standard output")
             sys.exit(1)
@@ -998,12 +1008,12 @@ def health_check(
 
     a = run.assessment
     table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",
-                  "verdict", "hypothesis weight")
+                  "verdict", "weight")
     for v in run.verdicts:
         verdict = "-" if v.degraded is None else ("DEGRADED" if v.degraded else "healthy")
         if v.name in run.isolated:
             verdict += " (isolated)"
-        table.add_row(v.name, f"{v.estimate:.5g}", f"[{v.interval[0]:.4g}, {v.interval[1]:.4g}]",
+        table.add_row(v.name, f"{v.estimate:.4g}", f"[{v.interval[0]:.3g}, {v.interval[1]:.3g}]",
                       f"{v.healthy:.4g}", "-" if v.threshold is None else
                       alarm_value(v.name, v.threshold),
                       verdict, "-" if v.weight is None else f"{v.weight:.2f}")

@@ -152,7 +152,10 @@ def _sniff_separator(path: Path) -> str:
     try:
         sep = csv.Sniffer().sniff("\n".join(lines), delimiters=",;\t ").delimiter
     except csv.Error:
-        return ","
+        # columns aligned with runs of spaces (a printed table): the sniffer sees no single
+        # delimiter, but every line splits on whitespace into the same number of fields
+        widths = {len(ln.split()) for ln in lines}
+        return r"\s+" if len(widths) == 1 and widths.pop() > 1 else ","
     return r"\s+" if sep == " " else sep
 
 
@@ -328,6 +331,62 @@ SCHEMA["rul_predictions"] = """
             created_at  TIMESTAMP,
             PRIMARY KEY (run_id, actuator, cycle))"""
 RESULT_TABLES = RESULT_TABLES + ("health_checks",)
+SCHEMA["health_assessments"] = """
+        CREATE TABLE IF NOT EXISTS health_assessments (
+            run_key       VARCHAR PRIMARY KEY,
+            command       VARCHAR,
+            grp           VARCHAR,   -- 'healthy' or the injected fault 'NAME=value'
+            seed          BIGINT,    -- actuator draw, dither, noise and optimizer seed
+            t_end         DOUBLE,    -- s
+            noise         DOUBLE,    -- m, sensor noise std of the record
+            base_model    VARCHAR,   -- LF of the assessment ('calibrated' or 'plain')
+            level         DOUBLE,    -- nominal coverage of the intervals
+            truth         JSON,      -- true value of every fault (SI)
+            hf            JSON,      -- HF parameters of the actuator (dispersion + fault)
+            estimates     JSON,      -- assessed value of every fault (SI)
+            means         JSON,      -- posterior mean over the hypotheses (detection input)
+            spread        JSON,      -- std of each fault in the hypothesis that fits it
+            intervals     JSON,      -- {name: [lo, hi]} at level
+            weights       JSON,      -- posterior weight of each hypothesis ('none' = H0)
+            best          VARCHAR,   -- most probable hypothesis' extra fault or 'none'
+            flagged       BOOLEAN,   -- residual well above the noise
+            residual_rmse DOUBLE,    -- m
+            noise_rmse    DOUBLE,    -- m, estimated from the record
+            n_eff         DOUBLE,    -- effective samples of the evidence
+            seconds       DOUBLE)    -- s, assessment wall time in the worker"""
+SCHEMA["health_verdicts"] = """
+        CREATE TABLE IF NOT EXISTS health_verdicts (
+            check_id    VARCHAR,   -- hash of the record, calibration and settings
+            record      VARCHAR,   -- the record's path
+            created_at  TIMESTAMP,
+            calibration VARCHAR,   -- calibration file (NULL: none)
+            fault       VARCHAR,
+            estimate    DOUBLE,
+            lo          DOUBLE,    -- interval at level
+            hi          DOUBLE,
+            level       DOUBLE,
+            healthy     DOUBLE,    -- value of a healthy actuator
+            threshold   DOUBLE,    -- of the detection statistic (NULL without calibration)
+            statistic   DOUBLE,    -- deviation from healthy in the direction of degradation
+            degraded    BOOLEAN,   -- NULL without calibration
+            weight      DOUBLE,    -- posterior weight of the fault's hypothesis
+            isolated    BOOLEAN,
+            flagged     BOOLEAN,
+            PRIMARY KEY (check_id, fault))"""
+SCHEMA["health_thresholds"] = """
+        CREATE TABLE IF NOT EXISTS health_thresholds (
+            calibration VARCHAR,   -- calibration file
+            command     VARCHAR,
+            t_end       DOUBLE,
+            fault       VARCHAR,
+            threshold   DOUBLE,    -- of the detection statistic (fault unit)
+            mean        DOUBLE,    -- healthy fleet, statistic
+            std         DOUBLE,
+            n           INTEGER,
+            alpha       DOUBLE,    -- probability that a healthy check raises any alarm
+            created_at  TIMESTAMP,
+            PRIMARY KEY (calibration, fault))"""
+RESULT_TABLES = RESULT_TABLES + ("health_assessments",)
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
 
@@ -722,6 +781,38 @@ def save_explain(results: str | Path, run: Mapping[str, Any],
                 con.register("_s", _frame(steps))
                 con.execute("INSERT INTO explain_steps BY NAME SELECT * FROM _s")
                 con.unregister("_s")
+            con.execute("COMMIT")
+        except BaseException:
+            con.execute("ROLLBACK")
+            raise
+    finally:
+        con.close()
+    return db_path(results)
+
+
+def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, Any]],
+                 key: Mapping[str, Any]) -> Path:
+    """Replace the rows of ``table`` matching ``key`` (column -> value) by ``rows``, in one
+    transaction (a re-run of the same check or calibration overwrites its rows, never
+    duplicates them). Returns the database path.
+
+    Raises
+    ------
+    StoreError
+        Unknown table, or the database is locked or cannot be written.
+    """
+    if table not in SCHEMA:
+        raise StoreError(f"{table!r} is not a table of the schema")
+    con = connect(results)
+    try:
+        con.execute("BEGIN")
+        try:
+            where = " AND ".join(f"{c} = ?" for c in key)
+            con.execute(f"DELETE FROM {table} WHERE {where}", list(key.values()))
+            if rows:
+                con.register("_r", _frame(rows))
+                con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r")
+                con.unregister("_r")
             con.execute("COMMIT")
         except BaseException:
             con.execute("ROLLBACK")

@@ -34,12 +34,20 @@ def record_csv(path, t_scale=1.0, x_scale=1.0, header=("t", "com", "xu")):
 # =========================================================================== class 1: guard
 GUARD_SCRIPT = textwrap.dedent('''
     import sys
+    import typer
     from eha.cli import app
 
     @app.command("boom")
     def boom():
         """Fails the way an unanticipated bug would. Example: eha boom"""
         raise RuntimeError("broken [fdi] section, allowed range [0, 1] m")
+
+    def no_default():
+        raise ImportError("the module of this default is missing")
+
+    @app.command("parse")
+    def parse(x: int = typer.Option(..., "--x", default_factory=no_default)):
+        """Fails while its options are parsed. Example: eha parse"""
 
     app(prog_name="eha")
 ''')
@@ -52,6 +60,13 @@ def test_guard_turns_an_unexpected_exception_into_one_line_and_exit_1():
     # the brackets are text, not console markup that would swallow "[fdi]"
     assert "broken [fdi] section, allowed range [0, 1] m" in line
     assert "--debug" in line
+
+
+def test_guard_covers_the_parsing_of_options():
+    proc = subprocess.run([sys.executable, "-c", GUARD_SCRIPT, "parse"], capture_output=True,
+                          text=True)
+    line = error_line(proc, 1)
+    assert "ImportError: the module of this default is missing" in line
 
 
 def test_guard_debug_shows_the_traceback():
@@ -189,6 +204,21 @@ def test_time_in_milliseconds_without_a_unit_is_refused(tmp_path):
     line = error_line(proc, 2)
     assert "sampling period 1 s" in line and "at most 0.01 s" in line and "t [ms]" in line
     assert not (tmp_path / "r").exists()
+
+
+def test_every_separator_reads_the_same_record(tmp_path):
+    """The sniffer (comma, semicolon, tab, aligned spaces, # comments) in front of pandas' C
+    parser: each layout of one record loads to the same arrays."""
+    frame = pd.read_csv(record_csv(tmp_path / "rec.csv"))
+    (tmp_path / "semi.csv").write_text(frame.to_csv(index=False, sep=";"))
+    (tmp_path / "tab.tsv").write_text("# logged by the rig\n" + frame.to_csv(index=False,
+                                                                           sep="\t"))
+    (tmp_path / "aligned.txt").write_text(frame.to_string(index=False))
+    ref = load(tmp_path / "rec.csv")
+    for name in ("semi.csv", "tab.tsv", "aligned.txt"):
+        got = load(tmp_path / name)
+        close(got.xu, ref.xu, rel=1e-5, abs=1e-12, what=name)
+        close(got.t, ref.t, abs=1e-12, what=name)
 
 
 # =========================================================================== class 5: campaigns
