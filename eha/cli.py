@@ -32,12 +32,25 @@ PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 _STATE = {"debug": bool(os.environ.get("EHA_DEBUG"))}
 
 
+_TERMINATED_LINE = "terminated (SIGTERM); outputs are written only when complete"
+_INTERRUPTED_LINE = "interrupted (Ctrl-C); outputs are written only when complete"
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM received: unwinds like Ctrl-C (every ``finally`` commits what is finished)."""
 
 
 def _on_sigterm(signum, frame):  # pragma: no cover - exercised by subprocess tests
     raise Terminated()
+
+
+def _handle_sigterm():
+    """Turn SIGTERM into :class:`Terminated`; returns the previous handler (None when it
+    cannot be set: not the main thread, e.g. an embedding application)."""
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:
+        return None
 
 
 def _error_line(message: str) -> None:
@@ -79,20 +92,16 @@ class _GuardedGroup(TyperGroup):
     """
 
     def invoke(self, ctx):
-        previous = None
-        try:
-            previous = signal.signal(signal.SIGTERM, _on_sigterm)
-        except ValueError:  # not the main thread (e.g. an embedding application)
-            pass
+        previous = _handle_sigterm()
         try:
             return super().invoke(ctx)
         except (typer.Exit, typer.Abort, _CLICK.ClickException):
             raise
         except Terminated:
-            _error_line("terminated (SIGTERM); outputs are written only when complete")
+            _error_line(_TERMINATED_LINE)
             raise typer.Exit(TERMINATED)
         except KeyboardInterrupt:
-            _error_line("interrupted (Ctrl-C); outputs are written only when complete")
+            _error_line(_INTERRUPTED_LINE)
             raise typer.Exit(INTERRUPTED)
         except Exception as exc:
             if _STATE["debug"]:
@@ -112,6 +121,7 @@ class _GuardedGroup(TyperGroup):
         if not standalone_mode:
             return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                                 standalone_mode=False, **extra)
+        previous = _handle_sigterm()  # from here on: parsing reads defaults from the library
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                               standalone_mode=False, **extra)
@@ -125,8 +135,11 @@ class _GuardedGroup(TyperGroup):
         except typer.Abort:
             _error_line("aborted")
             sys.exit(1)
-        except KeyboardInterrupt:  # while the arguments were parsed, before invoke
-            _error_line("interrupted (Ctrl-C)")
+        except Terminated:  # while the arguments were parsed, before invoke
+            _error_line(_TERMINATED_LINE)
+            sys.exit(TERMINATED)
+        except KeyboardInterrupt:
+            _error_line(_INTERRUPTED_LINE)
             sys.exit(INTERRUPTED)
         except Exception as exc:  # e.g. a default read from the library failed to import
             if _STATE["debug"] or "--debug" in (args if args is not None else sys.argv):
@@ -135,6 +148,9 @@ class _GuardedGroup(TyperGroup):
                 traceback.print_exc()
             _error_line(_unexpected(exc))
             sys.exit(1)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
         if _stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
             _error_line("the output could not be written to standard output")
             sys.exit(1)
