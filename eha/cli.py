@@ -205,7 +205,13 @@ def signature_default(module: str, function: str, parameter: str) -> Callable[[]
 
 
 def fail(message: str, code: int = BAD_INPUT) -> None:
-    """Print one line to stderr and exit with ``code``."""
+    """Print one line to stderr and exit with ``code``.
+
+    Called from a command's ``except KeyboardInterrupt`` with code 130 while the interrupt is
+    SIGTERM (:class:`Terminated`), it says so and exits 143, as the guard does."""
+    if code == INTERRUPTED and isinstance(sys.exc_info()[1], Terminated):
+        code = TERMINATED
+        message = message.replace("interrupted", "terminated (SIGTERM)", 1)
     _error_line(message)
     raise typer.Exit(code)
 
@@ -1069,6 +1075,7 @@ def fleet_simulate(
     """
     from eha.fleet import FleetError, load_fleet, simulate_fleet
 
+    check_out_dir(out, "--out")
     try:
         fleet = load_fleet(file)
     except FleetError as exc:
@@ -1131,6 +1138,10 @@ def rul(
     from eha.prognostics import PrognosticsError
     from eha.prognostics_jobs import parse_limits, run_rul
 
+    check_out_file(json_out, "--json", (".json",))
+    check_out_dir(plots, "--plots")
+    check_out_dir(results, "--results")
+    check_seed(seed)
     try:
         res = run_rul(manifest, parse_limits(limit),
                       fit=[n.strip() for n in fit.split(",") if n.strip()],
@@ -1199,6 +1210,8 @@ def limits(
     from eha.prognostics import PrognosticsError
     from eha.prognostics_limits import derive_limit
 
+    check_out_file(json_out, "--json", (".json",))
+    check_seed(seed)
     try:
         res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_), tol=tol,
                            seed=seed, t_end=t_end)

@@ -49,6 +49,18 @@ GUARD_SCRIPT = textwrap.dedent('''
     def parse(x: int = typer.Option(..., "--x", default_factory=no_default)):
         """Fails while its options are parsed. Example: eha parse"""
 
+    @app.command("term")
+    def term():
+        """A command with its own Ctrl-C message gets SIGTERM. Example: eha term"""
+        import os, signal, time
+        from eha.cli import fail
+
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            fail("interrupted; finished records are kept", 130)
+
     app(prog_name="eha")
 ''')
 
@@ -67,6 +79,12 @@ def test_guard_covers_the_parsing_of_options():
                           text=True)
     line = error_line(proc, 1)
     assert "ImportError: the module of this default is missing" in line
+
+
+def test_sigterm_in_a_commands_own_ctrl_c_handler_exits_143():
+    proc = subprocess.run([sys.executable, "-c", GUARD_SCRIPT, "term"], capture_output=True,
+                          text=True, timeout=60)
+    assert error_line(proc, 143) == "error: terminated (SIGTERM); finished records are kept"
 
 
 def test_guard_debug_shows_the_traceback():
@@ -129,6 +147,11 @@ def test_scheduler_that_is_not_an_address(tmp_path):
     lambda f, d: ["campaign", "run", d, "--results", f],
     lambda f, d: ["export", "runs", "--csv", f / "x.csv"],
     lambda f, d: ["reproduce", "--results", f],
+    lambda f, d: ["fleet", "simulate", d, "--out", f / "fleet"],
+    lambda f, d: ["limits", "--fault", "FDJ", "--require", "lag(mixed) > 0.02", "--lo", "200",
+                  "--hi", "2000", "--json", f / "x.json"],
+    lambda f, d: ["rul", d, "--limit", "BKL=5e-4", "--json", f / "x.json"],
+    lambda f, d: ["rul", d, "--limit", "BKL=5e-4", "--plots", f / "p"],
 ])
 def test_output_path_under_a_file_is_refused_before_any_work(tmp_path, command):
     blocker = tmp_path / "F"
