@@ -680,5 +680,16 @@ def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> l
 
 SECTION_KINDS["fdi"] = _expand_fdi
 
+
+def _expand_health(section: Mapping[str, Any], table: Mapping[str, Any],
+                   problems: list[str]) -> list[JobDraft]:
+    """``[health]``: one health assessment per actuator (:func:`eha.detection.health_jobs`)."""
+    from eha.detection import health_jobs
+
+    return [JobDraft(**job) for job in health_jobs(section, problems)]
+
+
+SECTION_KINDS["health"] = _expand_health
+
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",
            "plan", "SECTION_KINDS", "REQUIRED_SIGNALS", "MAX_JOBS"]

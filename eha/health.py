@@ -50,6 +50,10 @@ class FaultSpec:
     direction : int
         +1: degradation raises it; -1: lowers it; 0: either way (offset).
     description : str
+    healthy_std : float
+        Spread of the value among healthy actuators (the fleet dispersion of
+        :data:`eha.detection.DISPERSION`, or a small tolerance): what a hypothesis that holds
+        the fault healthy says of it.
     """
 
     name: str
@@ -57,6 +61,7 @@ class FaultSpec:
     bounds: tuple[float, float]
     direction: int
     description: str
+    healthy_std: float = 0.0
 
 
 #: The fault parameters the LF model carries, with health-assessment search bounds.
@@ -64,11 +69,13 @@ FAULTS: dict[str, FaultSpec] = {f.name: f for f in (
     # FDJ from 50 N: a healthy actuator's friction scatters below the thesis' 200 N bound
     FaultSpec("BKL", 0.0, SEARCH_BOUNDS["BKL"], +1, "jack-surface backlash [m]"),
     FaultSpec("FDJ", 200.0, (50.0, 4000.0), +1, "jack dynamic friction [N]"),
-    FaultSpec("GM", 0.01, SEARCH_BOUNDS["GM"], -1, "torque-motor gain, demagnetisation [N/mA]"),
-    FaultSpec("Kintas", 0.0, SEARCH_BOUNDS["Kintas"], +1, "first-stage filter clogging [-]"),
-    FaultSpec("Clk", 1e-13, SEARCH_BOUNDS["Clk"], +1, "internal leakage [m^3/(Pa*s)]"),
-    FaultSpec("Ofs", 0.0, SEARCH_BOUNDS["Ofs"], 0, "torque-motor offset current [mA]"),
-    FaultSpec("FSS", 7.0, SEARCH_BOUNDS["FSS"], +1, "spool static friction [N]"),
+    FaultSpec("GM", 0.01, SEARCH_BOUNDS["GM"], -1, "torque-motor gain, demagnetisation [N/mA]",
+              6e-5),
+    FaultSpec("Kintas", 0.0, SEARCH_BOUNDS["Kintas"], +1, "first-stage filter clogging [-]",
+              0.005),
+    FaultSpec("Clk", 1e-13, SEARCH_BOUNDS["Clk"], +1, "internal leakage [m^3/(Pa*s)]", 2e-14),
+    FaultSpec("Ofs", 0.0, SEARCH_BOUNDS["Ofs"], 0, "torque-motor offset current [mA]", 0.003),
+    FaultSpec("FSS", 7.0, SEARCH_BOUNDS["FSS"], +1, "spool static friction [N]", 0.12),
 )}
 #: Faults fitted in every hypothesis (the thesis' two).
 CORE_FAULTS = ("BKL", "FDJ")
@@ -110,6 +117,13 @@ class Assessment:
         healthy value).
     intervals : dict
         ``name -> (lo, hi)`` at ``level`` (mixture over the hypotheses).
+    means : dict
+        Posterior mean of every fault over the hypotheses (healthy value where a hypothesis
+        does not fit the fault): the detection statistic's input, continuous where the
+        estimates jump between hypotheses.
+    spread : dict
+        The measurement uncertainty of each fault: its std in the hypothesis that fits it
+        (the most probable one for BKL and FDJ).
     level : float
     hypotheses : tuple of Hypothesis
         The bank, most probable first.
@@ -127,6 +141,8 @@ class Assessment:
 
     estimates: dict[str, float]
     intervals: dict[str, tuple[float, float]]
+    means: dict[str, float]
+    spread: dict[str, float]
     level: float
     hypotheses: tuple[Hypothesis, ...]
     n_eff: float
@@ -148,6 +164,7 @@ class Assessment:
     def to_dict(self) -> dict[str, Any]:
         return {"estimates": dict(self.estimates),
                 "intervals": {k: list(v) for k, v in self.intervals.items()},
+                "means": dict(self.means), "spread": dict(self.spread),
                 "level": self.level, "flagged": self.flagged,
                 "noise_rmse": self.noise_rmse, "residual_rmse": self.residual_rmse,
                 "n_eff": self.n_eff, "seconds": self.seconds, "seed": self.seed,
@@ -201,17 +218,15 @@ def fault_components(name: str, hyps: Sequence[tuple[str | None, float, Mapping[
                                                      Mapping[str, float]]]
                      ) -> list[tuple[float, float, float]]:
     """Mixture components ``(weight, mean, std)`` of fault ``name`` over the hypotheses
-    ``(fault, weight, estimates, std)``: the hypothesis' estimate where it fits the fault,
-    else the healthy value with the uncertainty the record leaves on it (the std of the
-    hypothesis that fits it; 0 when none does)."""
+    ``(fault, weight, estimates, std)``: the hypothesis' estimate and std where it fits the
+    fault, else the healthy value with the healthy spread (:attr:`FaultSpec.healthy_std`)."""
     spec = FAULTS[name]
-    own = next((std.get(name, 0.0) for fault, _, _, std in hyps if fault == name), 0.0)
     comps = []
     for _, weight, est, std in hyps:
         if name in est:
             comps.append((weight, est[name], std.get(name, math.inf)))
         else:
-            comps.append((weight, spec.healthy, own))
+            comps.append((weight, spec.healthy, spec.healthy_std))
     return comps
 
 
@@ -278,17 +293,22 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     hyps = sorted((Hypothesis(f, r, b, w) for (f, r), b, w in zip(fits, bics, weights)),
                   key=lambda h: -h.weight)
     best = hyps[0]
-    estimates, intervals = {}, {}
+    estimates, intervals, means, spread = {}, {}, {}, {}
     for name in (*CORE_FAULTS, *faults):
         spec = FAULTS[name]
         comps = fault_components(name, [(h.fault, h.weight, h.fit.estimates, h.fit.std)
                                         for h in hyps])
         intervals[name] = mixture_interval(comps, level, spec.bounds)
         estimates[name] = float(best.fit.estimates.get(name, spec.healthy))
+        means[name] = float(sum(w * m for w, m, _ in comps))
+        spread[name] = float(best.fit.std.get(name) if name in best.fit.std else
+                             next((h.fit.std.get(name, math.inf) for h in hyps
+                                   if h.fault == name), math.inf))
     rmse = best.fit.objective
     flagged = bool(best.fit.flagged)
     notes = list(best.fit.notes)
-    return Assessment(estimates=estimates, intervals=intervals, level=float(level),
+    return Assessment(estimates=estimates, intervals=intervals, means=means, spread=spread,
+                      level=float(level),
                       hypotheses=tuple(hyps), n_eff=float(n_eff), noise_rmse=noise,
                       residual_rmse=float(rmse), flagged=flagged,
                       seconds=time.perf_counter() - start, seed=int(seed),

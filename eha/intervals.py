@@ -84,10 +84,12 @@ MODEL_FORM: dict[str, dict[str, ModelForm]] = {
     # residual is far above the noise and the widening takes over. The default on measured
     # data is the calibrated LF (docs/health.md).
     "plain": {"BKL": ModelForm(rel=0.02, abs=2e-6), "FDJ": ModelForm(rel=0.035)},
-    # 60 calibration records (chirp_1cm and mixed, BKL 0-1 mm, FDJ 200-3200 N, 1 µm noise,
-    # seeds 0-29 and 100-159): HAC alone covered BKL in 77 % and FDJ in 83 %; these floors
-    # bring both to 90 % (2026-11-22)
-    "calibrated": {"BKL": ModelForm(abs=5e-7), "FDJ": ModelForm(rel=0.002)},
+    # `python benchmarks/bench_intervals.py --calibrate`: 60 calibration records (seeds 0-59,
+    # apart from the benchmark's), chirp_1cm and mixed, BKL 0-1 mm, FDJ 200-3200 N, a third
+    # with one more fault, 1 µm noise, assessed by the hypothesis bank: the smallest floors
+    # that bring the coverage to 90 % (BKL 93 %, FDJ 90 % on those records; the other faults
+    # need none: 92-100 %). Measured 2026-11-22.
+    "calibrated": {"BKL": ModelForm(abs=2e-6), "FDJ": ModelForm(abs=5.0)},
 }
 
 

@@ -239,8 +239,23 @@ def _run_fdi(spec: Mapping[str, Any], run_key: str, campaign: str,
     return {"rows": {"fdi_results": row}, "sim_s": row["seconds"], "trace_rows": len(fitted)}
 
 
+def _run_health(spec: Mapping[str, Any], run_key: str, campaign: str,
+                trace_file: str) -> dict[str, Any]:
+    """Health assessment of a simulated actuator (:func:`eha.detection.run_health_job`): a
+    ``health_assessments`` row and the record (t, com, xu) as the trace."""
+    from eha.detection import run_health_job
+    from eha.simulate import Trace
+    from eha.store import write_trace
+
+    row, record = run_health_job(spec)
+    write_trace(Trace(record.data, {**record.meta, "run_key": run_key, "campaign": campaign}),
+                trace_file, columns=["t", "com", "xu"])
+    return {"rows": {"health_assessments": row}, "sim_s": row["seconds"]}
+
+
 JOB_RUNNERS: dict[str, Callable[..., dict[str, Any]]] = {"simulate": _run_simulation,
-                                                         "fdi": _run_fdi}
+                                                         "fdi": _run_fdi,
+                                                         "health_assessment": _run_health}
 
 
 def _lazy(module: str, name: str) -> Callable[..., dict[str, Any]]:
