@@ -82,8 +82,8 @@ def draw_actuator(seed: int, dispersion: Mapping[str, tuple[str, float, float]] 
     return out
 
 
-_SECTION_KEYS = {"command", "commands", "t_end", "actuators", "seed", "noise", "faults",
-                 "base_model", "level"}
+_SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
+                 "noise", "faults", "base_model", "level"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -95,6 +95,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         commands = ["chirp_1cm", "mixed"]    # or command = "chirp_1cm"
         t_end = 1.0                          # s
         actuators = 20                       # per command and fault level
+        healthy_actuators = 20               # healthy group (default: actuators)
         seed = 0                             # first actuator seed
         noise = 1e-6                         # m, white sensor noise
         faults = { GM = [0.009, 0.008, 0.007], Clk = [5e-13, 1e-12, 2e-12] }   # optional
@@ -126,6 +127,10 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     n = section.get("actuators", 20)
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 10000:
         problems.append(f"health.actuators={n!r}: allowed range [1, 10000]")
+    n_healthy = section.get("healthy_actuators", n)
+    if isinstance(n_healthy, bool) or not isinstance(n_healthy, int) or \
+            not 1 <= n_healthy <= 10000:
+        problems.append(f"health.healthy_actuators={n_healthy!r}: allowed range [1, 10000]")
     seed = section.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
         problems.append(f"health.seed={seed!r}: allowed range [0, 2147483647]")
@@ -164,9 +169,11 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         return []
     jobs = []
     for command in commands:
-        for g, (label, injected) in enumerate(groups):
-            for k in range(n):
-                s = seed + g * n + k
+        first = seed
+        for label, injected in groups:
+            size = n_healthy if label == "healthy" else n
+            for k in range(size):
+                s = first + k
                 hf = {**draw_actuator(s), **injected}
                 truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
                 spec = {"command": command, "t_end": float(t_end), "hf": hf, "noise": float(noise),
@@ -178,6 +185,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                                          "fault_label": label,
                                          "label": f"{command} {label} actuator {s}",
                                          "estimated_s": 10.0 * float(t_end)}})
+            first += size
     return jobs
 
 
