@@ -66,7 +66,8 @@ def test_params_and_commands_list_everything():
 def test_every_command_has_help_with_an_example():
     res = runner.invoke(app, ["--help"], env={"COLUMNS": "200"})
     names = [line.split()[1] for line in res.output.splitlines()
-             if line.startswith("│ ") and len(line.split()) > 2 and line.split()[1].isalpha()]
+             if line.startswith("│ ") and line[2] != " "  # not a wrapped description
+             and len(line.split()) > 2 and line.split()[1].isalpha()]
     assert "simulate" in names
     for name in names:
         sub = runner.invoke(app, [name, "--help"], env={"COLUMNS": "200"})
