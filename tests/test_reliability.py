@@ -194,7 +194,7 @@ def read_only_dir(tmp_path):
 ])
 def test_read_only_folder_is_refused_before_any_work(tmp_path, read_only_dir, command):
     data = record_csv(tmp_path / "rec.csv")
-    line = error_line(run_eha(*command(read_only_dir, data)), 2)
+    line = error_line(invoke_eha(*command(read_only_dir, data)), 2)
     assert "not writable" in line and not files_under(read_only_dir)
 
 
