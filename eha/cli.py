@@ -846,6 +846,14 @@ def explain(
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
                   f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
                   f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")
+    if res.intervals:
+        console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
+            f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
+            for k, (lo, hi) in res.intervals.items()))
+    if res.unexplained:
+        err_console.print("warning: the residual after the best library model is still well "
+                          "above the noise: unexplained; the fault intervals are widened, "
+                          "do not read the estimates as numbers", highlight=False)
     for kind, path in run["paths"].items():
         console.print(f"{kind}: {path}")
     if run["db_error"]:

@@ -163,6 +163,12 @@ class ExplainResult:
     measured: np.ndarray
     settings: dict[str, Any]
     seconds: float
+    #: intervals of the final model's fitted parameters (faults and effect parameters)
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    level: float | None = None
+    #: the residual after the best library model is still well above the noise
+    unexplained: bool = False
+    interval_notes: tuple[str, ...] = ()
 
     @property
     def rmse_before(self) -> float:
@@ -194,6 +200,8 @@ class ExplainResult:
             "rmse_after": self.rmse_after,
             "faults_before": dict(self.faults_before),
             "faults_after": dict(self.faults_after),
+            "intervals": {k: list(v) for k, v in self.intervals.items()},
+            "level": self.level, "unexplained": self.unexplained,
             "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after}
                       for s in self.steps],
@@ -402,7 +410,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     -------
     ExplainResult
     """
-    from eha.fdi import DEFAULT_METHOD, METHOD_DEFAULTS, FDIError, identify
+    from eha.fdi import (DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, FDIError, identify,
+                         intervals_at)
 
     started = time.perf_counter()
     settings = dict(DEFAULTS)
@@ -479,7 +488,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             for i in range(starts):
                 res = identify(fit_y, data.command, fit=free, base=start, method=method,
                                pop=pop, seed=seed + 1000 * i, warm_start=warm_start,
-                               recorded_start=record.recorded_start, **options)
+                               recorded_start=record.recorded_start, level=None, **options)
                 if best_res is None or res.objective < best_res.objective:
                     best_res = res
         except FDIError as exc:
@@ -654,6 +663,14 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     for rnd in rounds:
         for c in rnd.candidates:
             c.__dict__.pop("_evaluation", None)
+    # intervals of the final model's fitted parameters on the whole record (no refit)
+    final_bounds = dict(bounds)
+    for step in steps:
+        for effect in pool:
+            if effect.name == step.effect or effect.name in step.effect.split("+"):
+                final_bounds.update(effect.bounds)
+    iv = intervals_at(y, data.command, current, final_bounds, level=DEFAULT_LEVEL, noise=noise,
+                      recorded_start=record.recorded_start, t_end=data.t_end)
     return ExplainResult(
         source=data.source, fit_bounds=bounds, faults_before=faults_before,
         faults_after={k: getattr(current, k) for k in bounds}, before=before, after=cur,
@@ -661,7 +678,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         t=data.t.copy(), measured=y.copy(),
         settings={**settings, "method": method, "pop": pop, "seed": seed, "n_fit": n_fit,
                   "effects": [e.name for e in pool], **fdi_options},
-        seconds=time.perf_counter() - started)
+        seconds=time.perf_counter() - started, intervals=iv.bounds, level=iv.level,
+        unexplained=iv.flagged, interval_notes=iv.notes)
 
 
 def _split_combination(members: Sequence[Effect], combined: Evaluation,

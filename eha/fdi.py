@@ -495,6 +495,29 @@ def identify(reference_xu: np.ndarray, command: Command | str,
                      options=opts, **extra)
 
 
+def intervals_at(reference_xu: np.ndarray, command: Command | str, params: LFParams,
+                 bounds: Mapping[str, Sequence[float]], level: float = DEFAULT_LEVEL,
+                 noise: float | None = None, recorded_start: float | None = None,
+                 t_end: float | None = None, model_form: str | None = None):
+    """Intervals of the parameters ``bounds`` names at the values in ``params`` (an estimate
+    found elsewhere, e.g. the final model of the residual loop), without refitting: one batch
+    of ``2k + 1`` LF runs (:func:`eha.intervals.estimate_intervals`)."""
+    from eha.intervals import estimate_intervals
+
+    bounds = check_bounds(bounds)
+    names = tuple(bounds)
+    reference = np.asarray(reference_xu, dtype=np.float64)
+    if t_end is None:
+        t_end = (reference.size - 1) * OUTPUT_DT
+    steps_per_out, n_out, t_steps = grid(params, t_end)
+    obj = BatchObjective(reference, command_on_grid(as_command(command), t_steps),
+                         steps_per_out, n_out, names, bounds, params, "rmse", recorded_start)
+    x = np.clip((np.array([getattr(params, n) for n in names]) - obj.lo) / obj.span, 0.0, 1.0)
+    return estimate_intervals(reference, obj.simulate, x, names, obj.lo, obj.span, level=level,
+                              noise=noise, model_form=model_form if model_form is not None
+                              else model_form_of(params))
+
+
 def hf_reference(command: Command | str, faults: Mapping[str, float] | None = None,
                  seed: int = 0, t_end: float = 1.0) -> Trace:
     """The HF run with injected ``faults`` (``{"BKL": 1e-4, "FDJ": 800}``) used as reference.

@@ -44,7 +44,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                                       str(out), "--results", str(res), "--no-progress"])
     assert result.exit_code == 0, result.output
     doc = json.loads(js.read_text())
-    assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps"}
+    # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
+    assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
+                        "intervals", "level", "unexplained"}
+    assert doc["level"] == 0.9 and doc["unexplained"] is False
+    lo, hi = doc["intervals"]["FDJ"]
+    assert lo <= doc["faults_after"]["FDJ"] <= hi
     assert doc["steps"][0]["effect"] == "orifice_law"
     assert set(doc["steps"][0]) == {"effect", "params", "rmse_before", "rmse_after"}
     assert doc["rmse_before"] >= 3 * doc["rmse_after"]
