@@ -27,7 +27,7 @@ def main() -> None:
     from rich.console import Console
     from rich.progress import Progress
 
-    from eha import fdi
+    from eha import fdi, fdi_cases
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--method", default=fdi.DEFAULT_METHOD, choices=fdi.METHODS)
@@ -42,11 +42,11 @@ def main() -> None:
 
     from eha.params import parse_assignments, resolve
 
-    camp = fdi.load_fdi_campaign(args.campaign)
+    camp = fdi_cases.load_fdi_campaign(args.campaign)
     base = resolve("lf", {**camp.base, **parse_assignments(args.base)})
     cases = [int(c) for c in args.cases.split(",") if c] or None
     # JIT warm-up (numba cache load) outside the timing, as a long-running service would be
-    fdi.run_case(camp.cases[0], 0, args.method, args.objective, camp.t_end, base=base,
+    fdi_cases.run_case(camp.cases[0], 0, args.method, args.objective, camp.t_end, base=base,
                  max_gen=2)
 
     console = Console(stderr=True)
@@ -54,7 +54,7 @@ def main() -> None:
     start = time.perf_counter()
     with Progress(console=console, transient=True, disable=args.json) as bar:
         task = bar.add_task(f"FDI {args.method}", total=n_runs)
-        rows = fdi.run_campaign(camp, seeds=range(args.seeds), method=args.method,
+        rows = fdi_cases.run_campaign(camp, seeds=range(args.seeds), method=args.method,
                                 objective=args.objective, cases=cases, base=base,
                                 on_row=lambda r: bar.advance(task))
     total = time.perf_counter() - start

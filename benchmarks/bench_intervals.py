@@ -162,6 +162,45 @@ def calibrate(rows: list[dict], level: float = 0.9) -> dict:
     return found
 
 
+def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9) -> dict:
+    """Coverage of three interval methods on the same fits (calibrated LF, BKL and FDJ, records
+    without an extra fault): white-noise Laplace (sigma = noise), the HAC sandwich alone, and
+    the tool's intervals (HAC + measured floors + widening)."""
+    from eha.fdi import CALIBRATED_LF, BatchObjective, identify
+    from eha.health import CORE_FAULTS, FAULTS
+    from eha.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
+    from eha.measured import from_arrays, synthetic_record
+    from eha.params import resolve
+    from eha.simulate import command_on_grid, grid
+
+    z = normal_quantile(level)
+    base = resolve("lf", CALIBRATED_LF)
+    bounds = {n: FAULTS[n].bounds for n in CORE_FAULTS}
+    hits = {m: {n: [] for n in CORE_FAULTS} for m in ("white", "hac", "tool")}
+    for i in range(n_records):
+        command, faults, seed = draw_record(i, seed_block, extra=False)
+        df = synthetic_record(command, faults, t_end=1.0, noise=1e-6, seed=seed)
+        rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy())
+        res = identify(rec.xu, rec.command, bounds, base=base, seed=seed,
+                       noise=rec.info["noise_m"])
+        steps, n_out, t_steps = grid(base, rec.t_end)
+        obj = BatchObjective(rec.xu, command_on_grid(rec.command, t_steps), steps, n_out,
+                             CORE_FAULTS, bounds, base, "rmse")
+        x = (np.array([res.estimates[n] for n in CORE_FAULTS]) - obj.lo) / obj.span
+        y0, jac = jacobian(obj.simulate, x, obj.span)
+        r = rec.xu - y0
+        white = rec.info["noise_m"] ** 2 * np.linalg.inv(jac.T @ jac)
+        hac = hac_covariance(jac, r, bandwidth(r))
+        for k, name in enumerate(CORE_FAULTS):
+            err = abs(res.estimates[name] - faults[name])
+            hits["white"][name].append(err <= z * np.sqrt(white[k, k]))
+            hits["hac"][name].append(err <= z * np.sqrt(hac[k, k]))
+            lo, hi = res.intervals[name]
+            hits["tool"][name].append(lo <= faults[name] <= hi)
+    return {m: {n: float(np.mean(v)) for n, v in d.items()} for m, d in hits.items()} | \
+        {"records": n_records}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--records", type=int, default=120)
@@ -172,6 +211,9 @@ def main() -> None:
     ap.add_argument("--rows", default=None, help="also write every record's result (JSONL)")
     ap.add_argument("--calibrate", action="store_true",
                     help="measure the model-form floors on calibration records (seeds from 0)")
+    ap.add_argument("--compare", type=int, default=0, metavar="N",
+                    help="coverage of white-noise Laplace / HAC alone / the tool's intervals "
+                         "on N records (seeds from 20000), then stop")
     ap.add_argument("--from-rows", default=None,
                     help="calibrate from the JSONL of an earlier --rows run (no new records)")
     args = ap.parse_args()
@@ -180,6 +222,9 @@ def main() -> None:
         methods, block, extra = ["health"], 0, True
     else:
         block, extra = args.seed_block, True
+    if args.compare:
+        print(json.dumps(compare_methods(args.compare), indent=2))
+        return
     if args.from_rows:
         rows = [json.loads(line) for line in open(args.from_rows)]
         print(json.dumps({"floors": calibrate(rows), "records": len(rows)}, indent=2))

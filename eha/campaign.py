@@ -626,8 +626,9 @@ SECTION_KINDS: dict[str, Callable[[Mapping[str, Any], Mapping[str, Any], list[st
 
 def _expand_fdi(section: Mapping[str, Any], table: Mapping[str, Any],
                 problems: list[str]) -> list[JobDraft]:
-    """``[fdi]``: one fault-identification job per case and seed (:func:`eha.fdi.fdi_jobs`)."""
-    from eha.fdi import FDIError, fdi_jobs
+    """``[fdi]``: one fault-identification job per case and seed (:func:`eha.fdi_cases.fdi_jobs`)."""
+    from eha.fdi import FDIError
+    from eha.fdi_cases import fdi_jobs
 
     try:
         return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
@@ -639,12 +640,13 @@ def _expand_fdi(section: Mapping[str, Any], table: Mapping[str, Any],
 def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> list[str]:
     """Every problem of an ``[fdi]`` section, one line each.
 
-    :func:`eha.fdi.parse_fdi_campaign` stops at its first problem. The part a message names
+    :func:`eha.fdi_cases.parse_fdi_campaign` stops at its first problem. The part a message names
     (``fdi.KEY`` or ``fdi.cases[i]``) is taken out of a copy of the section (a top-level key
     falls back to its default, a case is dropped) and the copy validated again, until it
     passes, a message names no part, or the same message comes back.
     """
-    from eha.fdi import FDIError, fdi_jobs
+    from eha.fdi import FDIError
+    from eha.fdi_cases import fdi_jobs
 
     section = dict(table.get("fdi", {}))
     cases = list(enumerate(section.get("cases", []) or []))

@@ -438,9 +438,9 @@ def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None =
     Parameters
     ----------
     rows : sequence of dict
-        FDI results (:func:`eha.fdi.run_case` rows, or rows of the ``fdi_results`` table
+        FDI results (:class:`eha.fdi_cases.FDIRow` rows, or rows of the ``fdi_results`` table
         through :func:`eha.store.fdi_rows`), any number of seeds per case.
-    campaign : eha.fdi.FDICampaign
+    campaign : eha.fdi_cases.FDICampaign
         The cases: injected faults, bounds, population and the thesis' values.
 
     Returns
@@ -626,8 +626,8 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
 
     Returns
     -------
-    (list of dict, eha.fdi.FDICampaign)
-        Rows as :func:`eha.fdi.run_case` returns them; the campaign as it was run (its stored
+    (list of dict, eha.fdi_cases.FDICampaign)
+        Rows as :func:`eha.fdi_cases.run_case` returns them; the campaign as it was run (its stored
         definition, so the thesis' values travel with the results).
 
     Raises
@@ -635,7 +635,7 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
     eha.store.StoreError
         No database, or no FDI result of that campaign in it.
     """
-    from eha.fdi import parse_fdi_campaign, rows_from_results
+    from eha.fdi_cases import parse_fdi_campaign, rows_from_results
     from eha.store import StoreError, query
 
     name = campaign.replace("'", "''")

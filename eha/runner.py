@@ -227,9 +227,9 @@ def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str, trace_
 #: Worker function of each job kind (see the module docstring).
 def _run_fdi(spec: Mapping[str, Any], run_key: str, campaign: str,
              trace_file: str) -> dict[str, Any]:
-    """Fault identification (:func:`eha.fdi.run_job`): an ``fdi_results`` row and the trace of
+    """Fault identification (:func:`eha.fdi_cases.run_job`): an ``fdi_results`` row and the trace of
     the identified LF model."""
-    from eha.fdi import run_job
+    from eha.fdi_cases import run_job
     from eha.simulate import Trace
     from eha.store import write_trace
 

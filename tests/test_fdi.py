@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 import eha.fdi as fdi
-from eha.fdi import FDIError, identify, load_fdi_campaign, percent_errors, mean_error_pct
+import eha.fdi_cases as fdi_cases
+from eha.fdi import FDIError, identify, percent_errors, mean_error_pct
+from eha.fdi_cases import load_fdi_campaign
 from eha.params import LFParams
 from eha.simulate import simulate
 
@@ -178,9 +180,9 @@ def test_campaign_validation(tmp_path):
 
 
 def test_run_case_row(tmp_path):
-    case = fdi.FDICase(case=99, command="chirp_1cm", faults={"BKL": 5e-4, "FDJ": 200.0},
+    case = fdi_cases.FDICase(case=99, command="chirp_1cm", faults={"BKL": 5e-4, "FDJ": 200.0},
                        bounds={"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)}, pop=20)
-    row = fdi.run_case(case, seed=2, t_end=T_END)
+    row = fdi_cases.run_case(case, seed=2, t_end=T_END)
     assert row["case"] == 99 and row["seed"] == 2 and row["method"] == fdi.DEFAULT_METHOD
     assert set(row["errors_pct"]) == {"BKL", "FDJ"}
     assert row["mean_err_pct"] == pytest.approx(
