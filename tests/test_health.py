@@ -194,3 +194,27 @@ def test_calibrate_then_check_end_to_end(tmp_path):
     invoke_eha("health", "check", rec, "--calibration", cal, "--results", res, "--json", out,
                "--no-progress")
     assert len(query(res, "SELECT * FROM health_verdicts")) == len(FAULTS)
+
+
+def test_fdi_fits_any_fault_with_an_interval(tmp_path):
+    """`eha fdi --data --fit BKL,FDJ,GM`: the motor gain of an LF record (no model-form error)
+    is found within 1 % and its interval, in the JSON, brackets the estimate; GM's default
+    search bounds are the health assessment's (eha.fdi.SEARCH_BOUNDS)."""
+    from eha.fdi import SEARCH_BOUNDS
+    from eha.measured import synthetic_record
+
+    rec = tmp_path / "gm.csv"
+    synthetic_record("chirp_1cm", {"BKL": 2e-4, "FDJ": 600.0, "GM": 0.008}, t_end=0.5,
+                     noise=1e-6, seed=2, model="lf").to_csv(rec, index=False)
+    out = tmp_path / "fit.json"
+    proc = invoke_eha("fdi", "--data", rec, "--fit", "BKL,FDJ,GM", "--base-model", "plain",
+                      "--json", out)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    doc = json.loads(out.read_text())
+    assert doc["level"] == 0.9 and doc["base_model"] == "plain"
+    assert doc["estimates"]["GM"] == pytest.approx(0.008, rel=0.01)
+    lo, hi = doc["intervals"]["GM"]
+    assert lo <= doc["estimates"]["GM"] <= hi and hi - lo < 0.001
+    assert doc["bounds"]["GM"] == list(SEARCH_BOUNDS["GM"])
+    proc = invoke_eha("fdi", "--data", rec, "--fit", "BKL,orifice_law")
+    assert "orifice_law: cannot be identified" in error_line(proc, 2)
