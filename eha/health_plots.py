@@ -8,14 +8,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from eha.figures import pyplot as _pyplot
+from eha.figures import save
 
 
 def plot_roc(perf: Mapping[str, Any], command: str, path: str | Path) -> Path:
@@ -43,11 +37,7 @@ def plot_roc(perf: Mapping[str, Any], command: str, path: str | Path) -> Path:
         ax.axis("off")
     fig.suptitle(f"ROC per fault on {command} (healthy fleet vs injected level; dotted: 1 %)")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path, dpi=110)
 
 
 def plot_confusion(confusion: Mapping[str, Mapping[str, int]], command: str,
@@ -72,8 +62,4 @@ def plot_confusion(confusion: Mapping[str, Mapping[str, int]], command: str,
     ax.set_title(f"Isolation on {command}")
     fig.colorbar(im, ax=ax, fraction=0.046, label="fraction of the row")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path, dpi=110)

@@ -8,16 +8,9 @@ from typing import Sequence
 
 import numpy as np
 
+from eha.figures import pyplot as _pyplot
+from eha.figures import save as _save
 from eha.simulate import Trace
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _label(trace: Trace) -> str:
@@ -63,11 +56,7 @@ def plot_traces(traces: Sequence[Trace], path: str | Path, title: str | None = N
     cmd = first.meta.get("command", {}).get("name", "")
     fig.suptitle(title or f"EHA response — command {cmd}")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=110)
 
 
 from eha.runner import rmse  # noqa: E402  (one definition; re-exported for report users)
@@ -166,13 +155,6 @@ def _layout(fault_sets: list[dict]) -> tuple[list[str], list[str], dict[str, tup
     ncol = min(4, max(1, len(fault_sets)))
     pos = {k: (i // ncol, i % ncol) for i, k in enumerate(keys)}
     return [""] * (-(-len(fault_sets) // ncol)), [""] * ncol, pos
-
-
-def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    _pyplot().close(fig)
-    return path
 
 
 def plot_campaign(results: str | Path = "results", campaign: str = "thesis-matrix",

@@ -768,26 +768,8 @@ def save_explain(results: str | Path, run: Mapping[str, Any],
 
     One transaction; a run with the same ``run_id`` is replaced. Returns the database path.
     """
-    con = connect(results)
-    try:
-        con.execute("BEGIN")
-        try:
-            con.execute("DELETE FROM explain_steps WHERE run_id = ?", [run["run_id"]])
-            con.execute("DELETE FROM explain_runs WHERE run_id = ?", [run["run_id"]])
-            con.register("_r", _frame([run]))
-            con.execute("INSERT INTO explain_runs BY NAME SELECT * FROM _r")
-            con.unregister("_r")
-            if steps:
-                con.register("_s", _frame(steps))
-                con.execute("INSERT INTO explain_steps BY NAME SELECT * FROM _s")
-                con.unregister("_s")
-            con.execute("COMMIT")
-        except BaseException:
-            con.execute("ROLLBACK")
-            raise
-    finally:
-        con.close()
-    return db_path(results)
+    return _replace(results, [("explain_runs", [run], {"run_id": run["run_id"]}),
+                              ("explain_steps", steps, {"run_id": run["run_id"]})])
 
 
 def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, Any]],
@@ -801,18 +783,28 @@ def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, An
     StoreError
         Unknown table, or the database is locked or cannot be written.
     """
-    if table not in SCHEMA:
-        raise StoreError(f"{table!r} is not a table of the schema")
+    return _replace(results, [(table, rows, key)])
+
+
+def _replace(results: str | Path,
+             parts: Sequence[tuple[str, Sequence[Mapping[str, Any]], Mapping[str, Any]]]
+             ) -> Path:
+    """In ONE transaction, for each ``(table, rows, key)``: delete the rows matching ``key``,
+    insert ``rows``."""
+    for table, _, _ in parts:
+        if table not in SCHEMA:
+            raise StoreError(f"{table!r} is not a table of the schema")
     con = connect(results)
     try:
         con.execute("BEGIN")
         try:
-            where = " AND ".join(f"{c} = ?" for c in key)
-            con.execute(f"DELETE FROM {table} WHERE {where}", list(key.values()))
-            if rows:
-                con.register("_r", _frame(rows))
-                con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r")
-                con.unregister("_r")
+            for table, rows, key in parts:
+                where = " AND ".join(f"{c} = ?" for c in key)
+                con.execute(f"DELETE FROM {table} WHERE {where}", list(key.values()))
+                if rows:
+                    con.register("_r", _frame(rows))
+                    con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r")
+                    con.unregister("_r")
             con.execute("COMMIT")
         except BaseException:
             con.execute("ROLLBACK")

@@ -1,0 +1,26 @@
+"""The two things every figure module needs: matplotlib without a display, and saving a PNG
+into a folder that may not exist yet. One definition for eha.report, eha.health_plots and the
+prognostics plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Write ``fig`` as PNG at ``path`` (parents created), close it, return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
