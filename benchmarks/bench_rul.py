@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="Write the figures as JSON.")
     ap.add_argument("--plots", type=Path, default=None, help="Also write the plots here.")
     ap.add_argument("--limit-error", type=float, default=None,
-                    help="Relative std of the assessment's systematic error (default 0.05).")
+                    help="Relative std of the assessment's systematic error (default 0.02).")
     args = ap.parse_args(argv)
 
     from eha.fleet import parse_fleet, simulate_fleet

@@ -1132,7 +1132,7 @@ def rul(
                                       "monitoring model does not explain out of the fits."),
     limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
                                                 "of the assessment's systematic error "
-                                                "(default 0.03)."),
+                                                "(default 0.02)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
 ):
     """Remaining useful life from health histories: assess each record, fit degradation

@@ -58,6 +58,9 @@ KAPPA_GRID = np.geomspace(0.05, 12.0, 64)
 POWER_GRID = np.geomspace(0.3, 6.0, 64)
 #: Extra noise levels τ, as fractions of the fault's scale (distance to the limit).
 TAU_GRID = np.array([0.0, 0.003, 0.01, 0.03, 0.1])
+#: Process-noise levels: relative std of each degradation increment between two checks
+#: (the path is a random walk around the trend; see :func:`fit_degradation`).
+PROC_GRID = np.array([0.0, 0.05, 0.1, 0.2, 0.4])
 #: Prior over the (law, shape) grid: "equal" (each law 1/3, uniform over its shapes) or
 #: "grid" (every grid point alike: linear is one point among 49).
 LAW_PRIOR = "equal"
@@ -68,9 +71,10 @@ MIN_CHECKS = 3
 #: RUL samples per check.
 N_SAMPLES = 4000
 #: Relative standard deviation of the health assessment's systematic error (identified vs
-#: true fault value, the same at every check of an actuator): measured on the HF test bench
-#: 2.5 % (BKL) and 8.9 % (FDJ) rms, 1-2.5 % on the thesis cases (docs/prognostics.md).
-LIMIT_ERROR = 0.05
+#: true fault value, the same at every check of an actuator). Measured on the HF test bench:
+#: robust σ 1.4 % (BKL) and 5.9 % (FDJ); the value trades α-λ accuracy against interval
+#: coverage (docs/prognostics.md: 0 to 0.05 compared on two fleets).
+LIMIT_ERROR = 0.02
 #: Quantiles reported: 5 %, median, 95 %.
 QUANTILES = (0.05, 0.5, 0.95)
 
@@ -112,6 +116,41 @@ def _inverse(law: str, shape: float, r: np.ndarray, t_ref: float) -> np.ndarray:
     return t_ref / shape * np.log1p(r * np.expm1(shape))
 
 
+def _dphi2_integral(law: np.ndarray, shape: np.ndarray, t1: float, t2: np.ndarray,
+                    t_ref: float) -> np.ndarray:
+    """∫ φ'(t)² dt from ``t1`` to ``t2`` (vectorised over draws) [1/cycle]."""
+    s1 = t1 / t_ref
+    s2 = np.asarray(t2, dtype=np.float64) / t_ref
+    out = np.zeros_like(s2)
+    lin = law == "linear"
+    out[lin] = (s2[lin] - s1) / t_ref
+    pw = law == "power"
+    if pw.any():
+        p = shape[pw]
+        e = 2 * p - 1
+        near = np.abs(e) < 1e-6
+        val = np.where(near, np.log(np.maximum(s2[pw], 1e-300) / max(s1, 1e-300)),
+                       (np.power(s2[pw], e) - s1 ** e) / np.where(near, 1.0, e))
+        out[pw] = p * p / t_ref * val
+    ex = law == "exponential"
+    if ex.any():
+        k = shape[ex]
+        E = np.expm1(k)
+        out[ex] = k / (2 * t_ref * E * E) * (np.exp(2 * k * s2[ex]) - np.exp(2 * k * s1))
+    return out
+
+
+def _dphi(law: np.ndarray, shape: np.ndarray, t: np.ndarray, t_ref: float) -> np.ndarray:
+    """φ'(t) [1/cycle], vectorised over draws."""
+    s = np.asarray(t, dtype=np.float64) / t_ref
+    out = np.full_like(s, 1.0 / t_ref)
+    pw = law == "power"
+    out[pw] = shape[pw] * np.power(s[pw], shape[pw] - 1) / t_ref
+    ex = law == "exponential"
+    out[ex] = shape[ex] * np.exp(shape[ex] * s[ex]) / (t_ref * np.expm1(shape[ex]))
+    return out
+
+
 @dataclass(frozen=True)
 class Component:
     """One grid point of the posterior: law, shape, τ, weight and the Gaussian of (a, b)."""
@@ -122,6 +161,15 @@ class Component:
     weight: float
     mean: np.ndarray
     cov: np.ndarray
+    #: process noise: relative std of each increment between checks, and the plug-in
+    #: increase b̂ that scales it [fault unit]
+    proc: float = 0.0
+    bhat: float = 0.0
+    #: posterior of the path's deviation w_k from the trend at t_ref given (a, b):
+    #: mean = w0 - wX·(a, b), variance wvar
+    w0: float = 0.0
+    wX: np.ndarray | None = None
+    wvar: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -140,6 +188,8 @@ class DegradationFit:
         Posterior probability of each law.
     n : int
         Observations used.
+    step : float
+        Mean interval between the checks used [cycles] (the process-noise step).
     """
 
     t_ref: float
@@ -147,6 +197,7 @@ class DegradationFit:
     components: tuple[Component, ...]
     law_weights: dict[str, float]
     n: int
+    step: float = 0.0
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``(index, ab)``: component index and ``(a, b)`` of ``n`` posterior draws."""
@@ -159,6 +210,15 @@ class DegradationFit:
         chol = np.linalg.cholesky(covs + jitter * np.eye(2))
         ab = means[idx] + np.einsum("nij,nj->ni", chol[idx], z)
         return idx, ab
+
+    def deviation(self, rng: np.random.Generator, idx: np.ndarray, ab: np.ndarray
+                  ) -> np.ndarray:
+        """Draws of the path's deviation from the trend at ``t_ref`` (process noise)."""
+        w0 = np.array([c.w0 for c in self.components])[idx]
+        wX = np.array([c.wX if c.wX is not None else np.zeros(2)
+                       for c in self.components])[idx]
+        sd = np.sqrt(np.maximum(np.array([c.wvar for c in self.components])[idx], 0.0))
+        return w0 - np.sum(wX * ab, axis=1) + sd * rng.standard_normal(idx.size)
 
     def trajectories(self, rng: np.random.Generator, t: np.ndarray, n: int = 400
                      ) -> np.ndarray:
@@ -186,7 +246,8 @@ class DegradationFit:
         idx, ab = self.sample(rng, n)
         if limit_error > 0:
             limit = limit * (1.0 + limit_error * rng.standard_normal(n))
-        a, b = ab[:, 0], ab[:, 1]
+        w = self.deviation(rng, idx, ab)
+        a, b = ab[:, 0] + w, ab[:, 1]                     # the path through its current level
         out = np.full(n, np.inf)
         now = a + b                                       # φ(t_ref) = 1
         past = direction * (now - limit) >= 0
@@ -199,13 +260,26 @@ class DegradationFit:
             sel = ok & (law == name)
             if sel.any():
                 out[sel] = _inverse(name, shape[sel], r[sel], self.t_ref)
+        # future process noise: the path's random walk around the trend shifts the crossing
+        # by -η/x'(t*), η ~ N(0, b̂²σ_p²·step·∫φ'² dt) (first-order first passage)
+        proc = np.array([c.proc for c in self.components])[idx]
+        bhat = np.array([c.bhat for c in self.components])[idx]
+        noisy = ok & (proc > 0) & np.isfinite(out) & (self.step > 0)
+        if noisy.any():
+            tc = out[noisy]
+            var = (bhat[noisy] * proc[noisy]) ** 2 * self.step * _dphi2_integral(
+                law[noisy], shape[noisy], self.t_ref, tc, self.t_ref)
+            slope = np.abs(b[noisy]) * _dphi(law[noisy], shape[noisy], tc, self.t_ref)
+            eta = np.sqrt(np.maximum(var, 0.0)) * rng.standard_normal(tc.size)
+            out[noisy] = np.maximum(tc - eta / np.maximum(slope, 1e-300), self.t_ref)
         out[out > HORIZON_FACTOR * self.t_ref] = np.inf
         return out
 
 
 def fit_degradation(t: Sequence[float], y: Sequence[float], sigma: Sequence[float],
                     scale: float, laws: Sequence[str] = LAWS,
-                    tau_grid: Sequence[float] = tuple(TAU_GRID)) -> DegradationFit:
+                    tau_grid: Sequence[float] = tuple(TAU_GRID),
+                    proc_grid: Sequence[float] = tuple(PROC_GRID)) -> DegradationFit:
     """Bayesian model averaging of the degradation laws over one fault's history.
 
     Parameters
@@ -224,6 +298,11 @@ def fit_degradation(t: Sequence[float], y: Sequence[float], sigma: Sequence[floa
         Subset of :data:`LAWS`.
     tau_grid : sequence of float
         Extra noise levels as fractions of ``scale``.
+    proc_grid : sequence of float
+        Process-noise levels: relative std of each increment between checks. The path is
+        the trend plus a random walk ``w``: ``Cov(w_i, w_j) = (b̂σ_p)²·Σ_{m<=min(i,j)} Δφ_m²``
+        with ``b̂`` the observed increase (plug-in), so the checks are correlated and the
+        current level is where the path is, not where the trend is.
 
     Returns
     -------
@@ -249,21 +328,33 @@ def fit_degradation(t: Sequence[float], y: Sequence[float], sigma: Sequence[floa
     S0 = np.diag([s0, s0])
     grids = {"linear": [1.0], "exponential": list(KAPPA_GRID), "power": list(POWER_GRID)}
     taus = np.asarray(tau_grid, dtype=np.float64)
+    procs = np.asarray(proc_grid, dtype=np.float64)
     labels, X_rows, logprior = [], [], []
     for law in laws:
         for shape in grids[law]:
             for tau in taus:
-                labels.append((law, float(shape), float(tau)))
-                X_rows.append(_basis(law, shape, t, t_ref))
-                logprior.append((-math.log(len(laws)) - math.log(len(grids[law]))
-                                 if LAW_PRIOR == "equal" else 0.0) - math.log(taus.size))
+                for proc in procs:
+                    labels.append((law, float(shape), float(tau), float(proc)))
+                    X_rows.append(_basis(law, shape, t, t_ref))
+                    logprior.append((-math.log(len(laws)) - math.log(len(grids[law]))
+                                     if LAW_PRIOR == "equal" else 0.0)
+                                    - math.log(taus.size) - math.log(procs.size))
     phi = np.array(X_rows)                                   # (M, n)
     M, n = phi.shape
     X = np.stack([np.ones_like(phi), phi], axis=-1)          # (M, n, 2)
     tau_abs = np.array([lab[2] for lab in labels]) * scale
+    proc = np.array([lab[3] for lab in labels])
     var = s2[None, :] + tau_abs[:, None] ** 2 + floor        # (M, n)
-    C = s0 * (X @ X.transpose(0, 2, 1))                      # X S0 X^T, S0 = s0 I
-    C[:, np.arange(n), np.arange(n)] += var
+    # process noise: w_i = b·σ_p·Σ_{m<=i} Δφ_m ε_m, Cov(w_i, w_j) = (b̂σ_p)²·S_min(i,j)
+    dphi = np.diff(phi, axis=1, prepend=0.0)
+    S = np.cumsum(dphi * dphi, axis=1)                       # (M, n)
+    D = np.minimum(S[:, :, None], S[:, None, :])             # S_min(i,j)
+    span = np.maximum(1.0 - phi[:, 0], 1e-9)
+    bhat = np.maximum(np.abs(y[-1] - y[0]) / span, 1e-3 * scale)
+    Kscale = (bhat * proc) ** 2                              # (M,)
+    Sig = Kscale[:, None, None] * D
+    Sig[:, np.arange(n), np.arange(n)] += var
+    C = Sig + s0 * (X @ X.transpose(0, 2, 1))                # + X S0 X^T, S0 = s0 I
     Lc = np.linalg.cholesky(C)
     resid = (y - m0[0])[None, :, None] - X[:, :, 1:] * m0[1]
     r = np.linalg.solve(Lc, resid)[..., 0]
@@ -273,18 +364,29 @@ def fit_degradation(t: Sequence[float], y: Sequence[float], sigma: Sequence[floa
     w = np.exp(logw - logw.max())
     w /= w.sum()
     keep = np.flatnonzero(w > 1e-6 * w.max())
-    Wi = X[keep].transpose(0, 2, 1) / var[keep][:, None, :]  # (K, 2, n)
-    P = np.linalg.inv(S0)[None] + Wi @ X[keep]
+    Sk = Sig[keep]
+    Xk = X[keep]
+    SinvX = np.linalg.solve(Sk, Xk)                          # (K, n, 2)
+    P = np.linalg.inv(S0)[None] + Xk.transpose(0, 2, 1) @ SinvX
     cov = np.linalg.inv(P)
-    rhs = (np.linalg.solve(S0, m0)[None, :, None] + Wi @ y[None, :, None])
+    rhs = (np.linalg.solve(S0, m0)[None, :, None]
+           + SinvX.transpose(0, 2, 1) @ y[None, :, None])
     mean = (cov @ rhs)[..., 0]
+    Kk = Kscale[keep][:, None] * D[keep][:, :, -1]           # Cov(w, w_k), (K, n)
+    g = np.linalg.solve(Sk, Kk[:, :, None])[..., 0]          # Σ⁻¹ K_k
+    w0 = g @ y
+    wX = np.einsum("kn,knj->kj", g, Xk)
+    wvar = Kk[:, -1] - np.sum(Kk * g, axis=1)
     wk = w[keep] / w[keep].sum()
     comps = tuple(Component(labels[i][0], labels[i][1], labels[i][2] * scale, float(wk[j]),
-                            mean[j], 0.5 * (cov[j] + cov[j].T))
+                            mean[j], 0.5 * (cov[j] + cov[j].T), proc=labels[i][3],
+                            bhat=float(bhat[i]), w0=float(w0[j]), wX=wX[j],
+                            wvar=float(max(wvar[j], 0.0)))
                   for j, i in enumerate(keep))
     law_w = {law: float(sum(wi for lab, wi in zip(labels, w) if lab[0] == law))
              for law in laws}
-    return DegradationFit(t_ref, float(scale), comps, law_w, int(t.size))
+    step = float((t[-1] - t[0]) / (t.size - 1))
+    return DegradationFit(t_ref, float(scale), comps, law_w, int(t.size), step)
 
 
 # =========================================================================== one history

@@ -107,12 +107,20 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
     from eha.campaign import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
+    from eha import fdi
+
     name = run_id_of(manifest.source)
     jobs = []
     fit = {k: [float(v[0]), float(v[1])] for k, v in bounds.items()}
+    # the assessment's LF base and interval level, spelled out: a change of eha.fdi's
+    # defaults changes the run keys (no stale assessment is reused)
+    base_model = getattr(fdi, "DEFAULT_BASE_MODEL", {}).get("data")
+    base = dict(getattr(fdi, "BASE_MODELS", {}).get(base_model, {}))
+    level = float(getattr(fdi, "DEFAULT_LEVEL", 0.9))
     for c in manifest.checks:
         spec = {"record": str(c.record), "sha": file_sha(c.record), "actuator": c.actuator,
-                "cycle": c.cycle, "fit": fit, "seed": int(seed), "method": method}
+                "cycle": c.cycle, "fit": fit, "seed": int(seed), "method": method,
+                "base_model": base_model, "base": base, "level": level}
         key = hashlib.sha256(json.dumps({"campaign": name, "kind": "health", "spec": spec,
                                          "model_version": MODEL_VERSION}, sort_keys=True,
                                         default=float).encode()).hexdigest()[:16]
@@ -131,8 +139,11 @@ def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
     from eha.fdi import identify_source
 
     fit = {k: tuple(v) for k, v in spec["fit"].items()}
+    extra = {}
+    if spec.get("base_model") is not None:
+        extra = {"base_model": spec["base_model"], "level": spec["level"]}
     run = identify_source(data=spec["record"], fit=tuple(fit), bounds=fit,
-                          seed=int(spec["seed"]), method=spec["method"])
+                          seed=int(spec["seed"]), method=spec["method"], **extra)
     res = run.result
     intervals = {k: [float(v[0]), float(v[1])]
                  for k, v in (getattr(res, "intervals", None) or {}).items()}

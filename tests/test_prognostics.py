@@ -115,12 +115,12 @@ def test_evidence_prefers_the_true_law_on_clean_data(law):
 
 
 def test_rul_is_accurate_and_calibrated_on_noisy_histories():
-    """30 seeded histories (10 per law), 1 % noise: over λ in [0.5, 0.95] the median RUL is
-    within ±20 % of the truth in >= 70 % of checks and the 90 % interval covers it in 70-100 %
-    (measured: 83 % and 86 %)."""
+    """12 seeded histories (4 per law), 1 % noise: over λ in [0.5, 0.95] the median RUL is
+    within ±20 % of the truth in >= 75 % of checks and the 90 % interval covers it in 75-100 %
+    (measured with 30 histories: 91 % and 99 %)."""
     rng = np.random.default_rng(0)
     acc, cov = [], []
-    for i in range(30):
+    for i in range(12):
         law = ("linear", "exponential", "power")[i % 3]
         eol = _eol(law)
         t = np.arange(0, eol, 50.0)
@@ -132,8 +132,8 @@ def test_rul_is_accurate_and_calibrated_on_noisy_histories():
                 r = eol - p.cycle
                 acc.append(p.rul is not None and abs(p.rul - r) <= 0.2 * r)
                 cov.append(p.rul_lo is not None and p.rul_lo <= r <= (p.rul_hi or np.inf))
-    assert np.mean(acc) >= 0.7, np.mean(acc)
-    assert 0.7 <= np.mean(cov) <= 1.0, np.mean(cov)
+    assert np.mean(acc) >= 0.75, np.mean(acc)
+    assert 0.75 <= np.mean(cov) <= 1.0, np.mean(cov)
 
 
 def test_predictions_use_only_the_checks_up_to_each_check():
@@ -322,3 +322,20 @@ def test_limit_input_errors_are_one_line():
                             + args)
         assert res.exit_code == 2, res.output
         assert text in res.output and "Traceback" not in res.output
+
+
+def test_flagged_checks_are_used_unless_skipped_and_failed_ones_dropped():
+    from eha.prognostics import histories_from_checks
+
+    rows = [{"actuator": "A", "cycle": c, "estimates": {"F": 0.1 + c / 1000},
+             "intervals": {"F": [0.09 + c / 1000, 0.11 + c / 1000]}, "level": 0.9,
+             "flagged": c == 200, "status": "done"} for c in (0, 100, 200, 300, 400)]
+    rows.append({"actuator": "A", "cycle": 500, "status": "failed"})
+    h = histories_from_checks(rows, ["F"])["A"]["F"]
+    assert list(h.cycles) == [0, 100, 200, 300, 400] and h.used.all()
+    assert h.sigma[0] == pytest.approx(0.01 / 1.6448536, rel=1e-6)
+    h2 = histories_from_checks(rows, ["F"], skip_flagged=True)["A"]["F"]
+    assert list(h2.used) == [True, True, False, True, True]
+    preds, _ = predict_history("A", {"F": h2}, {"F": 1.0}, seed=0, n_samples=500)
+    assert preds[2].flagged and preds[2].n_used == 2 and preds[2].rul is None
+    assert preds[3].n_used == 3 and preds[3].rul is not None
