@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--fresh", action="store_true", help="Delete --out first.")
     ap.add_argument("--json", type=Path, default=None, help="Write the figures as JSON.")
     ap.add_argument("--plots", type=Path, default=None, help="Also write the plots here.")
+    ap.add_argument("--base-model", default=None,
+                    help="LF base of the assessment (plain or calibrated; default eha fdi's).")
     ap.add_argument("--limit-error", type=float, default=None,
                     help="Relative std of the assessment's systematic error (default 0.02).")
     args = ap.parse_args(argv)
@@ -66,7 +68,7 @@ def main(argv=None) -> int:
     res = run_rul(fr.manifest, limits, fit=[f.name for f in fleet.faults],
                   results=out / "results", truth=fr.truth, plots=args.plots,
                   json_out=out / "rul.json", workers=args.workers, progress=False,
-                  limit_error=args.limit_error)
+                  limit_error=args.limit_error, base_model=args.base_model)
     t_rul = time.perf_counter() - t1
     f = res.metrics["fleet"]
     truth = json.loads(fr.truth.read_text())
@@ -82,6 +84,7 @@ def main(argv=None) -> int:
         "fleet": fleet.name, "actuators": fr.actuators, "records": fr.records,
         "censored": fr.censored, "laws": laws, "true_drivers": drivers,
         "workers": args.workers, "limit_error": res.output["limit_error"],
+        "base_model": res.output["base_model"],
         "fleet_simulation_s": round(t_fleet, 1), "rul_pipeline_s": round(t_rul, 1),
         "assessed_now": res.assessed, "reused": res.reused,
         "assess_s": round(res.seconds["assess"], 1),

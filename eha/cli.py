@@ -1130,6 +1130,9 @@ def rul(
     workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
     skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
                                       "monitoring model does not explain out of the fits."),
+    base_model: Optional[str] = typer.Option(None, "--base-model", help="LF base of the "
+                                             "assessment: plain or calibrated (default: as "
+                                             "eha fdi --data)."),
     limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
                                                 "of the assessment's systematic error "
                                                 "(default 0.02)."),
@@ -1156,7 +1159,8 @@ def rul(
                       bounds=parse_bounds(bounds), results=results, json_out=json_out,
                       truth=truth, plots=plots, seed=seed, workers=workers,
                       laws=[x.strip() for x in laws.split(",") if x.strip()],
-                      skip_flagged=skip_flagged, progress=progress, limit_error=limit_error)
+                      skip_flagged=skip_flagged, progress=progress, limit_error=limit_error,
+                      base_model=base_model)
     except ManifestError as exc:
         _fail_lines(str(exc))
     except (PrognosticsError, FDIError) as exc:

@@ -102,8 +102,10 @@ def run_id_of(manifest_path: Path) -> str:
 
 
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
-                    method: str = HEALTH_METHOD):
-    """One ``health`` job per manifest record (an :class:`eha.campaign.Campaign`)."""
+                    method: str = HEALTH_METHOD, base_model: str | None = None):
+    """One ``health`` job per manifest record (an :class:`eha.campaign.Campaign`);
+    ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
+    ``eha fdi --data`` uses)."""
     from eha.campaign import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
@@ -114,7 +116,8 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
     fit = {k: [float(v[0]), float(v[1])] for k, v in bounds.items()}
     # the assessment's LF base and interval level, spelled out: a change of eha.fdi's
     # defaults changes the run keys (no stale assessment is reused)
-    base_model = getattr(fdi, "DEFAULT_BASE_MODEL", {}).get("data")
+    if base_model is None:
+        base_model = getattr(fdi, "DEFAULT_BASE_MODEL", {}).get("data")
     base = dict(getattr(fdi, "BASE_MODELS", {}).get(base_model, {}))
     level = float(getattr(fdi, "DEFAULT_LEVEL", 0.9))
     for c in manifest.checks:
@@ -129,7 +132,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
         jobs.append(Job(name, "health", key, spec, cols))
     return Campaign(name, f"health assessment of {manifest.source}", str(manifest.source),
                     {"manifest": str(manifest.source), "fit": fit, "seed": seed,
-                     "method": method}, tuple(jobs))
+                     "method": method, "base_model": base_model}, tuple(jobs))
 
 
 def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
@@ -241,7 +244,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
             truth: str | Path | None = None, plots: str | Path | None = None,
             seed: int = 0, workers: int = 2, laws: Sequence[str] = LAWS,
             skip_flagged: bool = False, progress: bool = True,
-            limit_error: float | None = None) -> RulResult:
+            limit_error: float | None = None, base_model: str | None = None) -> RulResult:
     """Assess, predict, store and (optionally) evaluate and plot one manifest.
 
     Parameters
@@ -271,6 +274,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     limit_error : float, optional
         Relative std of the assessment's systematic error (default
         :data:`eha.prognostics.LIMIT_ERROR`).
+    base_model : str, optional
+        LF base of the assessment (``eha.fdi.BASE_MODELS``, default that of ``eha fdi
+        --data``).
 
     Raises
     ------
@@ -299,11 +305,16 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         chosen = check_bounds(health_bounds(names, limits, bounds))
     except FDIError as exc:
         raise PrognosticsError(str(exc)) from None
+    from eha import fdi as _fdi
+
+    models = getattr(_fdi, "BASE_MODELS", None)
+    if base_model is not None and models is not None and base_model not in models:
+        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(models)}")
     truth_eol = load_truth(truth) if truth is not None else None
     if json_out is not None and Path(json_out).suffix.lower() != ".json":
         raise PrognosticsError(f"--json {json_out}: the file must end in .json")
     results = Path(results)
-    camp = health_campaign(manifest, chosen, seed)
+    camp = health_campaign(manifest, chosen, seed, base_model=base_model)
     summary = run_campaign(camp, results, workers=workers, replace=True, progress=progress)
     t_assess = time.perf_counter() - t0
     rows = read_health_rows(results, camp.name)
@@ -330,7 +341,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     t_predict = time.perf_counter() - t1
     output = {"unit": "cycle", "limits": dict(limits), "fit": names,
               "bounds": {k: list(v) for k, v in chosen.items()}, "laws": list(laws),
-              "seed": seed,
+              "seed": seed, "base_model": camp.definition.get("base_model"),
               "limit_error": PRED_LIMIT_ERROR if limit_error is None else limit_error,
               "run_id": camp.name, "manifest": str(manifest.source),
               "actuators": out_acts}
