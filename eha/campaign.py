@@ -180,6 +180,12 @@ def _model_version() -> str:
 
 
 # --------------------------------------------------------------------------- loading
+def campaigns_dir() -> Path:
+    """The campaign files shipped in the package (``campaigns/`` links to them), so that a
+    non-editable install runs ``eha reproduce`` from any folder."""
+    return Path(__file__).resolve().parent / "campaigns"
+
+
 def load_campaign(path: str | Path) -> Campaign:
     """Read, validate and expand a campaign file.
 

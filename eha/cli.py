@@ -347,7 +347,7 @@ def simulate(
 
     write_trace(trace, out)
     if plot is not None:
-        from eha.report import plot_traces
+        from eha.plots import plot_traces
 
         plot_traces([trace], plot)
     console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
@@ -407,7 +407,7 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
 
     Example: eha reproduce --results results
     """
-    from eha.report import reproduce_thesis
+    from eha.thesis_report import reproduce_thesis
 
     check_out_dir(results, "--results")
     try:
@@ -608,7 +608,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
     Example: eha plot thesis-matrix --results results
     """
-    from eha.report import plot_campaign
+    from eha.plots import plot_campaign
     from eha.store import StoreError
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
@@ -712,7 +712,7 @@ def fdi(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(run.to_dict(), indent=2))
     if plot is not None:
-        from eha.report import plot_traces
+        from eha.plots import plot_traces
 
         plot_traces([run.reference, run.fitted], plot,
                     title=f"Identification ({res.method}): reference vs identified LF")
@@ -773,7 +773,7 @@ def explain(
     from eha.explain import ExplainError
     from eha.fdi import FDIError
     from eha.measured import MeasuredDataError
-    from eha.report import explain_report
+    from eha.explain_io import explain_report
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")
@@ -876,7 +876,7 @@ def report_thesis(results: ResultsOption = RESULTS,
 
     Example: eha report thesis --results results --out results/reports/thesis
     """
-    from eha.report import thesis_report
+    from eha.thesis_report import thesis_report
     from eha.store import StoreError
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")

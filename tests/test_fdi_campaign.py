@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from eha.campaign import CampaignError, load_campaign
-from eha.report import thesis_report
+from eha.thesis_report import thesis_report
 from eha.runner import run_campaign
 from eha.store import StoreError, query
 
