@@ -455,6 +455,14 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
                           "limits too low)"])
     out.mkdir(parents=True, exist_ok=True)
     camp = fleet_campaign(fl, out.resolve(), truth)
+    if (out / "eha.duckdb").exists():
+        # a record deleted since it was written is simulated again
+        from eha.store import ResultStore
+
+        with ResultStore(out) as db:
+            if db.campaign(camp.name) is not None:
+                db.discard_runs(camp.name, {j.run_key for j in camp.jobs
+                                            if Path(j.spec["record"]).is_file()})
     summary = run_campaign(camp, out, workers=workers, replace=True, progress=progress)
     rows = [(aid, c["cycle"], c["record"]) for aid, a in truth["actuators"].items()
             for c in a["checks"]]

@@ -277,6 +277,12 @@ def test_fleet_simulate_then_rul_end_to_end(tmp_path):
     assert res.exit_code == 0, res.output
     m = read_manifest(tmp_path / "fleet" / "manifest.csv")
     assert len(m.checks) == 8
+    before = m.checks[1].record.read_bytes()
+    m.checks[1].record.unlink()                  # a deleted record is simulated again
+    res = runner.invoke(app, ["fleet", "simulate", str(tmp_path / "f.toml"), "--out",
+                              str(tmp_path / "fleet"), "--no-progress"])
+    assert res.exit_code == 0 and "1 simulated now, 7 already there" in res.output
+    assert m.checks[1].record.read_bytes() == before          # same seed, same record
     args = ["rul", str(tmp_path / "fleet" / "manifest.csv"), "--limit", "FDJ=1500",
             "--fit", "FDJ", "--results", str(tmp_path / "res"), "--json",
             str(tmp_path / "rul.json"), "--truth", str(tmp_path / "fleet" / "truth.json"),
