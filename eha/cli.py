@@ -1111,14 +1111,14 @@ def rul(
                                     "(records relative to its folder)."),
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
-    fit: str = typer.Option("BKL,FDJ", "--fit", help="Faults identified and tracked "
-                            "(comma-separated; limited faults are added)."),
+    fit: str = typer.Option(
+        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
+        help="Faults identified and tracked (comma-separated; limited faults are added)."),
     bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
                                      "(default: eha fdi's, widened to twice the limit)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions "
                                             "(and metrics) as JSON."),
-    results: Path = typer.Option(Path("results"), "--results", help="Folder of eha.duckdb "
-                                 "(tables health_checks, rul_predictions)."),
+    results: ResultsOption = RESULTS,
     truth: Optional[Path] = typer.Option(None, "--truth", help="True end of life: truth.json "
                                          "of eha fleet simulate, or CSV actuator,eol; adds the "
                                          "prognostic metrics."),
@@ -1127,7 +1127,7 @@ def rul(
     laws: str = typer.Option("linear,exponential,power", "--laws", help="Degradation laws "
                              "averaged by evidence."),
     seed: int = typer.Option(0, "--seed", help="Seed of the identifications and RUL draws."),
-    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+    workers: WorkersOption = WORKERS,
     skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
                                       "monitoring model does not explain out of the fits."),
     base_model: Optional[str] = typer.Option(None, "--base-model", help="LF base of the "

@@ -37,7 +37,7 @@ import numpy as np
 from eha.effects import COMBINATIONS, EFFECTS, Effect, get as get_effects
 from eha.measured import MeasuredData, noise_level
 from eha.models import O_DXJ, O_P12, O_XU, OUTPUTS
-from eha.params import LF, SPECS, LFParams, ParameterError, resolve
+from eha.params import LF, SPECS, LFParams, ParameterError, parse_name_value, resolve
 from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
                           xj0_for_recorded)
 
@@ -234,27 +234,25 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
 
     Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or :func:`eha.fdi.default_bounds`.
     """
-    from eha.fdi import FDIError, check_bounds, default_bounds
+    from eha.fdi import DEFAULT_FIT, FDIError, check_bounds, default_bounds
 
     if spec is None:
-        spec = "BKL,FDJ"
+        spec = DEFAULT_FIT
     if isinstance(spec, Mapping):
         items = {k: tuple(v) for k, v in spec.items()}
     else:
         parts = [p.strip() for p in (spec.split(",") if isinstance(spec, str) else spec)]
         items = {}
         for part in filter(None, parts):
-            name, sep, rng = part.partition("=")
-            name = name.strip()
+            try:
+                name, rng = parse_name_value(part, "--fit", "[LO:HI]")
+            except ParameterError:
+                raise ExplainError(f"--fit {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
+                                   f"BKL=0:1e-3") from None
             if name in items:
                 raise ExplainError(f"--fit {name}: given twice")
-            if sep:
-                lo, colon, hi = rng.partition(":")
-                try:
-                    items[name] = (float(lo), float(hi))
-                except ValueError:
-                    raise ExplainError(f"--fit {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
-                                       f"BKL=0:1e-3") from None
+            if rng is not None:
+                items[name] = rng
             else:
                 try:
                     items[name] = DEFAULT_FAULT_BOUNDS.get(name) or default_bounds([name])[name]

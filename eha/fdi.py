@@ -33,7 +33,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from eha.commands import Command, as_command
-from eha.params import LF, SPECS, LFParams, ParameterError, check_value, resolve
+from eha.params import (LF, SPECS, LFParams, ParameterError, check_value, parse_name_value,
+                        resolve)
 from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
 
 #: Identification methods (see the module docstring).
@@ -547,19 +548,20 @@ def mean_error_pct(errors: Mapping[str, float]) -> float:
 
 
 def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
-    """Parse ``NAME=LO:HI`` strings (``BKL=0:1.25e-3``) into bounds (validated later)."""
+    """Parse ``NAME=LO:HI`` strings (``BKL=0:1.25e-3``) into bounds (validated later).
+
+    Raises
+    ------
+    FDIError
+        A malformed item, in :func:`eha.params.parse_name_value`'s words.
+    """
     out: dict[str, tuple[float, float]] = {}
     for item in items:
-        name, sep, rng = item.partition("=")
-        lo, sep2, hi = rng.partition(":")
-        name = name.strip()
         try:
-            if not (sep and sep2 and name):
-                raise ValueError
-            out[name] = (float(lo), float(hi))
-        except ValueError:
-            raise FDIError(f"--bounds {item!r}: expected NAME=LO:HI, for example "
-                           "BKL=0:1.25e-3") from None
+            name, rng = parse_name_value(item, "--bounds", "LO:HI")
+        except ParameterError as exc:
+            raise FDIError(str(exc)) from None
+        out[name] = rng
     return out
 
 

@@ -80,10 +80,11 @@ def campaign_runs(results: str | Path, campaign: str):
     """Done simulation runs of a campaign joined with their metrics (pandas DataFrame)."""
     from eha.store import query
 
-    frame = query(results, f"""
+    frame = query(results, """
         SELECT r.*, m.* EXCLUDE (run_key) FROM runs r LEFT JOIN metrics m USING (run_key)
-        WHERE r.campaign = '{campaign.replace("'", "''")}' AND r.kind = 'simulate'
-          AND r.status = 'done' ORDER BY r.command, r.fault_label, r.model, r.seed""")
+        WHERE r.campaign = ? AND r.kind = 'simulate'
+          AND r.status = 'done' ORDER BY r.command, r.fault_label, r.model, r.seed""",
+                  [campaign])
     frame["faults"] = frame["faults"].map(lambda s: json.loads(s) if isinstance(s, str) else {})
     return frame
 

@@ -322,11 +322,10 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
     from eha.fdi_cases import parse_fdi_campaign, rows_from_results
     from eha.store import StoreError, query
 
-    name = campaign.replace("'", "''")
-    frame = query(results, f"""
+    frame = query(results, """
         SELECT f.* FROM fdi_results f JOIN runs r USING (run_key)
-        WHERE r.campaign = '{name}' AND r.status = 'done' ORDER BY f.case_id, f.seed""")
-    definition = query(results, f"SELECT definition FROM campaigns WHERE name = '{name}'")
+        WHERE r.campaign = ? AND r.status = 'done' ORDER BY f.case_id, f.seed""", [campaign])
+    definition = query(results, "SELECT definition FROM campaigns WHERE name = ?", [campaign])
     if frame.empty or definition.empty:
         raise StoreError(f"{Path(results) / 'eha.duckdb'}: no FDI results of campaign "
                          f"{campaign!r}; run `eha campaign run campaigns/{campaign}.toml` "
