@@ -67,7 +67,7 @@ from typing import Any, Callable, Mapping
 from eha.commands import Command, CommandError, make_command
 from eha.params import MODELS, ParameterError, check_value, resolve
 
-#: Columns a trace can store (SPEC §8); see :data:`eha.models.OUTPUTS`.
+#: Columns a trace can store (docs/model.md §8); see :data:`eha.models.OUTPUTS`.
 from eha.models import OUTPUTS  # noqa: E402  (constant tuple; the package imports no kernels)
 
 #: Signals every stored trace must keep (metrics, pairing and plots read them).

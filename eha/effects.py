@@ -1,4 +1,4 @@
-"""Missing-effect library of the residual loop (SPEC §7): physics the LF model may lack.
+"""Missing-effect library of the residual loop (docs/model.md §6): physics the LF model may lack.
 
 Every effect is one registered :class:`Effect`: a stable name (used in reports and JSON), the LF
 parameters it fits with their search bounds, the parameters it merely switches (``orifice_law``),
@@ -28,12 +28,12 @@ from eha.params import SPECS, LFParams, ParameterError, resolve
 
 @dataclass(frozen=True)
 class Effect:
-    """One missing effect of SPEC §7.
+    """One missing effect of the library (docs/model.md §6).
 
     Attributes
     ----------
     name : str
-        Stable name (SPEC §7), e.g. ``"external_load"``.
+        Stable name (docs/model.md §6), e.g. ``"external_load"``.
     description : str
         What it adds to the LF model, in one line.
     bounds : mapping of str to (float, float)
@@ -93,7 +93,7 @@ class Effect:
         return any(getattr(params, n) != v for n, v in self.off.items())
 
 
-#: The registry, in SPEC §7 order: stable name -> :class:`Effect`.
+#: The registry, in the order of docs/model.md §6: stable name -> :class:`Effect`.
 EFFECTS: dict[str, Effect] = {}
 
 
@@ -126,7 +126,8 @@ def get(names: str | Iterable[str]) -> list[Effect]:
     return out
 
 
-# -- the library (SPEC §7). Bounds are search ranges for a real actuator of the thesis' size:
+# -- the library (docs/model.md §6). Bounds are search ranges for a real actuator of the
+# thesis' size:
 #    AJ*PSR = 16 kN maximum jack force, GAP = 1e4 mA/m, 1 kHz position records.
 register(Effect("orifice_law", "HF's nonlinear orifice P12 law (uses PSR, XSS) instead of the "
                 "linear one", switch={"orifice_law": 1.0}))

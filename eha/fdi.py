@@ -1,4 +1,4 @@
-"""Fault detection and identification (thesis chapter 6, SPEC §6).
+"""Fault detection and identification (thesis chapter 6; docs/fdi.md).
 
 Fit chosen LF parameters (by default the faults BKL and FDJ) so that the LF output matches a
 reference trace: an HF run (:func:`hf_reference`) or measured data. Every decision variable is

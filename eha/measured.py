@@ -1,4 +1,4 @@
-"""Measured-data input of the residual loop (SPEC §8): read, validate, resample to 1 kHz.
+"""Measured-data input of the residual loop (docs/model.md §8): read, validate, resample to 1 kHz.
 
 A measured record is a CSV (or TSV/TXT) or Parquet table with at least the columns ``t`` [s],
 ``com`` [m] and ``xu`` [m], optionally ``p12`` [Pa] and ``xs`` [m]; SI units. Column names are

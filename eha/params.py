@@ -1,7 +1,7 @@
 """Parameter sets of the HF (detailed) and LF (monitoring) models: units, nominal values, ranges.
 
 Every parameter is declared once, in :data:`PARAMETERS`, with its unit, nominal value, allowed
-range and the models that use it (SPEC §1; values from the thesis' EHA_Dat.m). The frozen
+range and the models that use it (docs/model.md §1; values from the thesis' EHA_Dat.m). The frozen
 dataclasses :class:`HFParams` and :class:`LFParams` are generated from that table, so the field
 order of each dataclass is also the order of the float64 vector the numba kernels receive
 (:meth:`ModelParams.to_array`), and :data:`HF` / :data:`LF` are ``IntEnum`` indices into it.
@@ -46,7 +46,7 @@ class ParamSpec:
     lf_nominal : float or None
         Nominal value in the LF model when it differs (effects that are off in LF).
     fault : bool
-        One of the ten fault parameters of EHA_Dat.m's check list (SPEC §1).
+        One of the ten fault parameters of EHA_Dat.m's check list (docs/model.md §1).
     """
 
     name: str

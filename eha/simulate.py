@@ -1,4 +1,5 @@
-"""Python API of the models: :func:`simulate` returns a :class:`Trace` at 1 kHz (SPEC §8)."""
+"""Python API of the models: :func:`simulate` returns a :class:`Trace` at 1 kHz
+(docs/model.md §8)."""
 
 from __future__ import annotations
 
@@ -87,7 +88,7 @@ def _grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
 
 
 def measure(t: np.ndarray, xu: np.ndarray, params: ModelParams) -> np.ndarray:
-    """Recorded position: ``gain*XU(t - delay) + bias`` (sensor effects, SPEC §7)."""
+    """Recorded position: ``gain*XU(t - delay) + bias`` (sensor effects, docs/model.md §6)."""
     y = xu
     if params.sensor_delay > 0.0:
         y = np.interp(t - params.sensor_delay, t, xu, left=xu[0])

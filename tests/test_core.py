@@ -23,7 +23,7 @@ from eha.simulate import command_on_grid, grid, simulate
 DT_OVER_M = 1e-5 / 20.0  # nominal jack: DT / MJ
 
 
-# ---------------------------------------------------------------- friction laws (SPEC §3)
+# ---------------------------------------------------------------- friction laws (docs/model.md §3)
 
 @pytest.mark.parametrize("law", [borello_velocity, borello_velocity_first_order])
 def test_borello_sticks_below_static_force(law):

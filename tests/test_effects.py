@@ -1,4 +1,5 @@
-"""Effect library (SPEC §7): registry, switching on/off, every effect changes the LF output."""
+"""Effect library (docs/model.md §6): registry, switching on/off, every effect changes the LF
+output."""
 
 import numpy as np
 import pytest

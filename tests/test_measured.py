@@ -1,4 +1,5 @@
-"""Measured-data input (SPEC §8): aliases, file types, validation messages, 1 kHz resampling."""
+"""Measured-data input (docs/model.md §8): aliases, file types, validation messages, 1 kHz
+resampling."""
 
 import numpy as np
 import pandas as pd
