@@ -722,10 +722,12 @@ def fdi(
 def explain(
     data: Path = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu "
                                 "(SI; aliases in docs/explain.md), optional p12, xs."),
-    fit: str = typer.Option("BKL,FDJ", "--fit", help="Declared faults to fit: NAME or "
-                            "NAME=LO:HI, comma-separated."),
+    fit: str = typer.Option(
+        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
+        help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated."),
     effects: Optional[str] = typer.Option(None, "--effects", help="Candidate effects, "
-                                          "comma-separated SPEC §7 names (default: all 14)."),
+                                          "comma-separated names of docs/model.md's effect "
+                                          "table (default: all 14)."),
     holdout: Optional[float] = typer.Option(None, "--holdout", help="Fraction of the record "
                                             "held out at its end for scoring (default 0.3)."),
     validate: Optional[Path] = typer.Option(None, "--validate", help="Second record used as "
