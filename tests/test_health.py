@@ -218,3 +218,21 @@ def test_fdi_fits_any_fault_with_an_interval(tmp_path):
     assert doc["bounds"]["GM"] == list(SEARCH_BOUNDS["GM"])
     proc = invoke_eha("fdi", "--data", rec, "--fit", "BKL,orifice_law")
     assert "orifice_law: cannot be identified" in error_line(proc, 2)
+
+
+def test_report_pieces_on_canned_assessments(tmp_path):
+    """The summary table and the two figures of `eha report health` from canned rows."""
+    from eha.health_plots import plot_confusion, plot_roc
+    from eha.monitoring import summary_markdown
+
+    rng = np.random.default_rng(3)
+    rows = [_row({"FDJ": 200 + rng.normal(0, 5)}) for _ in range(12)]
+    rows += [_row({"FDJ": 300.0}, grp="FDJ=300") for _ in range(3)]
+    rows += [_row({"FDJ": 205.0}, grp="FDJ=205") for _ in range(3)]
+    perf = performance(rows)
+    text = summary_markdown(perf, 0.01)
+    assert "| FDJ | 100 (P_D 0.00, 1.00; isolated 3/6) |" in text
+    assert "| chirp_1cm | 12 |" in text
+    for png in (plot_roc(perf["chirp_1cm"], "chirp_1cm", tmp_path / "roc.png"),
+                plot_confusion(perf["chirp_1cm"]["confusion"], "chirp_1cm", tmp_path / "c.png")):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
