@@ -25,6 +25,7 @@ also answers `--help`. Exit codes, and what happens with bad input: `docs/reliab
 
 
 def _context(cmd: Any, path: str) -> Any:
+    """A context of ``cmd`` named ``path``, as click builds one to print its help."""
     return cmd.context_class(cmd, info_name=path)
 
 
@@ -56,15 +57,18 @@ def _help_record(param: Any, ctx: Any) -> tuple[str, str]:
 
 
 def _cell(text: str) -> str:
-    """One table cell: a single line, pipes escaped."""
-    return " ".join(text.split()).replace("|", "\\|")
+    """One table cell: a single line, pipes escaped, ``<`` escaped so that a placeholder such
+    as ``<file stem>`` is not taken for an HTML tag."""
+    return " ".join(text.split()).replace("|", "\\|").replace("<", "\\<")
 
 
 def _usage(cmd: Any, path: str) -> str:
+    """The usage line of ``--help``, without the "Usage:" prefix."""
     return f"{path} " + " ".join(cmd.collect_usage_pieces(_context(cmd, path)))
 
 
 def _section(path: str, cmd: Any) -> list[str]:
+    """The lines of one command: heading, help text, subcommands, usage, arguments, options."""
     level = "#" * min(2 + path.count(" "), 4)
     lines = [f"{level} `{path}`", ""]
     help_text = inspect.cleandoc(cmd.help or "")
@@ -82,7 +86,8 @@ def _section(path: str, cmd: Any) -> list[str]:
         params = [p for p in cmd.params if p.param_type_name == kind and not p.hidden]
         if params:
             lines += [f"| {kind} | help |", "|---|---|"]
-            lines += ["| `{}` | {} |".format(*map(_cell, _help_record(p, ctx))) for p in params]
+            lines += [f"| `{names}` | {_cell(text)} |"
+                      for names, text in (_help_record(p, ctx) for p in params)]
             lines.append("")
     return lines
 
