@@ -267,7 +267,7 @@ SCHEMA: dict[str, str] = {
         CREATE TABLE IF NOT EXISTS explain_steps (
             run_id            VARCHAR,
             step              INTEGER,  -- 1, 2, ... in the order the effects were added
-            effect            VARCHAR,  -- SPEC §7 name
+            effect            VARCHAR,  -- effect name (docs/model.md §6)
             params            JSON,     -- estimated effect parameters (SI)
             rmse_before       DOUBLE,   -- m, whole record
             rmse_after        DOUBLE,
