@@ -75,6 +75,10 @@ N_SAMPLES = 4000
 #: robust σ 1.4 % (BKL) and 5.9 % (FDJ); the value trades α-λ accuracy against interval
 #: coverage (docs/prognostics.md: 0 to 0.05 compared on two fleets).
 LIMIT_ERROR = 0.02
+#: Most checks in one fit: longer histories keep their last 10 checks and evenly spaced
+#: earlier ones (the cost of a fit grows with the cube of the checks: 0.1 s at 10 checks,
+#: 0.3 s at 25, 41 s at 120 on our machine).
+MAX_FIT_CHECKS = 30
 #: Quantiles reported: 5 %, median, 95 %.
 QUANTILES = (0.05, 0.5, 0.95)
 
@@ -348,35 +352,56 @@ def fit_degradation(t: Sequence[float], y: Sequence[float], sigma: Sequence[floa
     # process noise: w_i = b·σ_p·Σ_{m<=i} Δφ_m ε_m, Cov(w_i, w_j) = (b̂σ_p)²·S_min(i,j)
     dphi = np.diff(phi, axis=1, prepend=0.0)
     S = np.cumsum(dphi * dphi, axis=1)                       # (M, n)
-    D = np.minimum(S[:, :, None], S[:, None, :])             # S_min(i,j)
     span = np.maximum(1.0 - phi[:, 0], 1e-9)
     bhat = np.maximum(np.abs(y[-1] - y[0]) / span, 1e-3 * scale)
     Kscale = (bhat * proc) ** 2                              # (M,)
-    Sig = Kscale[:, None, None] * D
-    Sig[:, np.arange(n), np.arange(n)] += var
-    C = Sig + s0 * (X @ X.transpose(0, 2, 1))                # + X S0 X^T, S0 = s0 I
-    Lc = np.linalg.cholesky(C)
-    resid = (y - m0[0])[None, :, None] - X[:, :, 1:] * m0[1]
-    r = np.linalg.solve(Lc, resid)[..., 0]
-    logev = (-0.5 * np.sum(r * r, axis=1) - np.log(np.diagonal(Lc, axis1=1, axis2=2)).sum(1)
-             - 0.5 * n * math.log(2 * math.pi))
+    diag = np.arange(n)
+    # (M, n, n) arrays in chunks of at most ~4 million numbers (long histories)
+    chunk = max(1, int(4_000_000 // (n * n)))
+
+    def sigma_of(sl):
+        Dc = np.minimum(S[sl, :, None], S[sl, None, :])      # S_min(i,j)
+        Sc = Kscale[sl, None, None] * Dc
+        Sc[:, diag, diag] += var[sl]
+        return Sc, Dc
+
+    logev = np.empty(M)
+    for i0 in range(0, M, chunk):
+        sl = slice(i0, min(M, i0 + chunk))
+        Sc, _ = sigma_of(sl)
+        C = Sc + s0 * (X[sl] @ X[sl].transpose(0, 2, 1))     # + X S0 X^T, S0 = s0 I
+        Lc = np.linalg.cholesky(C)
+        resid = (y - m0[0])[None, :, None] - X[sl, :, 1:] * m0[1]
+        r = np.linalg.solve(Lc, resid)[..., 0]
+        logev[sl] = (-0.5 * np.sum(r * r, axis=1)
+                     - np.log(np.diagonal(Lc, axis1=1, axis2=2)).sum(1)
+                     - 0.5 * n * math.log(2 * math.pi))
     logw = logev + np.array(logprior)
     w = np.exp(logw - logw.max())
     w /= w.sum()
     keep = np.flatnonzero(w > 1e-6 * w.max())
-    Sk = Sig[keep]
-    Xk = X[keep]
-    SinvX = np.linalg.solve(Sk, Xk)                          # (K, n, 2)
-    P = np.linalg.inv(S0)[None] + Xk.transpose(0, 2, 1) @ SinvX
-    cov = np.linalg.inv(P)
-    rhs = (np.linalg.solve(S0, m0)[None, :, None]
-           + SinvX.transpose(0, 2, 1) @ y[None, :, None])
-    mean = (cov @ rhs)[..., 0]
-    Kk = Kscale[keep][:, None] * D[keep][:, :, -1]           # Cov(w, w_k), (K, n)
-    g = np.linalg.solve(Sk, Kk[:, :, None])[..., 0]          # Σ⁻¹ K_k
-    w0 = g @ y
-    wX = np.einsum("kn,knj->kj", g, Xk)
-    wvar = Kk[:, -1] - np.sum(Kk * g, axis=1)
+    K = keep.size
+    mean = np.empty((K, 2))
+    cov = np.empty((K, 2, 2))
+    w0 = np.empty(K)
+    wX = np.empty((K, 2))
+    wvar = np.empty(K)
+    for j0 in range(0, K, chunk):
+        idx = keep[j0:j0 + chunk]
+        js = slice(j0, j0 + idx.size)
+        Sk, Dk = sigma_of(idx)
+        Xk = X[idx]
+        SinvX = np.linalg.solve(Sk, Xk)                      # (k, n, 2)
+        P = np.linalg.inv(S0)[None] + Xk.transpose(0, 2, 1) @ SinvX
+        cov[js] = np.linalg.inv(P)
+        rhs = (np.linalg.solve(S0, m0)[None, :, None]
+               + SinvX.transpose(0, 2, 1) @ y[None, :, None])
+        mean[js] = (cov[js] @ rhs)[..., 0]
+        Kk = Kscale[idx][:, None] * Dk[:, :, -1]             # Cov(w, w_k), (k, n)
+        g = np.linalg.solve(Sk, Kk[:, :, None])[..., 0]      # Σ⁻¹ K_k
+        w0[js] = g @ y
+        wX[js] = np.einsum("kn,knj->kj", g, Xk)
+        wvar[js] = Kk[:, -1] - np.sum(Kk * g, axis=1)
     wk = w[keep] / w[keep].sum()
     comps = tuple(Component(labels[i][0], labels[i][1], labels[i][2] * scale, float(wk[j]),
                             mean[j], 0.5 * (cov[j] + cov[j].T), proc=labels[i][3],
@@ -446,6 +471,16 @@ class Prediction:
 
 def _finite_or_none(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
+
+
+def thin(n: int, most: int | None = None, recent: int = 10) -> np.ndarray:
+    """Indices of at most ``most`` (:data:`MAX_FIT_CHECKS`) of ``n`` checks: the last
+    ``recent`` and evenly spaced earlier ones, the first included."""
+    most = MAX_FIT_CHECKS if most is None else most
+    if n <= most:
+        return np.arange(n)
+    early = np.unique(np.round(np.linspace(0, n - recent - 1, most - recent)).astype(int))
+    return np.concatenate([early, np.arange(n - recent, n)])
 
 
 def check_seed(seed: int, actuator: str, index: int) -> int:
@@ -525,6 +560,9 @@ def predict_history(actuator: str, histories: Mapping[str, FaultHistory],
                 h = histories[name]
                 sel = h.used[:k + 1]
                 tt, yy, ss = h.cycles[:k + 1][sel], h.values[:k + 1][sel], h.sigma[:k + 1][sel]
+                if tt.size > MAX_FIT_CHECKS:
+                    pick = thin(tt.size)
+                    tt, yy, ss = tt[pick], yy[pick], ss[pick]
                 lim = limits.get(name)
                 fit = fit_degradation(tt, yy, ss, fault_scale(yy, lim), laws)
                 fits[name] = fit

@@ -345,3 +345,12 @@ def test_flagged_checks_are_used_unless_skipped_and_failed_ones_dropped():
     preds, _ = predict_history("A", {"F": h2}, {"F": 1.0}, seed=0, n_samples=500)
     assert preds[2].flagged and preds[2].n_used == 2 and preds[2].rul is None
     assert preds[3].n_used == 3 and preds[3].rul is not None
+
+
+def test_long_histories_are_thinned_to_the_last_checks_and_spaced_earlier_ones():
+    from eha.prognostics import MAX_FIT_CHECKS, thin
+
+    assert list(thin(12)) == list(range(12))
+    idx = thin(45)
+    assert len(idx) <= MAX_FIT_CHECKS and idx[0] == 0 and list(idx[-10:]) == list(range(35, 45))
+    assert np.all(np.diff(idx) > 0)
