@@ -111,13 +111,19 @@ def test_identify_reports_intervals_that_cover_an_lf_truth():
     df = synthetic_record("chirp_1cm", {"BKL": 3e-4, "FDJ": 900.0}, t_end=0.6, noise=1e-6,
                           seed=3, model="lf")
     rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy())
+    # the record is the LF model itself: no model-form term (the plain LF's measured floors
+    # are for HF or measured records, below)
     res = identify(rec.xu, rec.command, {"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)},
-                   seed=0, noise=rec.info["noise_m"])
+                   seed=0, noise=rec.info["noise_m"], model_form="none")
     assert res.level == 0.9 and not res.flagged
     for name, true in (("BKL", 3e-4), ("FDJ", 900.0)):
         lo, hi = res.intervals[name]
         assert lo <= true <= hi, (name, lo, hi)
     assert (res.intervals["FDJ"][1] - res.intervals["FDJ"][0]) / 900.0 < 0.05
+    floors = identify(rec.xu, rec.command, {"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)},
+                      seed=0, noise=rec.info["noise_m"])          # plain LF: its floors
+    assert floors.model_form == "plain" and floors.std["FDJ"] > 3 * res.std["FDJ"]
+    assert floors.intervals["FDJ"][0] <= 900.0 <= floors.intervals["FDJ"][1]
     d = res.to_dict()
     assert d["level"] == 0.9 and set(d["intervals"]) == {"BKL", "FDJ"}
     assert isinstance(d["intervals"]["FDJ"], list)
