@@ -138,8 +138,11 @@ def test_sigterm_saves_says_one_line_and_exits_143(tmp_path):
 def test_sigterm_of_any_command_is_one_line_and_143(tmp_path):
     """SIGTERM during an identification: exit 143, one line, no half-written output."""
     out = tmp_path / "fdi.json"
+    # the thesis' GA with a large population: up to 20000 LF runs of 2 s, tens of seconds
+    # even on a quiet machine, so the signal always arrives mid-identification
     proc = subprocess.Popen([sys.executable, "-m", "eha", "fdi", "--command", "mixed",
-                             "--t-end", "1.0", "--pop", "60", "--json", str(out)],
+                             "--t-end", "2.0", "--method", "ga", "--pop", "200",
+                             "--json", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(6)   # imported and identifying
     assert proc.poll() is None, proc.communicate()
@@ -154,6 +157,9 @@ def test_sigterm_of_any_command_is_one_line_and_143(tmp_path):
 # =========================================================================== class 1
 CTRL_C_IN_COMMIT = textwrap.dedent('''
     import os, signal
+    # a test run started in the background (nohup, `&` in a script) inherits SIGINT ignored,
+    # and Python then installs no KeyboardInterrupt handler: restore it
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     from eha import runner, store
     from eha.cli import app
 
