@@ -114,6 +114,7 @@ def test_evidence_prefers_the_true_law_on_clean_data(law):
     assert sum(fit.law_weights.values()) == pytest.approx(1.0)
 
 
+@pytest.mark.slow   # 28 s of draws on a quiet machine: the fast loop stays under a minute
 def test_rul_is_accurate_and_calibrated_on_noisy_histories():
     """12 seeded histories (4 per law), 1 % noise: over λ in [0.5, 0.95] the median RUL is
     within ±20 % of the truth in >= 75 % of checks and the 90 % interval covers it in 75-100 %
