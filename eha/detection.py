@@ -288,7 +288,9 @@ def load_calibration(path: str | Path) -> Calibration:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DetectionError(f"--calibration {path}: not a calibration file "
                              f"({type(exc).__name__})") from None
-    if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
+    required = {"format", "model_version", "command", "command_sig", "t_end", "thresholds"}
+    if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT or \
+            not required <= set(data):
         raise DetectionError(f"--calibration {path}: not a calibration file of format "
                              f"{CALIBRATION_FORMAT} (make one with eha health calibrate)")
     if data.get("model_version") != MODEL_VERSION:

@@ -70,7 +70,9 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
         camp = build_campaign({"name": name, "kind": "health", "health": section,
                                "description": f"healthy fleet of {actuators} for thresholds"})
     except CampaignError as exc:
-        raise DetectionError(str(exc).splitlines()[0].replace("health.", "--")) from None
+        first = str(exc).splitlines()[0]
+        raise DetectionError(first.replace("health.commands: command: ", "--command: ")
+                             .replace("health.", "--")) from None
     summary = run_campaign(camp, results, workers=workers, progress=progress)
     rows = _assessments(results, name)
     if summary.failed or len(rows) < actuators:

@@ -114,6 +114,12 @@ def test_calibration_file_checks(tmp_path):
         load_calibration(tmp_path / "bad.json")
     with pytest.raises(DetectionError, match="no such file"):
         load_calibration(tmp_path / "none.json")
+    (tmp_path / "part.json").write_text('{"format": 1}')       # the right format, no content
+    with pytest.raises(DetectionError, match="not a calibration file of format 1"):
+        load_calibration(tmp_path / "part.json")
+    proc = invoke_eha("health", "calibrate", "--command", "square", "--results",
+                      tmp_path / "res")
+    assert error_line(proc, 2).startswith("error: --command: unknown command 'square'")
 
 
 def _record(path, command="chirp_1cm", faults=None, t_end=0.3, seed=5):
