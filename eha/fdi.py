@@ -134,6 +134,8 @@ class FitResult:
         Standard uncertainty of each estimate (noise, residual and model-form terms).
     hac_std : dict
         Its residual (HAC) part alone, before floors and widening (diagnostics, calibration).
+    lag : int or None
+        The residual's HAC bandwidth [samples], twice its integrated autocorrelation time.
     flagged : bool
         The residual stays well above the record's noise: the model does not explain the
         record, the intervals are wide and the numbers are not to be trusted.
@@ -160,6 +162,7 @@ class FitResult:
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     std: dict[str, float] = field(default_factory=dict)
     hac_std: dict[str, float] = field(default_factory=dict)
+    lag: int | None = None
     flagged: bool = False
     noise_rmse: float | None = None
     model_form: str = "none"
@@ -484,7 +487,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         iv = estimate_intervals(reference, obj.simulate, x, names, obj.lo, obj.span,
                                 level=level, noise=noise, model_form=form)
         extra = {"level": iv.level, "intervals": iv.bounds, "std": iv.std,
-                 "hac_std": iv.hac_std,
+                 "hac_std": iv.hac_std, "lag": iv.lag,
                  "flagged": iv.flagged, "noise_rmse": iv.noise_rmse, "model_form": form,
                  "notes": iv.notes}
     seconds = time.perf_counter() - start

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from eha.commands import Command, as_command
+from eha.commands import Command
 from eha.fdi import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult, identify
 from eha.params import LFParams, resolve
 
@@ -234,6 +234,13 @@ def _information_bic(rmse: float, k: int, n_eff: float) -> float:
     return n_eff * math.log(max(rmse, 1e-300) ** 2) + k * math.log(n_eff)
 
 
+def _lf_base(base: LFParams | Mapping[str, float] | None) -> LFParams:
+    """The LF model of an assessment: given, or the calibrated LF with overrides."""
+    if base is None or isinstance(base, Mapping):
+        return resolve("lf", {**CALIBRATED_LF, **dict(base or {})})
+    return base
+
+
 def assess(reference_xu: np.ndarray, command: Command | str,
            base: LFParams | Mapping[str, float] | None = None,
            faults: Sequence[str] = EXTRA_FAULTS, level: float = DEFAULT_LEVEL,
@@ -264,8 +271,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     if unknown:
         raise HealthError(f"faults: {unknown[0]!r} has no hypothesis; allowed "
                           f"{', '.join(EXTRA_FAULTS)}")
-    if base is None or isinstance(base, Mapping):
-        base = resolve("lf", {**CALIBRATED_LF, **dict(base or {})})
+    base = _lf_base(base)
     start = time.perf_counter()
     from eha.measured import noise_level
 
@@ -285,7 +291,9 @@ def assess(reference_xu: np.ndarray, command: Command | str,
         fits.append((f, identify(xu, command, {**core, f: FAULTS[f].bounds}, base=start_point,
                                  **HYPOTHESIS_SEARCH, **common)))
     best_fit = min(fits, key=lambda p: p[1].objective)[1]
-    n_eff = _effective_samples(xu, command, base, best_fit, t_end, recorded_start)
+    # n / tau, tau the integrated autocorrelation time of the best residual (half the HAC
+    # bandwidth its intervals used)
+    n_eff = max(2.0, xu.size / max(1.0, best_fit.lag / 2.0))
     bics = [_information_bic(r.objective, len(r.names), n_eff) for _, r in fits]
     low = min(bics)
     raw = [math.exp(-0.5 * (b - low)) for b in bics]
@@ -315,20 +323,6 @@ def assess(reference_xu: np.ndarray, command: Command | str,
                       notes=tuple(notes))
 
 
-def _effective_samples(xu, command, base, fit: FitResult, t_end, recorded_start) -> float:
-    """``n / τ`` of the residual of ``fit`` (τ: integrated autocorrelation time)."""
-    from eha.intervals import bandwidth
-    from eha.simulate import command_on_grid, grid, simulate_lf_batch
-
-    params = base.replace(**fit.estimates)
-    t_end = t_end if t_end is not None else (xu.size - 1) * 1e-3
-    steps, n_out, t_steps = grid(params, t_end)
-    y = simulate_lf_batch(params.to_array()[None, :], command_on_grid(as_command(command),
-                          t_steps), steps, n_out, params, recorded_start)[0]
-    tau = max(1.0, bandwidth(xu - y) / 2.0)
-    return max(2.0, xu.size / tau)
-
-
 def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
                   faults: Sequence[str] = EXTRA_FAULTS, level: float = DEFAULT_LEVEL,
                   seed: int = 0, pop: int = 20,
@@ -340,9 +334,7 @@ def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
     """
     from eha.explain import _initial_position, _recorded_start
 
-    if base is None or isinstance(base, Mapping):
-        base = resolve("lf", {**CALIBRATED_LF, **dict(base or {})})
-    base = _initial_position(data, base)
+    base = _initial_position(data, _lf_base(base))
     return assess(data.xu, data.command, base=base, faults=faults, level=level, seed=seed,
                   noise=data.info.get("noise_m"), t_end=data.t_end,
                   recorded_start=_recorded_start(data), pop=pop, on_progress=on_progress)
