@@ -178,6 +178,20 @@ ResultsOption = Annotated[Path, typer.Option(
 WORKERS = 2
 WorkersOption = Annotated[int, typer.Option("--workers", min=1,
                                             help="Local worker processes.")]
+#: How a measured record's command is rebuilt between its samples (eha.measured).
+COMMAND_HOLD = "auto"
+CommandHoldOption = Annotated[str, typer.Option(
+    "--command-hold", help="How the record's command is rebuilt between its samples: zoh "
+    "(held, as a digital controller's output), linear (interpolated) or auto (zoh when the "
+    "command is flat between jumps, else linear).")]
+
+
+def check_command_hold(value: str) -> None:
+    """One line and exit 2 for a --command-hold outside eha.measured.COMMAND_HOLDS."""
+    from eha.measured import COMMAND_HOLDS
+
+    if value not in COMMAND_HOLDS:
+        fail(f"--command-hold {value!r}: allowed: {', '.join(COMMAND_HOLDS)}")
 
 
 def library_default(module: str, name: str,
@@ -659,6 +673,7 @@ def fdi(
     base_model: Optional[str] = typer.Option(
         None, "--base-model", help="LF model: plain (the thesis') or calibrated (by eha "
         "explain). Default: plain against an HF reference, calibrated on --data."),
+    command_hold: CommandHoldOption = COMMAND_HOLD,
 ):
     """Identify LF fault parameters, each with an interval, from an HF reference or a
     measured record.
@@ -673,6 +688,9 @@ def fdi(
 
     check_names(fit, "--fit")
     check_seed(seed)
+    check_command_hold(command_hold)
+    if data is None and command_hold != COMMAND_HOLD:
+        fail("--command-hold: only with --data (an HF reference is driven by its preset)")
     check_out_file(json_out, "--json", (".json",))
     check_out_file(plot, "--plot", PLOT_SUFFIXES)
     try:
@@ -686,7 +704,7 @@ def fdi(
                                   bounds=parse_bounds(bounds), base=parse_assignments(base),
                                   method=method, pop=pop, seed=seed, objective=objective,
                                   t_end=t_end, on_generation=progress, level=level,
-                                  base_model=base_model)
+                                  base_model=base_model, command_hold=command_hold)
     except (FDIError, MeasuredDataError, *_input_errors()) as exc:
         fail(str(exc))
     res = run.result
@@ -699,7 +717,8 @@ def fdi(
                       f"{run.truth[name]:.6g}" if run.truth else "-",
                       f"{res.estimates[name]:.6g}", f"[{ilo:.5g}, {ihi:.5g}]",
                       f"{run.errors_pct[name]:+.3f}" if run.errors_pct else "-")
-    console.print(f"reference: {run.source}; LF model: {run.base_model}")
+    hold = f"; command {run.command_hold}" if run.command_hold else ""
+    console.print(f"reference: {run.source}; LF model: {run.base_model}{hold}")
     console.print(table)
     for note in res.notes:
         err_console.print(f"warning: {escape(note)}", highlight=False)
@@ -763,6 +782,7 @@ def explain(
                                        "eha.explain", "DEFAULTS", lambda d: d["min_gain"]),
         help="Smallest penalised held-out RMSE reduction that adds "
                                         "an effect."),
+    command_hold: CommandHoldOption = COMMAND_HOLD,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
     """Trace a measured record's residual to missing LF effects, add them, report the error.
@@ -792,6 +812,7 @@ def explain(
     check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
     check_names(fit, "--fit")
     check_seed(seed)
+    check_command_hold(command_hold)
     if candidates < 0:
         fail(f"--candidates {candidates}: allowed range [0, ...] (0 = all)")
     if max_steps < 0:
@@ -814,7 +835,7 @@ def explain(
         try:
             run = explain_report(data, fit=fit, effects=effects, holdout=holdout,
                                  validate=validate, prior=prior, json_path=json_out, out=out,
-                                 known=known_values,
+                                 known=known_values, command_hold=command_hold,
                                  results=results, on_progress=step, method=method, pop=pop,
                                  seed=seed, candidates=candidates, max_steps=max_steps,
                                  min_gain=min_gain)

@@ -46,7 +46,7 @@ KINDS: dict[str, CommandKind] = {
                     "EHA_Dat.m mixed command: ramp 0.03 m/s to 0.3 s, then two sine arcs"),
         CommandKind("test", {"scale": (1.0, "-", -100.0, 100.0)},
                     "EHA_Dat.m prognostic test sequence: steps, ramp, sine"),
-        CommandKind("array", {}, "user samples (t, value), linearly interpolated onto the grid"),
+        CommandKind("array", {}, "user samples (t, value), interpolated or held onto the grid"),
     )
 }
 
@@ -80,12 +80,17 @@ class Command:
         Label for reports (preset name or kind).
     samples : tuple of (t, value) arrays, optional
         Only for ``kind="array"``: times [s] (strictly increasing) and positions [m].
+    hold : {"linear", "zoh"}
+        Only for ``kind="array"``: how the samples are rebuilt between sample instants:
+        ``"linear"`` interpolation, or ``"zoh"`` (zero-order hold: each sample holds until the
+        next, as a digital controller's output; a step changes *at* a sample instant).
     """
 
     kind: str
     params: dict[str, float] = field(default_factory=dict)
     name: str = ""
     samples: tuple[np.ndarray, np.ndarray] | None = None
+    hold: str = "linear"
 
     def sample(self, t: np.ndarray, uniform: bool = False) -> np.ndarray:
         """Command value [m] at times ``t`` [s].
@@ -114,6 +119,12 @@ class Command:
             return p["scale"] * _test(t, sin)
         if self.kind == "array":
             ts, xs = self.samples
+            if self.hold == "zoh":
+                # the sample at t_k holds on [t_k, t_k+1); a grid time within a millionth of a
+                # sample period of t_k counts as t_k (k*DT and k*1e-3 differ by rounding)
+                eps = 1e-6 * float(np.min(np.diff(ts)))
+                idx = np.searchsorted(ts, t + eps, side="right") - 1
+                return xs[np.clip(idx, 0, xs.size - 1)]
             return np.interp(t, ts, xs)
         raise CommandError(f"command: unknown kind {self.kind!r}")  # pragma: no cover
 
@@ -233,8 +244,19 @@ def make_command(name: str, **overrides: float) -> Command:
     return Command(kind, merged, name)
 
 
-def array_command(t: np.ndarray, values: np.ndarray, name: str = "array") -> Command:
-    """A command from samples (e.g. a measured-data file); checked finite and increasing."""
+#: How an array command is rebuilt between its samples (see :class:`Command`).
+HOLDS = ("linear", "zoh")
+
+
+def array_command(t: np.ndarray, values: np.ndarray, name: str = "array",
+                  hold: str = "linear") -> Command:
+    """A command from samples (e.g. a measured-data file); checked finite and increasing.
+
+    ``hold`` is ``"linear"`` (interpolated between samples) or ``"zoh"`` (each sample held
+    until the next one).
+    """
+    if hold not in HOLDS:
+        raise CommandError(f"array command: hold {hold!r}; allowed: {', '.join(HOLDS)}")
     t = np.asarray(t, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     if t.ndim != 1 or t.shape != values.shape or t.size < 2:
@@ -243,7 +265,7 @@ def array_command(t: np.ndarray, values: np.ndarray, name: str = "array") -> Com
         raise CommandError("array command: t and values must be finite (no NaN/inf)")
     if np.any(np.diff(t) <= 0):
         raise CommandError("array command: t must be strictly increasing")
-    return Command("array", {}, name, (t, values))
+    return Command("array", {}, name, (t, values), hold)
 
 
 def as_command(command: "Command | str") -> Command:

@@ -29,15 +29,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from eha.fdi import DEFAULT_METHOD
 from eha.effects import COMBINATIONS, EFFECTS, Effect, get as get_effects
+from eha.intervals import effective_samples
 from eha.measured import MeasuredData, noise_level
-from eha.models import O_DXJ, O_P12, O_XU, OUTPUTS
-from eha.params import LF, SPECS, LFParams, ParameterError, parse_name_value, resolve
+from eha.params import LFParams, ParameterError, parse_name_value, resolve
 from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
                           xj0_for_recorded)
 
@@ -45,10 +46,6 @@ from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_l
 #: cases, for records of unknown actuators).
 DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
                                                         "FDJ": (0.0, 8000.0)}
-#: Defaults of the loop (see :func:`explain`).
-DEFAULTS: dict[str, float] = {"holdout": 0.3, "min_gain": 0.1, "penalty": 0.02,
-                              "max_steps": 4, "candidates": 6, "noise_factor": 1.25,
-                              "joint": False}
 #: Refits of at least this many free parameters (faults + effects) run MULTISTART GA searches
 #: (seeds ``seed``, ``seed + 1000``, ...) and keep the best fit.
 MULTISTART_PARAMS = 5
@@ -82,6 +79,8 @@ class Evaluation:
     rmse_fit: float                 # on the fitted part [m]
     rmse_hold: float                # on the held-out part or the validation record [m]
     rmse_all: float                 # whole record [m]
+    #: effective independent samples of the residual (fitted + held-out parts)
+    n_eff: float = math.nan
 
     @property
     def rmse_score(self) -> float:
@@ -107,6 +106,9 @@ class Candidate:
     rmse_all: float = math.nan
     gain: float = math.nan          # relative reduction of Evaluation.rmse_score
     score: float = math.nan         # gain - penalty * added parameters
+    #: significance of the gain (:func:`significance`) on ``n_eff`` effective samples
+    p_value: float = math.nan
+    n_eff: float = math.nan
     seconds: float = 0.0
 
 
@@ -357,12 +359,503 @@ def _initial_position(data: MeasuredData, base: LFParams) -> LFParams:
 # the loop
 
 
+@dataclass(frozen=True)
+class LoopSettings:
+    """Settings of the residual loop (one frozen record, kept in the result).
+
+    Attributes
+    ----------
+    holdout : float
+        Fraction of the record (at its end) held out for scoring, in [0, 0.8]. 0 scores on the
+        fitted data (then only the penalty and the significance test guard against
+        over-fitting).
+    min_gain : float
+        Smallest penalised relative reduction of the scored RMSE (fitted and held-out parts
+        weighted equally) that adds an effect, in [0, 1].
+    penalty : float
+        Relative gain charged per added parameter.
+    alpha : float
+        Significance level of the test an added effect must also pass
+        (:func:`significance`): the chance that a candidate with no real effect behind it is
+        added, given the record's noise and the correlation of its residual, in (0, 1).
+    max_steps : int
+        Most effects added.
+    candidates : int
+        Effects refitted per round, the best-ranked by their signature (0 = all).
+    noise_factor : float
+        Stop when the scored RMSE is below ``noise_factor`` times the noise level.
+    joint : bool
+        Refit the parameters of the effects already added in every later round (False: they
+        stay at the estimates of the round that added them; the faults are always refitted).
+    method, pop, seed
+        Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
+    """
+
+    holdout: float = 0.3
+    min_gain: float = 0.1
+    penalty: float = 0.02
+    alpha: float = 0.01
+    max_steps: int = 4
+    candidates: int = 6
+    noise_factor: float = 1.25
+    joint: bool = False
+    method: str = DEFAULT_METHOD
+    pop: int = 20
+    seed: int = 0
+
+    def __post_init__(self):
+        problems = []
+        if not 0.0 <= self.holdout <= 0.8:
+            problems.append(f"--holdout {self.holdout:g}: allowed range [0, 0.8]")
+        if not 0.0 <= self.min_gain <= 1.0:
+            problems.append(f"--min-gain {self.min_gain:g}: allowed range [0, 1]")
+        if not 0.0 <= self.penalty <= 1.0:
+            problems.append(f"penalty {self.penalty:g}: allowed range [0, 1]")
+        if not 0.0 < self.alpha < 1.0:
+            problems.append(f"--alpha {self.alpha:g}: allowed range (0, 1)")
+        if self.max_steps < 0:
+            problems.append(f"--max-steps {self.max_steps}: allowed range [0, ...]")
+        if self.candidates < 0:
+            problems.append(f"--candidates {self.candidates}: allowed range [0, ...] (0 = all)")
+        if not self.noise_factor >= 0.0:
+            problems.append(f"noise_factor {self.noise_factor:g}: allowed range [0, ...]")
+        if self.pop < 2:
+            problems.append(f"--pop {self.pop}: allowed range [2, ...]")
+        if problems:
+            raise ExplainError("; ".join(problems))
+
+
+#: Defaults of the loop (see :class:`LoopSettings`), for the CLI.
+DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(LoopSettings)}
+
+
+def significance(before: float, after: float, added: int, n_eff: float) -> float:
+    """p-value of the RMSE reduction an added effect brings (an F test on effective samples).
+
+    The residual of a model that lacks structure is correlated over many samples, so a record of
+    n samples carries only ``n_eff`` independent ones (:func:`eha.intervals.effective_samples`):
+    a gain that would be overwhelming on white noise is often chance on a correlated residual.
+    ``F = ((before**2 - after**2) / added) / (after**2 / (n_eff - added))``.
+
+    Parameters
+    ----------
+    before, after : float
+        Scored RMSE before and after adding the effect [m].
+    added : int
+        Parameters the effect adds (a pure switch counts as 1).
+    n_eff : float
+        Effective independent samples of the residual.
+    """
+    from scipy.stats import f as f_dist
+
+    added = max(int(added), 1)
+    dof = n_eff - added
+    if not (math.isfinite(before) and math.isfinite(after)) or dof <= 1 or after <= 0:
+        return 0.0 if after <= 0 < before else 1.0
+    if after >= before:
+        return 1.0
+    stat = ((before ** 2 - after ** 2) / added) / (after ** 2 / dof)
+    return float(f_dist.sf(stat, added, dof))
+
+
+@dataclass
+class Choice:
+    """What :func:`choose` decided in one round."""
+
+    best: Candidate | None
+    #: the candidate names the choice set aside (combinations replaced by their kept members)
+    superseded: set[str] = field(default_factory=set)
+    #: effect objects of the chosen candidate, in report order
+    members: list[str] = field(default_factory=list)
+    stop: str = ""
+    alternatives: dict[str, float] = field(default_factory=dict)
+
+
+def choose(tried: list[Candidate], settings: LoopSettings,
+           split: Callable[[Candidate], list[str]],
+           refit_members: Callable[[Candidate, list[str]], Candidate | None]) -> Choice:
+    """Pick the effect (or combination) to add from the refitted candidates of a round.
+
+    The best-scoring candidate wins when its penalised gain reaches ``settings.min_gain`` and
+    its gain is significant (``p_value < settings.alpha``). A winning combination whose members
+    do not all pay for themselves (``split`` returns the names kept) is replaced by the kept
+    members as a candidate of its own (``refit_members``: the candidate refitted with only
+    those, or None when it switches an effect off), and the choice is made again.
+
+    Pure choice logic: ``split`` and ``refit_members`` hold every model evaluation, so the
+    logic is unit-tested on canned candidates.
+
+    Returns
+    -------
+    Choice
+        ``best`` None with ``stop`` set when nothing is added.
+    """
+    tried = [c for c in tried if c.refit and c.score > -math.inf]
+    if not tried:
+        return Choice(None, stop="no candidate improved the model (every refit switched its "
+                                 "effect off)")
+    superseded: set[str] = set()
+    known = {c.effect: c for c in tried}
+    while True:
+        pool = [c for c in tried if c.effect not in superseded]
+        best = max(pool, key=lambda c: c.score, default=None)
+        if best is None:
+            return Choice(None, superseded, stop="no candidate improved the model (every "
+                          "refit switched its effect off)")
+        names = best.effect.split("+")
+        if best.score < settings.min_gain:
+            return Choice(None, superseded, stop=(
+                f"no significant effect left: best candidate {best.effect} reduces the RMSE "
+                f"by {best.gain:.1%} (penalised {best.score:.1%} < {settings.min_gain:.0%})"))
+        if best.p_value >= settings.alpha:
+            # a chance gain on this record's correlated residual: try the next one
+            superseded.add(best.effect)
+            if all(c.effect in superseded or c.score < settings.min_gain
+                   or c.p_value >= settings.alpha for c in tried):
+                return Choice(None, superseded, stop=(
+                    f"no significant effect left: best candidate {best.effect} reduces the "
+                    f"RMSE by {best.gain:.1%}, not significant on this record (p = "
+                    f"{best.p_value:.2g} >= alpha {settings.alpha:g}, {best.n_eff:.0f} "
+                    f"effective samples)"))
+            continue
+        if len(names) == 1:
+            break
+        kept = split(best)
+        if len(kept) == len(names):
+            names = kept
+            break
+        superseded.add(best.effect)
+        name = "+".join(kept)
+        cand = known.get(name)
+        if cand is None:
+            cand = refit_members(best, kept)
+            if cand is not None:
+                known[name] = cand
+        if cand is not None and cand.refit and cand.score > -math.inf and cand not in tried:
+            tried.append(cand)
+    alternatives = {c.effect: c.score for c in tried if c is not best
+                    and c.effect not in superseded and c.score >= settings.min_gain
+                    and c.p_value < settings.alpha
+                    and best.score - c.score <= ALTERNATIVE_MARGIN}
+    return Choice(best, superseded, names, "", alternatives)
+
+
+class ResidualLoop:
+    """The residual loop on one record; each step of the loop is a method.
+
+    :meth:`baseline` fits the declared faults (a); :meth:`trace` correlates the residual with
+    the effects' signatures (b); :meth:`try_candidate` refits with a candidate switched on and
+    scores it (c); :meth:`choose` picks what to add (d, the pure :func:`choose`);
+    :meth:`accept` adds it; :meth:`run` repeats until a stop rule holds (e) and returns the
+    :class:`ExplainResult`. See :func:`explain` for the parameters.
+    """
+
+    def __init__(self, data: MeasuredData, fit: Any = None,
+                 effects: Iterable[str] | str | None = None,
+                 validate: MeasuredData | None = None, base: LFParams | None = None,
+                 settings: LoopSettings = LoopSettings(), fixed: Iterable[str] = (),
+                 on_progress: Callable[[str], None] | None = None, **fdi_options: float):
+        self.started = time.perf_counter()
+        self.settings = settings
+        self.data, self.validate = data, validate
+        self.bounds = parse_fit(fit)
+        pool = get_effects(effects) if effects is not None else list(EFFECTS.values())
+        try:
+            base = _initial_position(data, resolve("lf", {}, base=base) if base else LFParams())
+        except ParameterError as exc:
+            raise ExplainError(str(exc)) from None
+        fixed = set(fixed)
+        for name in sorted(fixed):
+            if name in self.bounds:
+                raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
+            if name == "XJ0":
+                raise ExplainError("--set XJ0: the initial position is taken from the record")
+        # effects already in the base (a prior), overlapping the declared faults or touching
+        # a known (fixed) parameter are not tried
+        self.pool = [e for e in pool if not set(e.params) & set(self.bounds)
+                     and not e.is_on(base) and not set(e.off) & fixed]
+        self.base = base
+        self.progress = on_progress or (lambda message: None)
+        self.fdi_options = fdi_options
+        n = len(data)
+        if validate is not None:
+            self.n_fit = n
+            self.holdout_text = (f"validation record {validate.source} ({len(validate)} "
+                                 f"samples)")
+        else:
+            self.n_fit = n - int(round(settings.holdout * n))
+            self.holdout_text = (f"last {settings.holdout:.0%} of the record "
+                                 f"({n - self.n_fit} samples)" if self.n_fit < n
+                                 else "none (scored on the fitted data)")
+        if self.n_fit < 20:
+            raise ExplainError(f"record: {self.n_fit} samples left to fit after the hold-out; "
+                               f"at least 20 are required (lower --holdout)")
+        self.record = _Record(data, base)
+        self.check = (_Record(validate, _initial_position(validate, base))
+                      if validate is not None else None)
+        self.noise = float(data.info.get("noise_m", noise_level(data.xu)))
+        self.steps: list[Step] = []
+        self.rounds: list[Round] = []
+        self.current: LFParams = base
+        self.cur: Evaluation | None = None
+        # refitted every round: the faults (and, with joint=True, the effects already added)
+        self.free = dict(self.bounds)
+
+    # -- evaluation and fitting ------------------------------------------------------------
+    def evaluate(self, params: list[LFParams]) -> list[Evaluation]:
+        """Simulate parameter sets on the record (one batch) and score them."""
+        data, n_fit, check = self.data, self.n_fit, self.check
+        xu = self.record.run(params)
+        hold = check.run([p.replace(XJ0=check.base.XJ0) for p in params]) if check else None
+        out = []
+        for j, p in enumerate(params):
+            r_fit = _rmse(xu[j, :n_fit], data.xu[:n_fit])
+            if check is not None:
+                r_hold = _rmse(hold[j], self.validate.xu)
+                resid = np.concatenate([data.xu - xu[j], self.validate.xu - hold[j]])
+            else:
+                r_hold = _rmse(xu[j, n_fit:], data.xu[n_fit:]) if n_fit < len(data) else r_fit
+                resid = data.xu - xu[j]
+            out.append(Evaluation(p, xu[j], r_fit, r_hold, _rmse(xu[j], data.xu),
+                                  n_eff=effective_samples(resid)
+                                  if np.all(np.isfinite(resid)) else 2.0))
+        return out
+
+    def refit(self, start: LFParams, free: Mapping[str, tuple[float, float]], label: str,
+              method: str | None = None, warm_start: bool = False) -> LFParams:
+        """The parameters ``free`` fitted from ``start`` on the fitted part of the record."""
+        from eha.fdi import METHOD_DEFAULTS, FDIError, identify
+
+        s = self.settings
+        method = method or s.method
+        self.progress(label)
+        options = self.fdi_options if method != "ps" else {
+            k: v for k, v in self.fdi_options.items() if k in METHOD_DEFAULTS["ps"]}
+        # searches of many parameters get more GA starts (other seeds); the best fit is kept
+        starts = 1 if method == "ps" or len(free) < MULTISTART_PARAMS else MULTISTART
+        best = None
+        try:
+            for i in range(starts):
+                res = identify(self.data.xu[:self.n_fit], self.data.command, fit=dict(free),
+                               base=start, method=method, pop=s.pop, seed=s.seed + 1000 * i,
+                               warm_start=warm_start, recorded_start=self.record.recorded_start,
+                               level=None, **options)
+                if best is None or res.objective < best.objective:
+                    best = res
+        except FDIError as exc:
+            raise ExplainError(str(exc)) from None
+        return start.replace(**best.estimates)
+
+    # -- the steps -------------------------------------------------------------------------
+    def baseline(self) -> Evaluation:
+        """(a) Fit the declared faults; the model every later step extends."""
+        self.current = self.refit(self.base, self.bounds, "fit the declared faults")
+        self.cur = self.evaluate([self.current])[0]
+        return self.cur
+
+    def trace(self, evaluation: Evaluation, free: Mapping[str, tuple[float, float]],
+              effects: Sequence[Effect]) -> Round:
+        """(b) Trace the residual of ``evaluation`` to the effects' signatures."""
+        return trace_residual(self.record, evaluation, free, effects, self.n_fit)
+
+    def try_candidate(self, cand: Candidate, extends: LFParams | None = None) -> Candidate:
+        """(c) Refit the faults with the candidate's effects free and score the fit.
+
+        The GA is warm-started at the model it extends (the current one, or a combination's
+        fit) with the new effects at their off values (at the probe where off is outside the
+        search bounds): a refit is never worse than what it extends.
+        """
+        s, cur = self.settings, self.cur
+        members = [EFFECTS[name] for name in cand.effect.split("+")]
+        t0 = time.perf_counter()
+        start = extends if extends is not None else self.current
+        free = dict(self.free)
+        for effect in members:
+            if not effect.is_on(start):
+                start = effect.switch_on(start, {
+                    p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
+                    if lo <= effect.off[p] <= hi})
+            free.update(effect.bounds)
+        trial = self.refit(start, free, f"round {len(self.rounds)}: refit with {cand.effect}",
+                           warm_start=True)
+        ev = self.evaluate([trial])[0]
+        cand.refit = True
+        cand.params = {p: getattr(trial, p) for e in members for p in e.params}
+        cand.faults = {p: getattr(trial, p) for p in self.bounds}
+        cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
+        cand.gain = 1.0 - ev.rmse_score / cur.rmse_score if cur.rmse_score > 0 else 0.0
+        cand.score = cand.gain - s.penalty * len(cand.params)
+        added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
+        cand.n_eff = ev.n_eff
+        cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
+        if any(e.params and _at_off(e, cand.params) for e in members):
+            # the fit switched an effect off: any gain is the optimizer's, not the effect's
+            cand.score = -math.inf
+        cand.seconds = time.perf_counter() - t0
+        cand._evaluation = ev          # kept for the step, not reported
+        return cand
+
+    def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
+        """(b, c) Trace the current residual and refit the best-ranked candidates; also the
+        combinations of :data:`~eha.effects.COMBINATIONS`, alone and with each of the effects
+        that best explain the combination's residual (an effect is often only recognisable
+        once the structure it interacts with is in the model: with the orifice law a load and
+        a motor offset stop being equivalent)."""
+        s = self.settings
+        rnd = self.trace(self.cur, self.free, remaining)
+        self.rounds.append(rnd)
+        ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
+        chosen = ranked if s.candidates <= 0 else ranked[:s.candidates]
+        for cand in chosen:
+            self.try_candidate(cand)
+        names_left = {e.name for e in remaining}
+        room = s.max_steps - len(self.steps)    # a combination adds one step per member
+        for combo in COMBINATIONS:
+            if not set(combo) <= names_left or len(combo) > room:
+                continue
+            pair = self.try_candidate(Candidate("+".join(combo), math.nan, math.nan))
+            rnd.candidates.append(pair)
+            chosen.append(pair)
+            rest = [e for e in remaining if e.name not in combo]
+            if not rest or len(combo) + 1 > room:
+                continue
+            combo_free = dict(self.free)
+            for name in combo:
+                combo_free.update(EFFECTS[name].bounds)
+            on_top = self.trace(pair._evaluation, combo_free, rest)
+            ranked_on_top = sorted(on_top.candidates, key=lambda c: -c.explained)
+            for c in ranked_on_top if s.candidates <= 0 else ranked_on_top[:s.candidates]:
+                cand = self.try_candidate(Candidate("+".join((*combo, c.effect)), math.nan,
+                                                    c.explained),
+                                          extends=pair._evaluation.params)
+                rnd.candidates.append(cand)
+                chosen.append(cand)
+        return rnd, chosen
+
+    def choose(self, rnd: Round, tried: list[Candidate]) -> Choice:
+        """(d) :func:`choose` with this record's evaluations."""
+        def split(best: Candidate) -> list[str]:
+            members = [EFFECTS[name] for name in best.effect.split("+")]
+            return [e.name for e in _split_combination(members, best._evaluation,
+                                                       self.evaluate, self.settings.penalty)]
+
+        def refit_members(best: Candidate, kept: list[str]) -> Candidate | None:
+            params = best._evaluation.params
+            for name in best.effect.split("+"):
+                if name not in kept:
+                    params = EFFECTS[name].switch_off(params)
+            cand = self.try_candidate(Candidate("+".join(kept), math.nan, math.nan),
+                                      extends=params)
+            rnd.candidates.append(cand)
+            return cand
+
+        return choose(list(tried), self.settings, split, refit_members)
+
+    def accept(self, choice: Choice) -> list[Step]:
+        """(d) Add the chosen effect(s): polish the faults and every effect in the model
+        jointly from the winning fit (a local search: an effect added earlier was estimated
+        without the later ones); a combination is reported as one step per effect, in the
+        order of their contribution, each step's "after" the combined fit with the later
+        members off."""
+        s, best = self.settings, choice.best
+        members = [EFFECTS[name] for name in choice.members]
+        ev = best._evaluation
+        joint_free = dict(self.free)
+        for effect in [EFFECTS[st.effect] for st in self.steps] + members:
+            joint_free.update(effect.bounds)
+        polished = self.refit(ev.params, joint_free,
+                              f"round {len(self.rounds)}: joint polish", method="ps")
+        ev_p = self.evaluate([polished])[0]
+        if ev_p.rmse_score < ev.rmse_score:
+            ev = ev_p
+        faults_after = {p: getattr(ev.params, p) for p in self.bounds}
+        prev, faults0 = self.cur, {p: getattr(self.current, p) for p in self.bounds}
+        added = []
+        for i, effect in enumerate(members):
+            params_i = ev.params
+            for later in members[i + 1:]:
+                params_i = later.switch_off(params_i)
+            ev_i = ev if i == len(members) - 1 else self.evaluate([params_i])[0]
+            gain_i = 1.0 - ev_i.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+            added.append(Step(effect.name, {p: getattr(ev.params, p) for p in effect.params},
+                              prev.rmse_all, ev_i.rmse_all, prev.rmse_fit, ev_i.rmse_fit,
+                              prev.rmse_hold, ev_i.rmse_hold, faults0, faults_after,
+                              gain_i, gain_i - s.penalty * len(effect.params),
+                              choice.alternatives if i == 0 else {}, best.effect,
+                              best.score))
+            prev, faults0 = ev_i, faults_after
+        self.steps.extend(added)
+        self.current, self.cur = ev.params, ev
+        if s.joint:
+            for effect in members:
+                self.free.update(effect.bounds)
+        return added
+
+    def stop_rule(self) -> str:
+        """(e) Why the loop stops before tracing again, or ``""`` to go on."""
+        s, cur = self.settings, self.cur
+        if len(self.steps) >= s.max_steps:
+            return f"reached max_steps={s.max_steps:g}"
+        if cur.rmse_score <= s.noise_factor * self.noise:
+            return (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts) is at the noise "
+                    f"level ({self.noise:.3g} m estimated from the record)")
+        if not self.remaining():
+            return "every candidate effect is already in the model"
+        return ""
+
+    def remaining(self) -> list[Effect]:
+        added = {st.effect for st in self.steps}
+        return [e for e in self.pool if e.name not in added]
+
+    def run(self) -> ExplainResult:
+        """Baseline, then trace / try / choose / accept until a stop rule holds."""
+        from eha.fdi import DEFAULT_LEVEL, intervals_at
+
+        before = self.baseline()
+        faults_before = {k: getattr(self.current, k) for k in self.bounds}
+        while True:
+            stop = self.stop_rule()
+            if stop:
+                break
+            rnd, tried = self.candidates_of_round(self.remaining())
+            choice = self.choose(rnd, tried)
+            if choice.best is None:
+                stop = choice.stop
+                break
+            self.accept(choice)
+        for rnd in self.rounds:
+            for c in rnd.candidates:
+                c.__dict__.pop("_evaluation", None)
+        # intervals of the final model's fitted parameters on the whole record (no refit)
+        final_bounds = dict(self.bounds)
+        for step in self.steps:
+            final_bounds.update(EFFECTS[step.effect].bounds)
+        data = self.data
+        iv = intervals_at(data.xu, data.command, self.current, final_bounds,
+                          level=DEFAULT_LEVEL, noise=self.noise,
+                          recorded_start=self.record.recorded_start, t_end=data.t_end)
+        s = self.settings
+        settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, "n_fit": self.n_fit,
+                    "effects": [e.name for e in self.pool],
+                    "command_hold": data.info.get("command_hold", "linear"),
+                    **self.fdi_options}
+        return ExplainResult(
+            source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
+            faults_after={k: getattr(self.current, k) for k in self.bounds}, before=before,
+            after=self.cur, steps=self.steps, rounds=self.rounds, noise_rmse=self.noise,
+            stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
+            measured=data.xu.copy(), settings=settings,
+            seconds=time.perf_counter() - self.started, intervals=iv.bounds, level=iv.level,
+            unexplained=iv.flagged, interval_notes=iv.notes)
+
+
 def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
             holdout: float | None = None, validate: MeasuredData | None = None,
             base: LFParams | None = None, method: str | None = None, pop: int = 20,
             seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
+            alpha: float | None = None,
             on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -374,30 +867,18 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     fit : str or mapping, optional
         Declared fault parameters and bounds (:func:`parse_fit`); default BKL, FDJ.
     effects : names, optional
-        Candidate effects (SPEC §7 names); default all of :data:`eha.effects.EFFECTS`.
+        Candidate effects (names of docs/model.md's effect table); default all of
+        :data:`eha.effects.EFFECTS`.
     holdout : float, optional
         Fraction of the record (at its end) held out for scoring, in [0, 0.8]; default 0.3.
-        0 scores on the fitted data (then only the penalty guards against over-fitting).
     validate : MeasuredData, optional
         A second record used as held-out data instead (the first is then fitted whole).
     base : LFParams, optional
         Starting LF parameters (nominal by default; XJ0 is set from the record's command).
     method, pop, seed, **fdi_options
         Passed to :func:`eha.fdi.identify` for every fit (same seed for all fits).
-    min_gain : float
-        Smallest penalised relative reduction of the scored RMSE (fitted and held-out parts
-        weighted equally) that adds an effect; 0.1.
-    penalty : float
-        Relative gain charged per added parameter; 0.02.
-    max_steps : int
-        Most effects added; 4.
-    candidates : int
-        Effects refitted per round, the best-ranked by their signature (0 = all); 6.
-    noise_factor : float
-        Stop when the scored RMSE is below ``noise_factor`` times the noise level; 1.25.
-    joint : bool
-        Refit the parameters of the effects already added in every later round (False: they
-        stay at the estimates of the round that added them; the faults are always refitted).
+    min_gain, penalty, alpha, max_steps, candidates, noise_factor, joint
+        The stop and choice rules (:class:`LoopSettings`, where their defaults are).
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
@@ -408,277 +889,13 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     -------
     ExplainResult
     """
-    from eha.fdi import (DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, FDIError, identify,
-                         intervals_at)
-
-    started = time.perf_counter()
-    settings = dict(DEFAULTS)
-    for key, value in (("min_gain", min_gain), ("penalty", penalty), ("max_steps", max_steps),
-                       ("candidates", candidates), ("noise_factor", noise_factor),
-                       ("joint", joint)):
-        if value is not None:
-            settings[key] = value
-    if holdout is not None:
-        settings["holdout"] = holdout
-    if not 0.0 <= settings["holdout"] <= 0.8:
-        raise ExplainError(f"--holdout {settings['holdout']:g}: allowed range [0, 0.8]")
-    method = method or DEFAULT_METHOD
-    bounds = parse_fit(fit)
-    pool = get_effects(effects) if effects is not None else list(EFFECTS.values())
-    try:
-        base = _initial_position(data, resolve("lf", {}, base=base) if base else LFParams())
-    except ParameterError as exc:
-        raise ExplainError(str(exc)) from None
-    fixed = set(fixed)
-    for name in sorted(fixed):
-        if name in bounds:
-            raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
-        if name == "XJ0":
-            raise ExplainError("--set XJ0: the initial position is taken from the record")
-    # effects already in the base (a prior), overlapping the declared faults or touching a
-    # known (fixed) parameter are not tried
-    pool = [e for e in pool if not set(e.params) & set(bounds) and not e.is_on(base)
-            and not set(e.off) & fixed]
-    progress = on_progress or (lambda message: None)
-    n = len(data)
-    if validate is not None:
-        n_fit = n
-        holdout_text = f"validation record {validate.source} ({len(validate)} samples)"
-    else:
-        n_fit = n - int(round(settings["holdout"] * n))
-        holdout_text = (f"last {settings['holdout']:.0%} of the record ({n - n_fit} samples)"
-                        if n_fit < n else "none (scored on the fitted data)")
-    if n_fit < 20:
-        raise ExplainError(f"record: {n_fit} samples left to fit after the hold-out; at least "
-                           f"20 are required (lower --holdout)")
-    record = _Record(data, base)
-    check = _Record(validate, _initial_position(validate, base)) if validate is not None \
-        else None
-    y = data.xu
-    fit_y = y[:n_fit]
-
-    def evaluate_many(params: list[LFParams]) -> list[Evaluation]:
-        xu = record.run(params)
-        hold = None
-        if check is not None:
-            hold = check.run([p.replace(XJ0=check.base.XJ0) for p in params])
-        out = []
-        for j, p in enumerate(params):
-            r_fit = _rmse(xu[j, :n_fit], fit_y)
-            if check is not None:
-                r_hold = _rmse(hold[j], validate.xu)
-            elif n_fit < n:
-                r_hold = _rmse(xu[j, n_fit:], y[n_fit:])
-            else:
-                r_hold = r_fit
-            out.append(Evaluation(p, xu[j], r_fit, r_hold, _rmse(xu[j], y)))
-        return out
-
-    def refit(start: LFParams, free: dict[str, tuple[float, float]], label: str,
-              method: str = method, warm_start: bool = False):
-        progress(label)
-        options = fdi_options if method != "ps" else {
-            k: v for k, v in fdi_options.items() if k in METHOD_DEFAULTS["ps"]}
-        # searches of many parameters get more GA starts (other seeds); the best fit is kept
-        starts = 1 if method == "ps" or len(free) < MULTISTART_PARAMS else MULTISTART
-        best_res = None
-        try:
-            for i in range(starts):
-                res = identify(fit_y, data.command, fit=free, base=start, method=method,
-                               pop=pop, seed=seed + 1000 * i, warm_start=warm_start,
-                               recorded_start=record.recorded_start, level=None, **options)
-                if best_res is None or res.objective < best_res.objective:
-                    best_res = res
-        except FDIError as exc:
-            raise ExplainError(str(exc)) from None
-        return start.replace(**best_res.estimates), best_res
-
-    # (a) baseline
-    current, _ = refit(base, bounds, "fit the declared faults")
-    cur = evaluate_many([current])[0]
-    before = cur
-    faults_before = {k: getattr(current, k) for k in bounds}
-    noise = data.info.get("noise_m", noise_level(y))
-    # refitted every round: the faults (and, with joint=True, the effects already added; by
-    # default those stay at their estimates, which keeps every GA search low-dimensional)
-    free = dict(bounds)
-    steps: list[Step] = []
-    rounds: list[Round] = []
-    stop = ""
-    while True:
-        if len(steps) >= settings["max_steps"]:
-            stop = f"reached max_steps={settings['max_steps']:g}"
-            break
-        if cur.rmse_score <= settings["noise_factor"] * noise:
-            stop = (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts) is at the "
-                    f"noise level ({noise:.3g} m estimated from the record)")
-            break
-        remaining = [e for e in pool if e.name not in {s.effect for s in steps}]
-        if not remaining:
-            stop = "every candidate effect is already in the model"
-            break
-        # (b) trace the residual
-        rnd = trace_residual(record, cur, free, remaining, n_fit)
-        rounds.append(rnd)
-        ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
-        k = int(settings["candidates"])
-        chosen = ranked if k <= 0 else ranked[:k]
-        # (c) refit with each candidate switched on; also the combinations of COMBINATIONS,
-        # alone and with each of the effects that best explain the combination's residual (an
-        # effect is often only recognisable once the structure it interacts with is in the
-        # model: with the orifice law a load and a motor offset stop being equivalent)
-        def try_candidate(cand: Candidate, extends: LFParams | None = None) -> Candidate:
-            """Refit the faults with the candidate's effects free, the GA warm-started at the
-            model it extends (``current``, or a combination's fit) with the new effects at
-            their off values (at the probe where off is outside the search bounds): a refit
-            is never worse than what it extends."""
-            members = [EFFECTS[name] for name in cand.effect.split("+")]
-            t0 = time.perf_counter()
-            start = extends if extends is not None else current
-            free_c = dict(free)
-            for effect in members:
-                if not effect.is_on(start):
-                    start = effect.switch_on(start, {
-                        p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
-                        if lo <= effect.off[p] <= hi})
-                free_c.update(effect.bounds)
-            trial, _ = refit(start, free_c, f"round {len(rounds)}: refit with {cand.effect}",
-                             warm_start=True)
-            ev = evaluate_many([trial])[0]
-            cand.refit = True
-            cand.params = {p: getattr(trial, p) for e in members for p in e.params}
-            cand.faults = {p: getattr(trial, p) for p in bounds}
-            cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
-            cand.gain = 1.0 - ev.rmse_score / cur.rmse_score if cur.rmse_score > 0 else 0.0
-            cand.score = cand.gain - settings["penalty"] * len(cand.params)
-            if any(e.params and _at_off(e, cand.params) for e in members):
-                # the fit switched an effect off: any gain is the optimizer's, not the effect's
-                cand.score = -math.inf
-            cand.seconds = time.perf_counter() - t0
-            cand._evaluation = ev          # kept for the step, not reported
-            return cand
-
-        for cand in chosen:
-            try_candidate(cand)
-        names_left = {e.name for e in remaining}
-        room = settings["max_steps"] - len(steps)    # a combination adds one step per member
-        for combo in COMBINATIONS:
-            if not set(combo) <= names_left or len(combo) > room:
-                continue
-            pair = try_candidate(Candidate("+".join(combo), math.nan, math.nan))
-            rnd.candidates.append(pair)
-            chosen.append(pair)
-            # the residual of the combination is traced like any other: the effects that
-            # explain most of it are tried together with the combination
-            rest = [e for e in remaining if e.name not in combo]
-            if not rest or len(combo) + 1 > room:
-                continue
-            combo_free = dict(free)
-            for name in combo:
-                combo_free.update(EFFECTS[name].bounds)
-            on_top = trace_residual(record, pair._evaluation, combo_free, rest, n_fit)
-            ranked_on_top = sorted(on_top.candidates, key=lambda c: -c.explained)
-            for c in ranked_on_top if k <= 0 else ranked_on_top[:k]:
-                cand = try_candidate(Candidate("+".join((*combo, c.effect)), math.nan,
-                                               c.explained), extends=pair._evaluation.params)
-                rnd.candidates.append(cand)
-                chosen.append(cand)
-        tried = [c for c in chosen if c.refit and c.score > -math.inf]
-        if not tried:
-            stop = "no candidate improved the model (every refit switched its effect off)"
-            break
-        # (d) add the best when significant; a winning combination whose members do not all
-        # pay for themselves is replaced by the kept members as a candidate of their own
-        # (refitted unless already tried), and the choice is made again
-        superseded: set[str] = set()
-        while True:
-            best = max((c for c in tried if c.effect not in superseded),
-                       key=lambda c: c.score, default=None)
-            if best is None:
-                break
-            members = [EFFECTS[name] for name in best.effect.split("+")]
-            if len(members) == 1 or best.score < settings["min_gain"]:
-                break
-            kept = _split_combination(members, best._evaluation, evaluate_many,
-                                      settings["penalty"])
-            if len(kept) == len(members):
-                members = kept
-                break
-            superseded.add(best.effect)
-            name = "+".join(e.name for e in kept)
-            known_cand = next((c for c in rnd.candidates if c.effect == name and c.refit), None)
-            if known_cand is None:
-                params = best._evaluation.params
-                for effect in members:
-                    if effect not in kept:
-                        params = effect.switch_off(params)
-                known_cand = try_candidate(Candidate(name, math.nan, math.nan), extends=params)
-                rnd.candidates.append(known_cand)
-            if known_cand.score > -math.inf and known_cand not in tried:
-                tried.append(known_cand)
-        if best is None:
-            stop = "no candidate improved the model (every refit switched its effect off)"
-            break
-        if best.score < settings["min_gain"]:
-            stop = (f"no significant effect left: best candidate {best.effect} reduces the "
-                    f"RMSE by {best.gain:.1%} (penalised {best.score:.1%} < "
-                    f"{settings['min_gain']:.0%})")
-            break
-        ev = best._evaluation
-        alternatives = {c.effect: c.score for c in tried if c is not best
-                        and c.effect not in superseded and c.score >= settings["min_gain"]
-                        and best.score - c.score <= ALTERNATIVE_MARGIN}
-        # polish the faults and every effect in the model jointly, from this fit (a local
-        # search): an effect added earlier was estimated without the later ones
-        joint_free = dict(free)
-        for effect in [EFFECTS[st.effect] for st in steps] + members:
-            joint_free.update(effect.bounds)
-        polished, _ = refit(ev.params, joint_free, f"round {len(rounds)}: joint polish",
-                            method="ps")
-        ev_p = evaluate_many([polished])[0]
-        if ev_p.rmse_score < ev.rmse_score:
-            ev = ev_p
-        faults_after = {p: getattr(ev.params, p) for p in bounds}
-        # a combination is reported as one step per effect, in the order of their
-        # contribution: each step's "after" is the combined fit with the later members off
-        prev, faults0 = cur, {p: getattr(current, p) for p in bounds}
-        for i, effect in enumerate(members):
-            params_i = ev.params
-            for later in members[i + 1:]:
-                params_i = later.switch_off(params_i)
-            ev_i = ev if i == len(members) - 1 else evaluate_many([params_i])[0]
-            gain_i = 1.0 - ev_i.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
-            steps.append(Step(effect.name, {p: getattr(ev.params, p) for p in effect.params},
-                              prev.rmse_all, ev_i.rmse_all, prev.rmse_fit, ev_i.rmse_fit,
-                              prev.rmse_hold, ev_i.rmse_hold, faults0, faults_after,
-                              gain_i, gain_i - settings["penalty"] * len(effect.params),
-                              alternatives if i == 0 else {}, best.effect, best.score))
-            prev, faults0 = ev_i, faults_after
-        current, cur = ev.params, ev
-        if settings["joint"]:
-            for effect in members:
-                free.update(effect.bounds)
-    for rnd in rounds:
-        for c in rnd.candidates:
-            c.__dict__.pop("_evaluation", None)
-    # intervals of the final model's fitted parameters on the whole record (no refit)
-    final_bounds = dict(bounds)
-    for step in steps:
-        for effect in pool:
-            if effect.name == step.effect or effect.name in step.effect.split("+"):
-                final_bounds.update(effect.bounds)
-    iv = intervals_at(y, data.command, current, final_bounds, level=DEFAULT_LEVEL, noise=noise,
-                      recorded_start=record.recorded_start, t_end=data.t_end)
-    return ExplainResult(
-        source=data.source, fit_bounds=bounds, faults_before=faults_before,
-        faults_after={k: getattr(current, k) for k in bounds}, before=before, after=cur,
-        steps=steps, rounds=rounds, noise_rmse=noise, stop_reason=stop, holdout=holdout_text,
-        t=data.t.copy(), measured=y.copy(),
-        settings={**settings, "method": method, "pop": pop, "seed": seed, "n_fit": n_fit,
-                  "effects": [e.name for e in pool], **fdi_options},
-        seconds=time.perf_counter() - started, intervals=iv.bounds, level=iv.level,
-        unexplained=iv.flagged, interval_notes=iv.notes)
-
+    given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
+             "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
+             "joint": joint}
+    settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
+                            method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    return ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
+                        **fdi_options).run()
 
 def _split_combination(members: Sequence[Effect], combined: Evaluation,
                        evaluate_many: Callable[[list[LFParams]], list[Evaluation]],
@@ -782,6 +999,7 @@ def trace_residual(record: _Record, cur: Evaluation, free: Mapping[str, tuple[fl
     return Round(_rmse(r, 0.0), signals, cands)
 
 
-__all__ = ["explain", "augmented_base", "ExplainResult", "ExplainError", "Step", "Candidate", "Round",
+__all__ = ["explain", "ResidualLoop", "LoopSettings", "choose", "Choice", "significance",
+           "augmented_base", "ExplainResult", "ExplainError", "Step", "Candidate", "Round",
            "parse_fit", "noise_level", "trace_residual", "signatures", "DEFAULTS",
            "DEFAULT_FAULT_BOUNDS", "SIGNALS"]

@@ -96,7 +96,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
                    prior: str | Path | None = None, json_path: str | Path | None = None,
                    out: str | Path | None = None, results: str | Path = "results",
                    on_progress=None, known: dict[str, float] | None = None,
-                   **options) -> dict:
+                   command_hold: str = "auto", **options) -> dict:
     """``eha explain``: run the residual loop on a measured file and write its outputs.
 
     Everything is read and validated before anything is written. Writes, under ``out``
@@ -106,6 +106,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     ``results/eha.duckdb``; and, when given, ``json_path`` with the contract of issue 5.
     ``known`` holds LF parameters fixed at known values (test conditions such as a test load
     ``{"FRC": 4000}``), on top of the ``prior``'s effects; they are not candidates.
+    ``command_hold`` says how the records' commands are rebuilt between their samples
+    (:data:`eha.measured.COMMAND_HOLDS`).
 
     Returns
     -------
@@ -122,8 +124,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.measured import load
     from eha.store import StoreError, save_explain
 
-    record = load(data)
-    check = load(validate) if validate is not None else None
+    record = load(data, command_hold=command_hold)
+    check = load(validate, command_hold=command_hold) if validate is not None else None
     base = None
     if prior is not None:
         try:

@@ -584,11 +584,13 @@ class Identification:
     mean_err_pct: float | None = None
 
     base_model: str = "plain"
+    #: how a measured record's command was rebuilt between samples (None for HF references)
+    command_hold: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, **self.result.to_dict(), "truth": self.truth,
                 "errors_pct": self.errors_pct, "mean_err_pct": self.mean_err_pct,
-                "base_model": self.base_model}
+                "base_model": self.base_model, "command_hold": self.command_hold}
 
 
 def identify_source(command: str | None = None, faults: Mapping[str, float] | None = None,
@@ -599,7 +601,7 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
                     t_end: float = 1.0,
                     on_generation: Callable[[int, float], None] | None = None,
                     level: float | None = DEFAULT_LEVEL, base_model: str | None = None,
-                    **options: float) -> Identification:
+                    command_hold: str = "auto", **options: float) -> Identification:
     """Identify ``fit`` against an HF reference (``command`` + injected ``faults``, dither seed
     ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu; eha.measured).
 
@@ -607,7 +609,8 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
     on top of ``base_model`` (:data:`BASE_MODELS`; default :data:`DEFAULT_BASE_MODEL`: the
     thesis' plain LF against an HF reference, the calibrated LF on a measured record, where the
     plain LF biases FDJ by 4-25 %); ``level`` is the intervals' nominal coverage;
-    ``on_generation`` is :func:`identify`'s progress hook.
+    ``command_hold`` how a measured record's command is rebuilt between its samples
+    (:data:`eha.measured.COMMAND_HOLDS`); ``on_generation`` is :func:`identify`'s progress hook.
     """
     if (command is None) == (data is None):
         raise FDIError("give either --command (HF reference) or --data FILE (measured record)")
@@ -629,10 +632,12 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
         raise FDIError(f"--base {exc}") from None
     noise = None
     truth = None
+    hold = None
     if data is not None:
         from eha.measured import load
 
-        rec = load(data)
+        rec = load(data, command_hold=command_hold)
+        hold = rec.info["command_hold"]
         cmd: Command = rec.command
         ref_data = np.full((len(rec), 9), np.nan)
         from eha.models import O_COM, O_T, O_XU
@@ -657,4 +662,4 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
     if truth is not None:
         errors = percent_errors(truth, res.estimates)
         mean = mean_error_pct(errors)
-    return Identification(res, reference, fitted, source, truth, errors, mean, base_model)
+    return Identification(res, reference, fitted, source, truth, errors, mean, base_model, hold)

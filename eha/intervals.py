@@ -148,6 +148,13 @@ def bandwidth(residual: np.ndarray, max_lag: int | None = None) -> int:
     return int(min(max_lag, max(1, math.ceil(2.0 * tau))))
 
 
+def effective_samples(residual: np.ndarray) -> float:
+    """Effective independent samples of a correlated residual: ``n / (bandwidth / 2)``, the
+    record length over the integrated autocorrelation time (:func:`bandwidth`); at least 2."""
+    r = np.asarray(residual, dtype=np.float64)
+    return float(max(2.0, r.size / max(1.0, bandwidth(r) / 2.0)))
+
+
 def hac_covariance(jac: np.ndarray, residual: np.ndarray, lag: int) -> np.ndarray:
     """Newey–West sandwich covariance of a least-squares estimate.
 

@@ -20,8 +20,11 @@ Validation (:func:`validate`) reports every problem at once, one line each:
   stop; a record in millimetres fails here, and the message says so).
 
 Accepted records are shifted to start at t = 0 and resampled (linear interpolation) onto the
-models' 1 kHz output grid; the command keeps its original samples (it is interpolated onto the
-integration step by :func:`eha.commands.array_command`). Reading writes nothing.
+models' 1 kHz output grid; the command keeps its original samples and is rebuilt on the
+integration step by :func:`eha.commands.array_command`, either interpolated (``linear``) or
+held between samples (``zoh``, the output of a digital controller: a step changes *at* a sample
+instant). ``command_hold="auto"`` (the default) decides from the command itself
+(:func:`detect_hold`). Reading writes nothing.
 """
 
 from __future__ import annotations
@@ -263,6 +266,63 @@ def noise_level(xu: np.ndarray) -> float:
     return float(1.4826 * mad / math.sqrt(70.0))
 
 
+#: ``command_hold`` values: decide from the record, or force one rebuild of the command.
+COMMAND_HOLDS = ("auto", "zoh", "linear")
+#: A command is read as held (``auto`` -> ``zoh``) when at least this fraction of its sample
+#: differences are exactly zero (flat runs between changes) and at least one change is an
+#: isolated jump between flat runs.
+HELD_FLAT_FRACTION = 0.2
+
+
+def detect_hold(com: np.ndarray) -> tuple[str, str]:
+    """How a recorded command was produced between its samples: ``"zoh"`` or ``"linear"``.
+
+    A digital controller holds its output between samples, so a held command is piecewise
+    constant on its samples: most sample differences are exactly zero and every change is a jump
+    between flat runs. Interpolating such a record linearly drives the model up to one sample
+    early at every step (the residual loop then "explains" that with a delay). A command that
+    changes at every sample (a sine or chirp recorded at the controller's rate) carries no such
+    evidence: it is rebuilt linearly, which is unbiased for a step at an unknown instant
+    between samples.
+
+    Parameters
+    ----------
+    com : float64 array
+        Command samples [m] as recorded.
+
+    Returns
+    -------
+    hold : {"zoh", "linear"}
+    reason : str
+        One line for reports, e.g. ``"held: 96 % of sample differences are zero, 4 jumps"``.
+    """
+    com = np.asarray(com, dtype=np.float64)
+    d = np.diff(com)
+    if d.size < 3:
+        return "linear", "too few samples to tell; interpolated"
+    span = float(np.max(com) - np.min(com))
+    flat = np.abs(d) <= 1e-9 * span + 1e-15
+    isolated = ~flat[1:-1] & flat[:-2] & flat[2:]
+    jumps = int(np.count_nonzero(isolated)) + int(not flat[0] and flat[1]) \
+        + int(not flat[-1] and flat[-2])
+    fraction = float(np.mean(flat))
+    if span > 0 and jumps >= 1 and fraction >= HELD_FLAT_FRACTION:
+        return "zoh", (f"held: {fraction:.0%} of sample differences are zero, {jumps} jump"
+                       f"{'s' if jumps != 1 else ''} between flat runs")
+    return "linear", (f"interpolated: {fraction:.0%} of sample differences are zero, "
+                      f"{jumps} isolated jump{'s' if jumps != 1 else ''}")
+
+
+def resolve_hold(command_hold: str, com: np.ndarray, source: str = "data") -> tuple[str, str]:
+    """``command_hold`` resolved for a record's command samples (``auto`` -> detected)."""
+    if command_hold not in COMMAND_HOLDS:
+        raise MeasuredDataError(source, [f"--command-hold {command_hold!r}: allowed: "
+                                         f"{', '.join(COMMAND_HOLDS)}"])
+    if command_hold == "auto":
+        return detect_hold(com)
+    return command_hold, f"{command_hold} (given)"
+
+
 def _to_float(values: Any) -> np.ndarray:
     try:
         return np.asarray(values, dtype=np.float64)
@@ -273,7 +333,8 @@ def _to_float(values: Any) -> np.ndarray:
 
 
 def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
-                scales: dict[str, float] | None = None) -> MeasuredData:
+                scales: dict[str, float] | None = None,
+                command_hold: str = "auto") -> MeasuredData:
     """Validate arrays and resample them onto the 1 kHz model grid.
 
     Parameters
@@ -286,7 +347,12 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
         Load pressure [Pa], spool position [m].
     scales : dict, optional
         Factor to SI of columns given in other units (e.g. ``{"xu": 1e-3}`` for mm).
+    command_hold : {"auto", "zoh", "linear"}
+        How the command is rebuilt between its samples (:func:`detect_hold` for ``auto``).
     """
+    if command_hold not in COMMAND_HOLDS:
+        raise MeasuredDataError(source, [f"--command-hold {command_hold!r}: allowed: "
+                                         f"{', '.join(COMMAND_HOLDS)}"])
     columns = {"t": t, "com": com, "xu": xu}
     if p12 is not None:
         columns["p12"] = p12
@@ -305,20 +371,27 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
     def on_grid(values):
         return values.copy() if not resampled else np.interp(grid, t_raw, values)
 
+    hold, hold_reason = resolve_hold(command_hold, arrays["com"], source)
+    command = array_command(t_raw, arrays["com"], name=f"array:{Path(source).name}", hold=hold)
+
     info = {"samples": int(t_raw.size), "period_s": period, "t0_s": float(arrays["t"][0]),
             "resampled": bool(resampled), "samples_1khz": int(n_out),
             # on the original samples: interpolation would smooth the noise away
-            "noise_m": noise_level(arrays["xu"])}
+            "noise_m": noise_level(arrays["xu"]),
+            "command_hold": hold, "command_hold_reason": hold_reason}
     return MeasuredData(
-        t=grid, com=on_grid(arrays["com"]), xu=on_grid(arrays["xu"]),
-        command=array_command(t_raw, arrays["com"], name=f"array:{Path(source).name}"),
+        t=grid, com=command.sample(grid) if resampled else arrays["com"].copy(),
+        xu=on_grid(arrays["xu"]), command=command,
         p12=on_grid(arrays["p12"]) if "p12" in arrays else None,
         xs=on_grid(arrays["xs"]) if "xs" in arrays else None,
         source=str(source), info=info)
 
 
-def load(path: str | Path) -> MeasuredData:
+def load(path: str | Path, command_hold: str = "auto") -> MeasuredData:
     """Read, validate and resample a measured record (CSV/TSV/TXT or Parquet).
+
+    ``command_hold`` says how the command is rebuilt between its samples
+    (:data:`COMMAND_HOLDS`; ``auto`` decides from the command, :func:`detect_hold`).
 
     Raises
     ------
@@ -346,17 +419,18 @@ def load(path: str | Path) -> MeasuredData:
         raise MeasuredDataError(source, problems + unit_problems)
     cols = {name: frame[header].to_numpy() for name, header in mapping.items()}
     return from_arrays(cols["t"], cols["com"], cols["xu"], cols.get("p12"), cols.get("xs"),
-                       source=source, scales=scales)
+                       source=source, scales=scales, command_hold=command_hold)
 
 
 __all__ = ["MeasuredData", "MeasuredDataError", "load", "from_arrays", "validate",
            "match_columns", "ALIASES", "REQUIRED", "OPTIONAL", "SAMPLING_TOLERANCE",
-           "MIN_SAMPLES", "MIN_DURATION", "PHYSICAL_RANGES", "synthetic_record", "noise_level"]
+           "MIN_SAMPLES", "MIN_DURATION", "PHYSICAL_RANGES", "synthetic_record", "noise_level",
+           "COMMAND_HOLDS", "detect_hold", "resolve_hold"]
 
 
 def synthetic_record(command: Command | str = "test", overrides: dict[str, float] | None = None,
                      t_end: float = 1.0, noise: float = 1e-6, seed: int = 0,
-                     model: str = "hf"):
+                     model: str = "hf", command_hold: str = "auto"):
     """A record made by the simulator, for tests and examples: HF (or LF) run plus noise.
 
     Parameters
@@ -371,6 +445,10 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
         Standard deviation of white Gaussian measurement noise on xu [m].
     seed : int
         Seed of the noise and of the HF dither.
+    command_hold : {"auto", "zoh", "linear"}
+        How the model is driven between the command's 1 kHz samples: held (a digital
+        controller) or interpolated; ``auto`` as :func:`load` reads the record back
+        (:func:`detect_hold`), so that a record and its reading agree.
 
     Returns
     -------
@@ -384,10 +462,12 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
     from eha.commands import as_command
 
     # The model is driven by the 1 kHz samples of the command, exactly what a reader of the
-    # record can rebuild (a sharp step becomes a 1 ms ramp), so the record is self-consistent.
+    # record can rebuild (held, or a sharp step becomes a 1 ms ramp): the record is
+    # self-consistent.
     grid = np.arange(int(round(t_end / OUTPUT_DT)) + 1) * OUTPUT_DT
-    sampled = array_command(grid, as_command(command).sample(grid),
-                            name=as_command(command).name or "array")
+    values = as_command(command).sample(grid)
+    hold, _ = resolve_hold(command_hold, values, "synthetic record")
+    sampled = array_command(grid, values, name=as_command(command).name or "array", hold=hold)
     trace = simulate(model, sampled, dict(overrides or {}), t_end=t_end, seed=seed)
     rng = np.random.default_rng(seed)
     xu = trace.xu + rng.normal(0.0, noise, len(trace)) if noise > 0 else trace.xu.copy()

@@ -1,0 +1,117 @@
+"""The residual loop's choice logic on canned evaluations (no simulation, no GA).
+
+:func:`eha.explain.choose` decides from refitted candidates; its model evaluations (splitting a
+combination, refitting the kept members) are handed in as callables, here canned.
+"""
+
+import math
+
+import pytest
+
+from eha.explain import Candidate, ExplainError, LoopSettings, choose, significance
+
+SETTINGS = LoopSettings(min_gain=0.1, penalty=0.02, alpha=0.01)
+
+
+def cand(effect, gain, params=1, p_value=1e-6, n_eff=100.0):
+    c = Candidate(effect, math.nan, math.nan, refit=True)
+    c.gain = gain
+    c.score = gain - SETTINGS.penalty * params
+    c.p_value, c.n_eff = p_value, n_eff
+    return c
+
+
+def no_split(best):
+    return best.effect.split("+")
+
+
+def never_refit(best, kept):  # pragma: no cover - must not be called
+    raise AssertionError("refit_members called")
+
+
+def test_the_best_significant_candidate_wins_with_its_close_rivals_as_alternatives():
+    choice = choose([cand("external_load", 0.50), cand("offset", 0.47),
+                     cand("leakage", 0.20)], SETTINGS, no_split, never_refit)
+    assert choice.best.effect == "external_load"
+    assert choice.members == ["external_load"]
+    # within ALTERNATIVE_MARGIN (0.05) of the chosen score: offset; leakage is not
+    assert set(choice.alternatives) == {"offset"}
+
+
+def test_below_min_gain_nothing_is_added_and_the_reason_names_the_best():
+    choice = choose([cand("delay", 0.11), cand("offset", 0.05)], SETTINGS, no_split,
+                    never_refit)
+    assert choice.best is None
+    assert "delay" in choice.stop and "penalised" in choice.stop
+
+
+def test_a_large_but_insignificant_gain_is_passed_over_for_a_significant_one():
+    choice = choose([cand("delay", 0.40, p_value=0.2, n_eff=5),
+                     cand("external_load", 0.30, p_value=1e-5)], SETTINGS, no_split,
+                    never_refit)
+    assert choice.best.effect == "external_load"
+    assert "delay" in choice.superseded
+
+
+def test_when_no_gain_is_significant_the_loop_stops_and_says_why():
+    choice = choose([cand("delay", 0.40, p_value=0.2, n_eff=5)], SETTINGS, no_split,
+                    never_refit)
+    assert choice.best is None
+    assert "not significant" in choice.stop and "effective samples" in choice.stop
+
+
+def test_candidates_that_switched_their_effect_off_are_ignored():
+    off = cand("offset", 0.9)
+    off.score = -math.inf
+    assert choose([off], SETTINGS, no_split, never_refit).best is None
+
+
+def test_a_combination_whose_members_all_pay_is_kept_in_the_split_order():
+    combo = cand("orifice_law+flapper_dynamics", 0.9, params=2)
+    choice = choose([combo, cand("flapper_dynamics", 0.3, params=2)], SETTINGS,
+                    lambda best: ["flapper_dynamics", "orifice_law"], never_refit)
+    assert choice.best is combo
+    assert choice.members == ["flapper_dynamics", "orifice_law"]
+
+
+def test_a_combination_with_a_passenger_is_replaced_by_its_kept_members_refitted():
+    combo = cand("orifice_law+flapper_dynamics+delay", 0.92, params=3)
+    pair = cand("orifice_law+flapper_dynamics", 0.91, params=2)
+    calls = []
+
+    def split(best):
+        return ["orifice_law", "flapper_dynamics"] if best is combo else best.effect.split("+")
+
+    def refit(best, kept):
+        calls.append((best.effect, tuple(kept)))
+        return pair
+
+    choice = choose([combo], SETTINGS, split, refit)
+    assert calls == [("orifice_law+flapper_dynamics+delay", ("orifice_law", "flapper_dynamics"))]
+    assert choice.best is pair and combo.effect in choice.superseded
+
+
+def test_a_split_already_tried_is_not_refitted_again():
+    combo = cand("orifice_law+flapper_dynamics+delay", 0.92, params=3)
+    pair = cand("orifice_law+flapper_dynamics", 0.85, params=2)
+    choice = choose([combo, pair], SETTINGS,
+                    lambda best: (["orifice_law", "flapper_dynamics"] if best is combo
+                                  else best.effect.split("+")), never_refit)
+    assert choice.best is pair
+
+
+def test_significance_falls_with_effective_samples_and_rises_with_the_gain():
+    # same RMSE reduction, fewer independent samples: less significant
+    assert significance(2e-6, 1.6e-6, 1, 400) < significance(2e-6, 1.6e-6, 1, 20)
+    assert significance(2e-6, 1.0e-6, 1, 40) < significance(2e-6, 1.8e-6, 1, 40)
+    assert significance(2e-6, 2.1e-6, 1, 40) == 1.0       # no reduction
+    # a 10 % RMSE reduction on 1000 white samples is overwhelming (F = 0.235 * 999 ~ 235)
+    assert significance(1.0, 0.9, 1, 1000) < 1e-20
+
+
+@pytest.mark.parametrize("field, value", [("holdout", 0.9), ("min_gain", -0.1),
+                                          ("alpha", 0.0), ("max_steps", -1), ("pop", 1)])
+def test_settings_outside_their_range_are_refused_in_one_line(field, value):
+    with pytest.raises(ExplainError) as err:
+        LoopSettings(**{field: value})
+    assert "\n" not in str(err.value) and "allowed range" in str(err.value)
