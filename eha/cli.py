@@ -873,6 +873,7 @@ def explain(
         console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
             f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
             for k, (lo, hi) in res.intervals.items()))
+    console.print(f"verdict: {escape(res.verdict)}", highlight=False)
     if res.unexplained:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "
