@@ -1,4 +1,4 @@
-"""Position commands (thesis §4.1, SPEC §4): step, ramp, sine, chirp, mixed, test, array.
+"""Position commands (thesis §4.1, docs/model.md §5): step, ramp, sine, chirp, mixed, test, array.
 
 A :class:`Command` is a kind plus its parameters; :meth:`Command.sample` evaluates it on a time
 grid (vectorised NumPy, once per simulation, outside the kernels). Presets are named commands
@@ -190,7 +190,7 @@ def _sin_quadratic_phase(n, a0, a1, a2):
 
 
 def _mixed(t: np.ndarray, sin=_sin_anywhere) -> np.ndarray:
-    # EHA_Dat.m, verbatim (SPEC §4); t <= 0.3 is the ramp, t <= 0.65 the first arc.
+    # EHA_Dat.m, verbatim (docs/model.md §5); t <= 0.3 is the ramp, t <= 0.65 the first arc.
     return _piecewise(t, [0.3, 0.65], [
         lambda s: 0.03 * s,
         lambda s: 0.005 + 0.004 * sin(s, -2 * np.pi / 0.35 * 0.3 + np.pi / 2, 2 * np.pi / 0.35,

@@ -354,13 +354,6 @@ def augmented_base(prior: Mapping[str, Any] | Sequence[Mapping[str, Any]],
     return params
 
 
-def _at_off(effect: Effect, values: Mapping[str, float], tol: float = 1e-3) -> bool:
-    """Every fitted parameter within ``tol`` of its search range from the off value."""
-    off = effect.off
-    return all(abs(values[n] - off[n]) <= tol * (hi - lo) for n, (lo, hi) in
-               effect.bounds.items())
-
-
 def _recorded_start(data: MeasuredData) -> float | None:
     """The measured first position (median of 3 samples, against noise) when the record starts
     away from its command, else None (see :func:`_initial_position`)."""
@@ -421,7 +414,7 @@ class LoopSettings:
     min_gain: float = 0.1
     penalty: float = 0.02
     alpha: float = 0.01
-    max_steps: int = 4
+    max_steps: int = 6
     candidates: int = 6
     noise_factor: float = 1.25
     joint: bool = False
@@ -502,8 +495,9 @@ def choose(tried: list[Candidate], settings: LoopSettings,
            refit_members: Callable[[Candidate, list[str]], Candidate | None]) -> Choice:
     """Pick the effect (or combination) to add from the refitted candidates of a round.
 
-    The best-scoring candidate wins when its penalised gain reaches ``settings.min_gain`` and
-    its gain is significant (``p_value < settings.alpha``). A winning combination whose members
+    The best-scoring candidate wins when its penalised gain reaches ``settings.min_gain``, its
+    gain is significant (``p_value < settings.alpha``) and specific (:func:`unspecific`: no
+    unrelated effect explains as much). A winning combination whose members
     do not all pay for themselves (``split`` returns the names kept) is replaced by the kept
     members as a candidate of its own (``refit_members``: the candidate refitted with only
     those, or None when it switches an effect off), and the choice is made again.
@@ -516,10 +510,11 @@ def choose(tried: list[Candidate], settings: LoopSettings,
     Choice
         ``best`` None with ``stop`` set when nothing is added.
     """
+    everything = [c for c in tried if c.refit and math.isfinite(c.gain)]
     tried = [c for c in tried if c.refit and c.score > -math.inf]
     if not tried:
-        return Choice(None, stop="no candidate improved the model (every refit switched its "
-                                 "effect off)")
+        return Choice(None, stop="no candidate improved the model (every refit left its "
+                                 "effect within its healthy tolerance)")
     superseded: set[str] = set()
     known = {c.effect: c for c in tried}
     while True:
@@ -527,7 +522,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
         best = max(pool, key=lambda c: c.score, default=None)
         if best is None:
             return Choice(None, superseded, stop="no candidate improved the model (every "
-                          "refit switched its effect off)")
+                          "refit left its effect within its healthy tolerance)")
         names = best.effect.split("+")
         if best.score < settings.min_gain:
             return Choice(None, superseded, stop=(
@@ -543,6 +538,18 @@ def choose(tried: list[Candidate], settings: LoopSettings,
                     f"RMSE by {best.gain:.1%}, not significant on this record (p = "
                     f"{best.p_value:.2g} >= alpha {settings.alpha:g}, {best.n_eff:.0f} "
                     f"effective samples)"))
+            continue
+        rivals = unspecific(best, everything)
+        if rivals:
+            # other effects explain as much of this residual: a stand-in, not a finding
+            superseded.add(best.effect)
+            if all(c.effect in superseded or c.score < settings.min_gain
+                   or c.p_value >= settings.alpha for c in tried):
+                return Choice(None, superseded, stop=(
+                    f"no specific effect left: best candidate {best.effect} reduces the RMSE "
+                    f"by {best.gain:.1%}, but {', '.join(rivals)} reduce it as much (a "
+                    f"residual that unrelated effects explain alike is the model's structure "
+                    f"or the actuator's spread, not an effect)"))
             continue
         if len(names) == 1:
             break
@@ -564,6 +571,44 @@ def choose(tried: list[Candidate], settings: LoopSettings,
                     and c.p_value < settings.alpha
                     and best.score - c.score <= ALTERNATIVE_MARGIN}
     return Choice(best, superseded, names, "", alternatives)
+
+
+#: Effects that are the LF model's known structure (members of COMBINATIONS): always specific.
+STRUCTURAL = frozenset(name for combo in COMBINATIONS for name in combo)
+#: A gain below this is checked for specificity (:func:`unspecific`): a real effect of a
+#: visible size at least halves the RMSE it explains; the stand-ins on healthy records gain
+#: 10-40 % (docs/explain.md, "No invented effects").
+SPECIFIC_GAIN = 0.5
+#: Rivals within this gain of the best make it unspecific.
+RIVAL_MARGIN = 0.05
+
+
+def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
+    """Candidates of *unrelated* effects that reduce the RMSE as much as ``best``.
+
+    A residual that a delay, a motor-gain change and viscous friction all explain alike is not
+    evidence for any of them: it is what the LF model's known structure and a healthy
+    actuator's spread leave. ``best`` is unspecific when its gain is below
+    :data:`SPECIFIC_GAIN` and a candidate sharing none of its non-structural effects gains
+    within :data:`RIVAL_MARGIN` of it — counting refits rejected because their effect stayed
+    within its healthy tolerance (they show a healthy-size change does as well). Structural
+    candidates (only :data:`STRUCTURAL` members) are always specific.
+
+    Returns
+    -------
+    list of str
+        The rival candidates' names (empty: specific).
+    """
+    own = set(best.effect.split("+")) - STRUCTURAL
+    if not own or not best.gain < SPECIFIC_GAIN:
+        return []
+    rivals = []
+    for c in candidates:
+        other = set(c.effect.split("+")) - STRUCTURAL
+        if other and not other & own and math.isfinite(c.gain) \
+                and c.gain >= best.gain - RIVAL_MARGIN:
+            rivals.append(c.effect)
+    return rivals
 
 
 class ResidualLoop:
@@ -714,8 +759,9 @@ class ResidualLoop:
         added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
         cand.n_eff = ev.n_eff
         cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
-        if any(e.params and _at_off(e, cand.params) for e in members):
-            # the fit switched an effect off: any gain is the optimizer's, not the effect's
+        if any(e.params and e.within_tolerance(cand.params) for e in members):
+            # the fit left an effect within its healthy tolerance of off: any gain is the
+            # optimizer's or a healthy spread's, not the effect's
             cand.score = -math.inf
         cand.seconds = time.perf_counter() - t0
         cand._evaluation = ev          # kept for the step, not reported

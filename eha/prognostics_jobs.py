@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import re
 import time
 from dataclasses import dataclass, field
@@ -294,7 +293,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     if not limits:
         raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
                                "limit), e.g. --limit FDJ=2000")
-    names = list(dict.fromkeys(list(fit or ("BKL", "FDJ")) + list(limits)))
+    from eha.fdi import DEFAULT_FIT
+
+    names = list(dict.fromkeys(list(fit or DEFAULT_FIT) + list(limits)))
     bad_laws = [x for x in laws if x not in LAWS]
     if bad_laws or not laws:
         raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "

@@ -72,7 +72,7 @@ def run_hf_foreign(p, com, dither, steps_per_out, out, k3, asym, overlap):
     overlap : float
         Spool overlap [m]: the P12 law sees the opening ``sign(xs)*max(|xs| - overlap, 0)``.
     """
-    # Derived constants, once (SPEC §1); reciprocals so the loop only multiplies.
+    # Derived constants, once (docs/model.md §1); reciprocals so the loop only multiplies.
     dt = p[HF.DT]
     gap = p[HF.GAP]; gai = p[HF.GAI]; gad = p[HF.GAD]; erim = p[HF.ErIM]; gas = p[HF.GAS]
     corm = p[HF.CorM]; his = p[HF.His]; ofs = p[HF.Ofs]; gm = p[HF.GM]

@@ -20,7 +20,7 @@ from eha.measured import load, synthetic_record
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 NOISE = 1e-6
 FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0}
-#: The structural differences of HF from LF at the HF's values (SPEC §2 vs §5): the prior of
+#: The structural differences of HF from LF at the HF's values (docs/model.md §2 vs §6): the prior of
 #: the injected-effect tests, so that the undeclared effect is the only thing left to find.
 HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
                 {"effect": "flapper_dynamics", "params": {"SNF": 2513.0, "ZF": 0.6}}]

@@ -53,7 +53,7 @@ def _numba_cache_fallback() -> str | None:
 
 _numba_cache_fallback()
 
-#: Recorded outputs of every model, in the column order of the kernels' output array (SPEC §8).
+#: Recorded outputs of every model, in the column order of the kernels' output array (docs/model.md §8).
 OUTPUTS = ("t", "com", "xu", "xj", "dxj", "xs", "xf", "p12", "cor")
 #: Units of :data:`OUTPUTS`.
 OUTPUT_UNITS = {"t": "s", "com": "m", "xu": "m", "xj": "m", "dxj": "m/s", "xs": "m", "xf": "m",

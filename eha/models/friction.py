@@ -1,4 +1,4 @@
-"""Friction laws and the play operator, each written once (SPEC §3).
+"""Friction laws and the play operator, each written once (docs/model.md §3).
 
 All functions are scalar ``@njit`` helpers inlined into the model kernels. Velocities in m/s,
 forces in N. ``fs`` is the static (break-away) force, ``fd`` the dynamic one.

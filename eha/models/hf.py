@@ -1,4 +1,4 @@
-"""High-fidelity ("detailed") actuator model, one semi-implicit Euler step per DT (SPEC §2).
+"""High-fidelity ("detailed") actuator model, one semi-implicit Euler step per DT (docs/model.md §2).
 
 Signal flow per step: command -> PID -> torque motor (offset, dither, play hysteresis,
 saturation) -> flapper (2nd order, end stops, feedback-spring ball play) -> spool (1st order,
@@ -39,7 +39,7 @@ def run_hf(p, com, dither, steps_per_out, out):
     out : float64[:, :]
         Recorded outputs, shape ``(n_out, len(OUTPUTS))``; row 0 is the initial state.
     """
-    # Derived constants, once (SPEC §1); reciprocals so the loop only multiplies.
+    # Derived constants, once (docs/model.md §1); reciprocals so the loop only multiplies.
     dt = p[HF.DT]
     gap = p[HF.GAP]; gai = p[HF.GAI]; gad = p[HF.GAD]; erim = p[HF.ErIM]; gas = p[HF.GAS]
     corm = p[HF.CorM]; his = p[HF.His]; ofs = p[HF.Ofs]; gm = p[HF.GM]

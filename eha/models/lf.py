@@ -1,4 +1,4 @@
-"""Low-fidelity ("monitoring") model (SPEC §5) with its optional effects as data (SPEC §7).
+"""Low-fidelity ("monitoring") model (docs/model.md §6) with its optional effects as data.
 
 Proportional controller, static first stage, first-order spool with Karnopp friction, linear
 P12 law, jack with Karnopp friction, output backlash. The optional effects are parameters of
