@@ -417,7 +417,7 @@ class LoopSettings:
     max_steps: int = 6
     candidates: int = 6
     noise_factor: float = 1.25
-    joint: bool = False
+    joint: bool = True
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0

@@ -176,7 +176,10 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
                "noise_rmse": result.noise_rmse, "unexplained_rmse": result.unexplained_rmse,
                "faults_before": result.faults_before, "faults_after": result.faults_after,
                "effects": result.effects, "stop_reason": result.stop_reason,
-               "seconds": result.seconds}
+               "seconds": result.seconds, "unexplained": bool(result.unexplained),
+               "verdict": result.verdict,
+               "command_hold": result.settings.get("command_hold"),
+               "leads": result.leads.to_json() if result.leads is not None else None}
     step_rows = [{"run_id": run_id, "step": i + 1, "effect": s.effect,
                   "params": result.final_params(s),
                   "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,

@@ -288,7 +288,12 @@ ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (("fdi_results", "level", "DOU
                                                    ("fdi_results", "flagged", "BOOLEAN"),
                                                    ("fdi_results", "noise_rmse", "DOUBLE"),
                                                    ("runs", "trace_bytes", "BIGINT"),
-                                                   ("runs", "trace_rows", "BIGINT"))
+                                                   ("runs", "trace_rows", "BIGINT"),
+                                                   # residual loop: its verdict (issue 11)
+                                                   ("explain_runs", "unexplained", "BOOLEAN"),
+                                                   ("explain_runs", "verdict", "VARCHAR"),
+                                                   ("explain_runs", "command_hold", "VARCHAR"),
+                                                   ("explain_runs", "leads", "JSON"))
 #: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
 RESULT_TABLES: tuple[str, ...] = ("metrics", "fdi_results")
 

@@ -45,13 +45,17 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert result.exit_code == 0, result.output
     doc = json.loads(js.read_text())
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
+    # and the verdict, its lead, the noise and the command's hold (issue 11)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
-                        "intervals", "level", "unexplained"}
+                        "intervals", "level", "unexplained", "verdict", "noise_rmse",
+                        "unexplained_rmse", "leads", "command_hold"}
     assert doc["level"] == 0.9 and doc["unexplained"] is False
+    assert doc["verdict"].startswith("explained: residual")
     lo, hi = doc["intervals"]["FDJ"]
     assert lo <= doc["faults_after"]["FDJ"] <= hi
     assert doc["steps"][0]["effect"] == "orifice_law"
-    assert set(doc["steps"][0]) == {"effect", "params", "rmse_before", "rmse_after"}
+    assert set(doc["steps"][0]) == {"effect", "params", "rmse_before", "rmse_after",
+                                    "tentative"}
     assert doc["rmse_before"] >= 3 * doc["rmse_after"]
     assert doc["steps"][0]["rmse_before"] == pytest.approx(doc["rmse_before"])
     assert doc["steps"][-1]["rmse_after"] == pytest.approx(doc["rmse_after"])
@@ -64,8 +68,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                       ).fetchall()
     steps = con.execute("SELECT step, effect, rmse_after FROM explain_steps ORDER BY step"
                         ).fetchall()
+    verdict = con.execute("SELECT unexplained, verdict, command_hold FROM explain_runs"
+                          ).fetchone()
     con.close()
     assert len(run) == 1 and run[0][1] == pytest.approx(doc["rmse_before"])
+    assert verdict == (doc["unexplained"], doc["verdict"], doc["command_hold"])
+    assert doc["command_hold"] in ("zoh", "linear")
     assert [s[1] for s in steps] == [s["effect"] for s in doc["steps"]]
 
 
