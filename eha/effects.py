@@ -166,10 +166,10 @@ register(Effect("hysteresis", "play-type magnetic hysteresis on the motor curren
                 tolerance={"His": 0.02}))
 register(Effect("motor_gain", "torque-motor gain change (demagnetisation)",
                 bounds={"GM": (0.002, 0.02)}, probe={"GM": 0.009},
-                tolerance={"GM": 5e-4}))
+                tolerance={"GM": 1e-3}))
 register(Effect("clogging", "first-stage filter clogging: lower first-stage pressure gain",
                 bounds={"Kintas": (0.0, 0.95)}, probe={"Kintas": 0.3},
-                tolerance={"Kintas": 0.15}))
+                tolerance={"Kintas": 0.35}))
 register(Effect("supply_pressure", "supply-pressure change",
                 bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7},
                 tolerance={"PSR": 1e6}))
@@ -178,7 +178,7 @@ register(Effect("flapper_dynamics", "second-order first stage (flapper inertia a
                 probe={"SNF": 2513.0, "ZF": 0.6}))
 register(Effect("viscous_friction", "jack viscous friction coefficient",
                 bounds={"CJ": (0.0, 2e4)}, probe={"CJ": 1000.0},
-                tolerance={"CJ": 1000.0}))
+                tolerance={"CJ": 1.2e4}))
 register(Effect("sensor_bias", "measured position = XU + bias",
                 bounds={"sensor_bias": (-5e-3, 5e-3)}, probe={"sensor_bias": 1e-5},
                 tolerance={"sensor_bias": 3e-6}))
