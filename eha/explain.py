@@ -528,28 +528,24 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             return Choice(None, superseded, stop=(
                 f"no significant effect left: best candidate {best.effect} reduces the RMSE "
                 f"by {best.gain:.1%} (penalised {best.score:.1%} < {settings.min_gain:.0%})"))
-        if best.p_value >= settings.alpha:
-            # a chance gain on this record's correlated residual: try the next one
+        rivals = [] if best.p_value >= settings.alpha else unspecific(best, everything)
+        if best.p_value >= settings.alpha or rivals:
+            # a chance gain on this record's correlated residual, or a stand-in that other
+            # effects match: set it aside and try the next one; the reason of the last one
+            # set aside is the stop reason when nothing else can win
             superseded.add(best.effect)
             if all(c.effect in superseded or c.score < settings.min_gain
                    or c.p_value >= settings.alpha for c in tried):
+                why = (f"not significant on this record (p = {best.p_value:.2g} >= alpha "
+                       f"{settings.alpha:g}, {best.n_eff:.0f} effective samples)"
+                       if not rivals else
+                       f"but {', '.join(rivals)} reduce it as much (a residual that "
+                       f"unrelated effects explain alike is the model's structure or the "
+                       f"actuator's spread, not an effect)")
+                kind = "significant" if not rivals else "specific"
                 return Choice(None, superseded, stop=(
-                    f"no significant effect left: best candidate {best.effect} reduces the "
-                    f"RMSE by {best.gain:.1%}, not significant on this record (p = "
-                    f"{best.p_value:.2g} >= alpha {settings.alpha:g}, {best.n_eff:.0f} "
-                    f"effective samples)"))
-            continue
-        rivals = unspecific(best, everything)
-        if rivals:
-            # other effects explain as much of this residual: a stand-in, not a finding
-            superseded.add(best.effect)
-            if all(c.effect in superseded or c.score < settings.min_gain
-                   or c.p_value >= settings.alpha for c in tried):
-                return Choice(None, superseded, stop=(
-                    f"no specific effect left: best candidate {best.effect} reduces the RMSE "
-                    f"by {best.gain:.1%}, but {', '.join(rivals)} reduce it as much (a "
-                    f"residual that unrelated effects explain alike is the model's structure "
-                    f"or the actuator's spread, not an effect)"))
+                    f"no {kind} effect left: best candidate {best.effect} reduces the RMSE "
+                    f"by {best.gain:.1%}, {why}"))
             continue
         if len(names) == 1:
             break

@@ -350,9 +350,6 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
     command_hold : {"auto", "zoh", "linear"}
         How the command is rebuilt between its samples (:func:`detect_hold` for ``auto``).
     """
-    if command_hold not in COMMAND_HOLDS:
-        raise MeasuredDataError(source, [f"--command-hold {command_hold!r}: allowed: "
-                                         f"{', '.join(COMMAND_HOLDS)}"])
     columns = {"t": t, "com": com, "xu": xu}
     if p12 is not None:
         columns["p12"] = p12
