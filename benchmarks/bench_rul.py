@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from eha.fleet import parse_fleet, simulate_fleet
-    from eha.prognostics_jobs import run_rul
+    from eha.prognostics_jobs import RUL_FIT, run_rul
 
     table = tomllib.loads(args.fleet.read_text())
     if args.actuators is not None:
@@ -65,7 +65,8 @@ def main(argv=None) -> int:
     t_fleet = time.perf_counter() - t0
     limits = dict(fleet.limits)
     t1 = time.perf_counter()
-    res = run_rul(fr.manifest, limits, fit=[f.name for f in fleet.faults],
+    fit = list(dict.fromkeys([*RUL_FIT, *(f.name for f in fleet.faults)]))
+    res = run_rul(fr.manifest, limits, fit=fit,
                   results=out / "results", truth=fr.truth, plots=args.plots,
                   json_out=out / "rul.json", workers=args.workers, progress=False,
                   limit_error=args.limit_error, base_model=args.base_model)

@@ -1136,8 +1136,11 @@ def rul(
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
-        help="Faults identified and tracked (comma-separated; limited faults are added)."),
+        ..., "--fit", default_factory=library_default("eha.prognostics_jobs", "RUL_FIT",
+                                                      ",".join),
+        help="Faults identified and tracked (comma-separated; limited faults are added). "
+        "GM (motor gain) is tracked by default: its manufacturing dispersion would "
+        "otherwise bias FDJ."),
     bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
                                      "(default: eha fdi's, widened to twice the limit)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions "
