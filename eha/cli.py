@@ -866,6 +866,10 @@ def explain(
                           f"{row['chosen_score']:+.2f}): "
                           f"nearly as good, not told apart by this record: "
                           f"{row['alternatives']}")
+    for d in res.dismissed:
+        console.print(f"round {d.round + 1}: {d.effect} chosen but not added: with the rest of "
+                      f"the model refitted without it, it reduces the RMSE by only "
+                      f"{d.loss:.1%} (p = {d.p_value:.2g})")
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
                   f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
                   f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")

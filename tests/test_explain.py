@@ -45,10 +45,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert result.exit_code == 0, result.output
     doc = json.loads(js.read_text())
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
-    # and the verdict, its lead, the noise and the command's hold (issue 11)
+    # and the verdict, its lead, the noise, the command's hold and the effects chosen but
+    # dismissed (issue 11)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
                         "intervals", "level", "unexplained", "verdict", "noise_rmse",
-                        "unexplained_rmse", "leads", "command_hold"}
+                        "unexplained_rmse", "leads", "command_hold", "dismissed"}
+    assert all(set(d) == {"effect", "round", "loss", "p_value"} for d in doc["dismissed"])
     assert doc["level"] == 0.9 and doc["unexplained"] is False
     assert doc["verdict"].startswith("explained: residual")
     lo, hi = doc["intervals"]["FDJ"]

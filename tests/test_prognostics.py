@@ -161,6 +161,17 @@ def test_two_faults_first_crossing_drives_and_untracked_fault_is_ignored():
     assert "A" in only_b[-1].law_weights and "A" not in only_b[-1].crossings
 
 
+def test_a_falling_fault_reaches_a_lower_limit():
+    # demagnetisation: the motor gain falls linearly from 0.010 to its limit 0.007 at cycle
+    # 1000 (measured: median 299, 5-95 % 219-377 at cycle 700)
+    t = np.arange(0, 800, 100.0)
+    g = FaultHistory("GM", t, 0.010 - 3e-6 * t, np.full(t.size, 2e-5), np.ones(t.size, bool))
+    preds, _ = predict_history("x", {"GM": g}, {"GM": 0.007}, seed=0)
+    last = preds[-1]
+    assert last.driver == "GM" and last.rul == pytest.approx(300.0, rel=0.1)
+    assert last.rul_lo < 300.0 < last.rul_hi
+
+
 def test_a_trend_away_from_the_limit_gives_no_rul():
     t = np.arange(0, 600, 100.0)
     h = FaultHistory("F", t, 0.5 - t / 1e4, np.full(t.size, 1e-3), np.ones(t.size, bool))
