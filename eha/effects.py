@@ -169,7 +169,7 @@ register(Effect("motor_gain", "torque-motor gain change (demagnetisation)",
                 tolerance={"GM": 1e-3}))
 register(Effect("clogging", "first-stage filter clogging: lower first-stage pressure gain",
                 bounds={"Kintas": (0.0, 0.95)}, probe={"Kintas": 0.3},
-                tolerance={"Kintas": 0.35}))
+                tolerance={"Kintas": 0.5}))
 register(Effect("supply_pressure", "supply-pressure change",
                 bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7},
                 tolerance={"PSR": 1e6}))
