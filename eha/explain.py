@@ -895,9 +895,8 @@ class ResidualLoop:
         structural pair's refit reaches 55 % on one record and 85 % on its sisters: a GA on
         4-6 parameters does not always find the basin, and a candidate searched with one more
         parameter may find it and take the credit.) Each effect with parameters (not the
-        structure) is left out and
-        the rest refitted from the chosen fit (pattern search); it stays only when it pays for
-        itself (:func:`keeps_effect`). An effect that does not is *dismissed* for the rest of
+        structure) is left out and the rest refitted from the chosen fit (pattern search); it
+        stays only when it pays for itself (:func:`keeps_effect`). An effect that does not is *dismissed* for the rest of
         the run (:class:`Dismissal`). What remains is refitted as a candidate of its own and
         returned when it still qualifies; when nothing new remains, the better refit of the
         model already in place becomes the current model. None: nothing is added this round.
@@ -905,7 +904,7 @@ class ResidualLoop:
         best = choice.best
         s, ev = self.settings, best._evaluation
         kept, params = list(choice.members), ev.params
-        dropped = []
+        dropped, last = [], ev
         for name in [n for n in choice.members if n not in STRUCTURAL]:
             effect = EFFECTS[name]
             if not effect.params:
@@ -924,23 +923,20 @@ class ResidualLoop:
             if not keep:
                 kept.remove(name)
                 dropped.append(Dismissal(name, len(self.rounds) - 1, loss, p))
-                params = without.params
+                params, last = without.params, without
         if not dropped:
             return choice
         self.dismissed.extend(dropped)
-        in_model = {st.effect for st in self.steps}
-        new = [n for n in kept if n not in in_model]
-        if not new:
-            refit = self.evaluate([params])[0]
-            if refit.rmse_score < self.cur.rmse_score:
-                self.current, self.cur = params, refit
+        if not kept:       # (a choice's members are never in the model yet)
+            if last.rmse_score < self.cur.rmse_score:
+                self.current, self.cur = params, last
             return None
-        cand = self.try_candidate(Candidate("+".join(new), math.nan, math.nan),
+        cand = self.try_candidate(Candidate("+".join(kept), math.nan, math.nan),
                                   extends=params)
         rnd.candidates.append(cand)
         if not (cand.score >= s.min_gain and cand.p_value < s.alpha):
             return None
-        return Choice(cand, choice.superseded | {best.effect}, new, "", {})
+        return Choice(cand, choice.superseded | {best.effect}, kept, "", {})
 
     def accept(self, choice: Choice) -> list[Step]:
         """(d) Add the chosen effect(s): polish the faults and every effect in the model
