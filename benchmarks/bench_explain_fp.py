@@ -220,7 +220,32 @@ def noise_stop(result) -> bool:
     return score <= factor * result.noise_rmse
 
 
-def run_explain(df, path: Path, pop: int, seed: int):
+#: Default noise of the recorded load pressure P12 [Pa] (0.2 bar, 0.1 % of a 210 bar
+#: transducer's range); the simulator's P12 is noise-free.
+P12_NOISE = 2e4
+
+
+def p12_column(df, noise: float, seed: int):
+    """The record with its P12 column noisy (std ``noise`` [Pa], ``default_rng([seed, 3])``),
+    or without P12 when ``noise`` < 0 (a record with position only)."""
+    import numpy as np
+
+    df = df.copy()
+    if noise < 0:
+        return df.drop(columns=["p12"])
+    if noise > 0:
+        df["p12"] = df["p12"] + np.random.default_rng([seed, 3]).normal(0.0, noise, len(df))
+    return df
+
+
+def add_p12_arguments(ap) -> None:
+    ap.add_argument("--p12-noise", type=float, default=P12_NOISE,
+                    help="noise std on the recorded P12 [Pa]; -1: records without P12")
+    ap.add_argument("--p12-weight", type=float, default=None,
+                    help="weight of the measured P12 in the loop's fits (default: the loop's)")
+
+
+def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = None):
     """Write the record, read it back and run the loop with its defaults."""
     from eha.explain import explain
     from eha.measured import load
@@ -228,7 +253,7 @@ def run_explain(df, path: Path, pop: int, seed: int):
     df.to_csv(path, index=False)
     data = load(path)
     t0 = time.perf_counter()
-    result = explain(data, pop=pop, seed=seed)
+    result = explain(data, pop=pop, seed=seed, p12_weight=p12_weight)
     return data, result, time.perf_counter() - t0
 
 
@@ -318,6 +343,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=1e-6, help="noise std on xu [m]")
     ap.add_argument("--limit", type=int, default=0, help="only the first N records (smoke run)")
     ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
+    add_p12_arguments(ap)
     args = ap.parse_args()
     commands = [c for c in args.commands.split(",") if c]
     unknown = [c for c in commands if c not in COMMANDS]
@@ -344,8 +370,9 @@ def main() -> None:
             t_end = T_END.get(command, 1.0)
             df = synthetic_record(cmd, truth, t_end=t_end, noise=args.noise, seed=seed,
                                   command_hold="auto")
+            df = p12_column(df, args.p12_noise, seed)
             data, result, seconds = run_explain(df, Path(tmp) / f"{i:03d}_{command}.csv",
-                                                args.pop, args.explain_seed)
+                                                args.pop, args.explain_seed, args.p12_weight)
             res = result_json(data, result, seconds)
             spurious = [e for e in res["effects"] if e not in STRUCTURAL]
             row = {"i": i, "command": command, "seed": seed, "t_end": t_end,
@@ -366,6 +393,7 @@ def main() -> None:
         out = {"benchmark": "explain_fp", "settings": {
                    "commands": commands, "per_command": args.per_command, "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
+                   "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
                    "limit": args.limit, "structural": list(STRUCTURAL),
                    "spread": {**SPREAD, "FDJ": "N(200, 20)", "Clk": "log-uniform 0.7e-13..1.4e-13",
                               "BKL": "uniform 0..3e-5"},

@@ -82,14 +82,20 @@ class Evaluation:
     rmse_all: float                 # whole record [m]
     #: effective independent samples of the residual (fitted + held-out parts)
     n_eff: float = math.nan
+    #: RMSE of the measured P12 on the fitted / held-out part, weighted into metres of
+    #: position (:func:`p12_objective_weight`); 0 when the record has no P12
+    p12_fit: float = 0.0
+    p12_hold: float = 0.0
 
     @property
     def rmse_score(self) -> float:
         """What the loop scores and stops on [m]: the fitted and the held-out part weighted
-        equally, ``sqrt((rmse_fit**2 + rmse_hold**2) / 2)``. The held-out part alone can be a
-        quiet stretch (the end of a step sequence) where every candidate is at the noise
-        level; the fitted part alone rewards over-fitting."""
-        return math.sqrt(0.5 * (self.rmse_fit ** 2 + self.rmse_hold ** 2))
+        equally, ``sqrt((rmse_fit**2 + rmse_hold**2) / 2)``, with the weighted P12 RMSE of
+        each part added in quadrature when the record has P12 (the fits' objective). The
+        held-out part alone can be a quiet stretch (the end of a step sequence) where every
+        candidate is at the noise level; the fitted part alone rewards over-fitting."""
+        return math.sqrt(0.5 * (self.rmse_fit ** 2 + self.rmse_hold ** 2 + self.p12_fit ** 2
+                                + self.p12_hold ** 2))
 
 
 @dataclass
@@ -140,8 +146,10 @@ class Step:
 
 @dataclass
 class Dismissal:
-    """An effect chosen in a round but not added (:meth:`ResidualLoop.confirm`): left out and
-    the rest refitted, the model lost too little; it is not tried again in that run."""
+    """An effect chosen in a round but not added (:meth:`ResidualLoop.confirm`), or added and
+    removed by the final check (:meth:`ResidualLoop.prune`, ``round`` = the number of
+    rounds): left out and the rest refitted, the model lost too little; it is not tried again
+    in that run."""
 
     effect: str
     #: the round (0-based, as in ``rounds``)
@@ -245,6 +253,7 @@ class ExplainResult:
             "unexplained_rmse": self.unexplained_rmse,
             "leads": self.leads.to_json() if self.leads is not None else None,
             "command_hold": self.settings.get("command_hold"),
+            "p12_in_fit": bool(self.settings.get("p12_used", False)),
             "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
                        "tentative": self.unexplained}
@@ -335,11 +344,11 @@ class _Record:
         self.steps_per_out, self.n_out, t_steps = grid(base, self.t_end)
         self.com = command_on_grid(data.command, t_steps)
 
-    def run(self, params: Sequence[LFParams]) -> np.ndarray:
-        """Recorded xu of each parameter set, shape (n, n_out)."""
+    def run(self, params: Sequence[LFParams], with_p12: bool = False):
+        """Recorded xu of each parameter set, shape (n, n_out) (and P12 with ``with_p12``)."""
         rows = np.stack([p.to_array() for p in params])
         return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base,
-                                 self.recorded_start)
+                                 self.recorded_start, with_p12=with_p12)
 
     def full(self, params: LFParams):
         if self.recorded_start is not None:
@@ -424,6 +433,11 @@ class LoopSettings:
     joint : bool
         Refit the parameters of the effects already added in every later round (False: they
         stay at the estimates of the round that added them; the faults are always refitted).
+    p12_weight : float
+        Weight of the measured load pressure in every fit and score when the record carries
+        P12, >= 0 (0: position only). Each P12 sample counts ``p12_weight`` times as much as
+        a position sample, each measured in its own noise (:func:`p12_objective_weight`);
+        the reported RMSE stay those of the position.
     method, pop, seed
         Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
     """
@@ -436,6 +450,7 @@ class LoopSettings:
     candidates: int = 6
     noise_factor: float = 1.25
     joint: bool = True
+    p12_weight: float = 1.0
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -456,10 +471,38 @@ class LoopSettings:
             problems.append(f"--candidates {self.candidates}: allowed range [0, ...] (0 = all)")
         if not self.noise_factor >= 0.0:
             problems.append(f"noise_factor {self.noise_factor:g}: allowed range [0, ...]")
+        if not 0.0 <= self.p12_weight <= 100.0:
+            problems.append(f"--p12-weight {self.p12_weight:g}: allowed range [0, 100]")
         if self.pop < 2:
             problems.append(f"--pop {self.pop}: allowed range [2, ...]")
         if problems:
             raise ExplainError("; ".join(problems))
+
+
+#: The noise assumed for a measured P12 is at least this fraction of its standard deviation:
+#: a simulated record has none, and the LF's pressure is a model (on a healthy HF record of
+#: ``mixed`` or ``chirp_1cm`` the LF with the structural effects is within 0.3-0.5 % of
+#: P12's standard deviation, on the steps of ``test`` 5-10 %: the LF's pressure transients
+#: are a model's).
+P12_NOISE_FLOOR = 0.05
+
+
+def p12_objective_weight(noise_xu: float, p12: np.ndarray | None, weight: float = 1.0
+                         ) -> tuple[float, float]:
+    """Metres of position per pascal of P12 residual in the fits, and the P12 noise [Pa].
+
+    Each signal is measured in its own noise (``noise_xu`` [m], the P12 noise from
+    :func:`eha.measured.noise_level`): ``weight * noise_xu / noise_p12``, the P12 noise floored at :data:`P12_NOISE_FLOOR` of its standard
+    deviation. ``(0, nan)`` when the record has no P12, ``weight`` is 0, or either signal is
+    noise-free and flat.
+    """
+    if p12 is None or weight <= 0:
+        return 0.0, math.nan
+    p12 = np.asarray(p12, dtype=np.float64)
+    sigma_p = max(noise_level(p12), P12_NOISE_FLOOR * float(np.std(p12)))
+    if not (sigma_p > 0 and noise_xu > 0):
+        return 0.0, sigma_p
+    return weight * noise_xu / sigma_p, sigma_p
 
 
 #: Defaults of the loop (see :class:`LoopSettings`), for the CLI.
@@ -682,7 +725,8 @@ class ResidualLoop:
     the effects' signatures (b); :meth:`try_candidate` refits with a candidate switched on and
     scores it (c); :meth:`choose` picks what to add (d, the pure :func:`choose`);
     :meth:`confirm` checks that each effect chosen is needed (the rest refitted without it);
-    :meth:`accept` adds it; :meth:`run` repeats until a stop rule holds (e) and returns the
+    :meth:`accept` adds it; :meth:`run` repeats until a stop rule holds (e), checks each added
+    effect once more with all the others in (:meth:`prune`, f) and returns the
     :class:`ExplainResult`. See :func:`explain` for the parameters.
     """
 
@@ -730,6 +774,12 @@ class ResidualLoop:
         self.check = (_Record(validate, _initial_position(validate, base))
                       if validate is not None else None)
         self.noise = float(data.info.get("noise_m", noise_level(data.xu)))
+        # the measured load pressure joins every fit (not the scores) when the record has it
+        self.p12_weight, self.p12_noise = p12_objective_weight(
+            self.noise, data.p12, settings.p12_weight)
+        # the score of a model that leaves only noise (the P12 noise in metres of position)
+        self.score_noise = math.hypot(self.noise, self.p12_weight * self.p12_noise) \
+            if self.p12_weight else self.noise
         self.steps: list[Step] = []
         self.dismissed: list[Dismissal] = []
         self.rounds: list[Round] = []
@@ -741,21 +791,31 @@ class ResidualLoop:
     # -- evaluation and fitting ------------------------------------------------------------
     def evaluate(self, params: list[LFParams]) -> list[Evaluation]:
         """Simulate parameter sets on the record (one batch) and score them."""
-        data, n_fit, check = self.data, self.n_fit, self.check
-        xu = self.record.run(params)
-        hold = check.run([p.replace(XJ0=check.base.XJ0) for p in params]) if check else None
+        data, n_fit, check, w = self.data, self.n_fit, self.check, self.p12_weight
+        xu, p12 = self.record.run(params, with_p12=True)
+        check_p12 = w and check is not None and self.validate.p12 is not None
+        if check is not None:
+            hold, hold_p12 = check.run([p.replace(XJ0=check.base.XJ0) for p in params],
+                                       with_p12=True)
         out = []
         for j, p in enumerate(params):
             r_fit = _rmse(xu[j, :n_fit], data.xu[:n_fit])
+            p_fit = w * _rmse(p12[j, :n_fit], data.p12[:n_fit]) if w else 0.0
             if check is not None:
                 r_hold = _rmse(hold[j], self.validate.xu)
+                # a validation record without P12: its position alone is held out
+                p_hold = w * _rmse(hold_p12[j], self.validate.p12) if check_p12 else 0.0
                 resid = np.concatenate([data.xu - xu[j], self.validate.xu - hold[j]])
             else:
-                r_hold = _rmse(xu[j, n_fit:], data.xu[n_fit:]) if n_fit < len(data) else r_fit
+                held = n_fit < len(data)
+                r_hold = _rmse(xu[j, n_fit:], data.xu[n_fit:]) if held else r_fit
+                p_hold = (w * _rmse(p12[j, n_fit:], data.p12[n_fit:]) if held else p_fit) \
+                    if w else 0.0
                 resid = data.xu - xu[j]
             out.append(Evaluation(p, xu[j], r_fit, r_hold, _rmse(xu[j], data.xu),
                                   n_eff=effective_samples(resid)
-                                  if np.all(np.isfinite(resid)) else 2.0))
+                                  if np.all(np.isfinite(resid)) else 2.0,
+                                  p12_fit=p_fit, p12_hold=p_hold))
         return out
 
     def refit(self, start: LFParams, free: Mapping[str, tuple[float, float]], label: str,
@@ -776,7 +836,9 @@ class ResidualLoop:
                 res = identify(self.data.xu[:self.n_fit], self.data.command, fit=dict(free),
                                base=start, method=method, pop=s.pop, seed=s.seed + 1000 * i,
                                warm_start=warm_start, recorded_start=self.record.recorded_start,
-                               level=None, **options)
+                               level=None, p12_weight=self.p12_weight,
+                               reference_p12=(self.data.p12[:self.n_fit] if self.p12_weight
+                                              else None), **options)
                 if best is None or res.objective < best.objective:
                     best = res
         except FDIError as exc:
@@ -938,6 +1000,36 @@ class ResidualLoop:
             return None
         return Choice(cand, choice.superseded | {best.effect}, kept, "", {})
 
+    def prune(self) -> list[Dismissal]:
+        """(f) After the last round: is each effect added still needed now that the later
+        ones are in? An effect added early can stand in for several missing ones (an offset
+        for a load before the leak that goes with it is found). Each added effect with
+        parameters (not the structure), earliest first, is left out and the rest refitted
+        (pattern search); it is removed, and listed as dismissed, when it no longer pays for
+        itself (:func:`keeps_effect`)."""
+        s, removed = self.settings, []
+        for step in list(self.steps):
+            effect = EFFECTS[step.effect]
+            if step.effect in STRUCTURAL or not effect.params:
+                continue
+            free = dict(self.free)
+            for other in self.steps:
+                if other is not step:
+                    free.update(EFFECTS[other.effect].bounds)
+            start = effect.switch_off(self.current)
+            refitted = self.refit(start, free, f"final check: without {step.effect}",
+                                  method="ps")
+            without = min(self.evaluate([start, refitted]), key=lambda e: e.rmse_score
+                          if math.isfinite(e.rmse_score) else math.inf)
+            keep, loss, p = keeps_effect(self.cur.rmse_score, without.rmse_score,
+                                         len(effect.params), self.cur.n_eff, s)
+            if not keep:
+                self.steps.remove(step)
+                removed.append(Dismissal(step.effect, len(self.rounds), loss, p))
+                self.current, self.cur = without.params, without
+        self.dismissed.extend(removed)
+        return removed
+
     def accept(self, choice: Choice) -> list[Step]:
         """(d) Add the chosen effect(s): polish the faults and every effect in the model
         jointly from the winning fit (a local search: an effect added earlier was estimated
@@ -983,9 +1075,10 @@ class ResidualLoop:
         s, cur = self.settings, self.cur
         if len(self.steps) >= s.max_steps:
             return f"reached max_steps={s.max_steps:g}"
-        if cur.rmse_score <= s.noise_factor * self.noise:
-            return (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts) is at the noise "
-                    f"level ({self.noise:.3g} m estimated from the record)")
+        if cur.rmse_score <= s.noise_factor * self.score_noise:
+            what = " with P12" if self.p12_weight else ""
+            return (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts{what}) is at the "
+                    f"noise level ({self.score_noise:.3g} m estimated from the record)")
         if not self.remaining():
             return "every candidate effect is already in the model"
         return ""
@@ -1021,6 +1114,7 @@ class ResidualLoop:
             confirmed = self.confirm(rnd, choice)
             if confirmed is not None:
                 self.accept(confirmed)
+        self.prune()
         for rnd in self.rounds:
             for c in rnd.candidates:
                 c.__dict__.pop("_evaluation", None)
@@ -1036,7 +1130,8 @@ class ResidualLoop:
         settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, "n_fit": self.n_fit,
                     "effects": [e.name for e in self.pool],
                     "command_hold": data.info.get("command_hold", "linear"),
-                    **self.fdi_options}
+                    "p12_used": bool(self.p12_weight), "p12_noise_pa": self.p12_noise,
+                    "p12_m_per_pa": self.p12_weight, **self.fdi_options}
         return ExplainResult(
             source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
             faults_after={k: getattr(self.current, k) for k in self.bounds}, before=before,
@@ -1054,7 +1149,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
-            alpha: float | None = None,
+            alpha: float | None = None, p12_weight: float | None = None,
             on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -1078,6 +1173,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Passed to :func:`eha.fdi.identify` for every fit (same seed for all fits).
     min_gain, penalty, alpha, max_steps, candidates, noise_factor, joint
         The stop and choice rules (:class:`LoopSettings`, where their defaults are).
+    p12_weight : float, optional
+        Weight of a measured P12 in the fits (:class:`LoopSettings`; 0 = position only).
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
@@ -1090,7 +1187,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     """
     given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
-             "joint": joint}
+             "joint": joint, "p12_weight": p12_weight}
     settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
                             method=method or DEFAULT_METHOD, pop=pop, seed=seed)
     return ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,

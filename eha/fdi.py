@@ -19,7 +19,11 @@ Methods (``identify(method=...)``):
     (docs/fdi.md).
 
 Objectives: ``"rmse"`` (default) ``sqrt(mean((y_LF - y_ref)^2))`` and ``"objfcn"``, the
-thesis' objfcn.m as written, ``mean(sqrt((y_LF - y_ref)^2))`` = mean absolute error.
+thesis' objfcn.m as written, ``mean(sqrt((y_LF - y_ref)^2))`` = mean absolute error. When a
+measured load pressure is given (``reference_p12`` with ``p12_weight`` > 0, the residual loop
+on records that carry P12) its residual joins the objective in metres of position,
+``p12_weight * (P12_LF - P12_ref)``: ``sqrt(mean(e_xu^2) + mean(e_p12^2))`` (or the sum of
+the mean absolute errors).
 """
 
 from __future__ import annotations
@@ -242,6 +246,20 @@ def objective_values(xu: np.ndarray, reference: np.ndarray, objective: str = "rm
     raise FDIError(f"objective {objective!r}: allowed {', '.join(OBJECTIVES)}")
 
 
+def combined_objective(xu: np.ndarray, reference: np.ndarray, p12: np.ndarray,
+                       reference_p12: np.ndarray, p12_weight: float, objective: str = "rmse"
+                       ) -> np.ndarray:
+    """Objective of position and load pressure together, in metres of position.
+
+    ``p12_weight`` [m/Pa] converts the P12 residual into position: with ``sigma_xu /
+    sigma_p12`` (the two sensors' noise) each sample of either signal counts by its noise, the
+    least-squares form of the two measurements' joint likelihood.
+    """
+    a = objective_values(xu, reference, objective)
+    b = objective_values(p12_weight * p12, p12_weight * reference_p12, objective)
+    return np.sqrt(a * a + b * b) if objective == "rmse" else a + b
+
+
 class BatchObjective:
     """Objective of unit-cube points: maps rows of ``U`` in [0, 1]^k to LF runs, one batch.
 
@@ -259,8 +277,13 @@ class BatchObjective:
 
     def __init__(self, reference: np.ndarray, com: np.ndarray, steps_per_out: int, n_out: int,
                  names: Sequence[str], bounds: Mapping[str, tuple[float, float]],
-                 base: LFParams, objective: str, recorded_start: float | None = None):
+                 base: LFParams, objective: str, recorded_start: float | None = None,
+                 reference_p12: np.ndarray | None = None, p12_weight: float = 0.0):
         self.reference = np.ascontiguousarray(reference, dtype=np.float64)
+        # measured P12 joins the objective only when it is given and weighted
+        self.reference_p12 = (np.ascontiguousarray(reference_p12, dtype=np.float64)
+                              if reference_p12 is not None and p12_weight > 0 else None)
+        self.p12_weight = float(p12_weight)
         self.com = com
         self.steps_per_out = steps_per_out
         self.n_out = n_out
@@ -287,7 +310,17 @@ class BatchObjective:
                                  self.recorded_start)
 
     def __call__(self, U: np.ndarray) -> np.ndarray:
-        values = objective_values(self.simulate(U), self.reference, self.objective)
+        if self.reference_p12 is None:
+            values = objective_values(self.simulate(U), self.reference, self.objective)
+        else:
+            U = np.atleast_2d(U)
+            rows = np.tile(self.base_row, (U.shape[0], 1))
+            rows[:, self.index] = self.physical(U)
+            self.evaluations += U.shape[0]
+            xu, p12 = simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out,
+                                        self.base, self.recorded_start, with_p12=True)
+            values = combined_objective(xu, self.reference, p12, self.reference_p12,
+                                        self.p12_weight, self.objective)
         # an unstable parameter set (NaN/inf trace) is simply the worst candidate
         return np.where(np.isfinite(values), values, np.inf)
 
@@ -372,7 +405,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
              on_generation: Callable[[int, float], None] | None = None,
              warm_start: bool = False, recorded_start: float | None = None,
              level: float | None = DEFAULT_LEVEL, noise: float | None = None,
-             model_form: str | None = None, **options: float) -> FitResult:
+             model_form: str | None = None, reference_p12: np.ndarray | None = None,
+             p12_weight: float = 0.0, **options: float) -> FitResult:
     """Identify LF parameters from a recorded position trace.
 
     Parameters
@@ -415,6 +449,12 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         the record was resampled, :func:`eha.measured.noise_level` on the raw samples).
     model_form : str, optional
         Key of :data:`eha.intervals.MODEL_FORM` (default: recognised from ``base``).
+    reference_p12 : float64 array, optional
+        Measured load pressure P12 [Pa] on the grid of ``reference_xu``: with ``p12_weight``
+        > 0 its residual joins the objective (:func:`combined_objective`).
+    p12_weight : float
+        Metres of position per pascal of P12 residual, >= 0 (0: P12 is not used), e.g.
+        ``noise_xu / noise_p12``.
     **options
         Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
         max_evals.
@@ -460,10 +500,18 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         raise FDIError(f"reference_xu: {reference.size} samples, but t_end={t_end:g} s at 1 kHz "
                        f"needs {n_out}")
 
+    if not (math.isfinite(p12_weight) and p12_weight >= 0):
+        raise FDIError(f"p12_weight={p12_weight}: allowed range [0, ...) m/Pa")
+    if reference_p12 is not None and p12_weight > 0:
+        reference_p12 = np.asarray(reference_p12, dtype=np.float64)
+        if reference_p12.shape != reference.shape or not np.all(np.isfinite(reference_p12)):
+            raise FDIError(f"reference_p12: a finite array of {reference.size} samples (the "
+                           f"grid of reference_xu) is required")
+
     start = time.perf_counter()
     com = command_on_grid(as_command(command), t_steps)     # sampled once
     obj = BatchObjective(reference, com, steps_per_out, n_out, names, bounds, base, objective,
-                         recorded_start)
+                         recorded_start, reference_p12, p12_weight)
     history: list[float] = []
     max_evals = int(opts["max_evals"])
     max_gen = int(opts.get("max_gen", 0)) or 100 * len(names)

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from eha.commands import Command, as_command
-from eha.models import O_COM, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
+from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
 from eha.models.hf import dither_samples, run_hf
 from eha.models.lf import run_lf, run_lf_batch
 from eha.params import ModelParams, ParameterError, resolve
@@ -162,7 +162,7 @@ def xj0_for_recorded(recorded_start: float, sensor_bias, sensor_gain, XJM):
 
 def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: int,
                       n_out: int, base: ModelParams,
-                      recorded_start: float | None = None) -> np.ndarray:
+                      recorded_start: float | None = None, with_p12: bool = False):
     """Recorded LF position for many parameter vectors in one parallel numba call.
 
     Parameters
@@ -178,9 +178,13 @@ def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: in
         row's sensor bias and gain, :func:`xj0_for_recorded`) instead of at its XJ0: a record
         that starts away from its command starts at its measured position.
 
+    with_p12 : bool
+        Also return the load pressure P12 of each row (the sensor does not touch it).
+
     Returns
     -------
-    float64 array, shape (n, n_out): recorded xu of each row.
+    float64 array, shape (n, n_out): recorded xu of each row; with ``with_p12`` the pair
+    ``(xu, p12)``, P12 in Pa.
     """
     from eha.params import LF
 
@@ -200,6 +204,8 @@ def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: in
             xu[j] = measure(t, xu[j], base.replace(
                 sensor_delay=row[LF.sensor_delay], sensor_gain=row[LF.sensor_gain],
                 sensor_bias=row[LF.sensor_bias]))
+    if with_p12:
+        return np.ascontiguousarray(xu), np.ascontiguousarray(out[:, :, O_P12])
     return np.ascontiguousarray(xu)
 
 

@@ -156,6 +156,41 @@ def test_bad_settings_rejected(kwargs, word, lf_reference):
         identify(lf_reference, "chirp_1cm", BOUNDS, **kwargs)
 
 
+@pytest.mark.parametrize("kwargs, word", [
+    ({"p12_weight": -1.0}, "p12_weight"),
+    ({"p12_weight": float("nan")}, "p12_weight"),
+    ({"p12_weight": 1e-9, "reference_p12": np.zeros(5)}, "reference_p12"),
+])
+def test_bad_p12_settings_rejected(kwargs, word, lf_reference):
+    with pytest.raises(FDIError, match=word):
+        identify(lf_reference, "chirp_1cm", BOUNDS, t_end=T_END, **kwargs)
+
+
+def test_combined_objective_adds_the_weighted_p12_residual():
+    """Position residual 3 m everywhere, P12 residual 4 Pa at 1 m/Pa: rmse sqrt(9 + 16) = 5,
+    mean absolute error 3 + 4 = 7; a weight of 0.5 m/Pa makes the P12 part 2."""
+    xu, ref = np.full((1, 10), 3.0), np.zeros(10)
+    p12, ref_p = np.full((1, 10), -4.0), np.zeros(10)
+    assert fdi.combined_objective(xu, ref, p12, ref_p, 1.0)[0] == pytest.approx(5.0)
+    assert fdi.combined_objective(xu, ref, p12, ref_p, 1.0, "objfcn")[0] == pytest.approx(7.0)
+    assert fdi.combined_objective(xu, ref, p12, ref_p, 0.5)[0] == pytest.approx(13 ** 0.5)
+
+
+def test_round_trip_with_the_measured_p12():
+    """LF record with its P12: the joint objective has the same exact solution (0.5 %, as the
+    position-only round trip), and a P12 from another actuator (FDJ 1600 N) pulls the fit."""
+    trace = simulate("lf", "chirp_1cm", {"BKL": 2e-4, "FDJ": 800.0}, t_end=T_END)
+    w = 1e-6 / 2e4                        # 1 µm of position per 0.2 bar
+    res = identify(trace.xu, "chirp_1cm", BOUNDS, seed=0, t_end=T_END,
+                   reference_p12=trace["p12"], p12_weight=w)
+    assert res.estimates["BKL"] == pytest.approx(2e-4, rel=5e-3)
+    assert res.estimates["FDJ"] == pytest.approx(800.0, rel=5e-3)
+    other = simulate("lf", "chirp_1cm", {"BKL": 2e-4, "FDJ": 1600.0}, t_end=T_END)["p12"]
+    pulled = identify(trace.xu, "chirp_1cm", BOUNDS, seed=0, t_end=T_END,
+                      reference_p12=other, p12_weight=w)
+    assert pulled.estimates["FDJ"] > 880.0
+
+
 def test_percent_errors_reproduce_the_thesis_table():
     camp = load_fdi_campaign(ROOT / "campaigns" / "thesis-fdi.toml")
     assert [c.case for c in camp.cases] == list(range(1, 13))
