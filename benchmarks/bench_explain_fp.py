@@ -257,11 +257,21 @@ def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = 
     return data, result, time.perf_counter() - t0
 
 
+def effects_on(result) -> list[str]:
+    """Effects on in the final model and not in the starting one (the loop's doing)."""
+    from eha.effects import EFFECTS
+
+    return [name for name, e in EFFECTS.items()
+            if e.is_on(result.after.params) and not e.is_on(result.before.params)]
+
+
 def result_json(data, result, seconds: float) -> dict:
     """The figures of one loop run (the public contract plus the trace)."""
     rounds = rounds_json(result)
     return {
         "effects": list(result.effects),
+        # every effect switched on in the final model (a guard: must equal the steps)
+        "effects_on": effects_on(result),
         "steps": [{"effect": s.effect, "params": dict(s.params), "gain": s.gain,
                    "score": s.score, "chosen": getattr(s, "chosen", ""),
                    "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
@@ -374,7 +384,8 @@ def main() -> None:
             data, result, seconds = run_explain(df, Path(tmp) / f"{i:03d}_{command}.csv",
                                                 args.pop, args.explain_seed, args.p12_weight)
             res = result_json(data, result, seconds)
-            spurious = [e for e in res["effects"] if e not in STRUCTURAL]
+            spurious = [e for e in dict.fromkeys(res["effects"] + res["effects_on"])
+                        if e not in STRUCTURAL]
             row = {"i": i, "command": command, "seed": seed, "t_end": t_end,
                    "noise": args.noise, "truth": truth, "command_steps": steps,
                    "false_positive": bool(spurious), "spurious": spurious, **res}

@@ -126,7 +126,8 @@ def score(res: dict, result, inj: dict[str, dict[str, float]]) -> dict:
     param_err = {p: rel(float(getattr(result.after.params, p)), v)
                  for e, ps in inj.items() for p, v in ps.items() if found[e]}
     fault_err = {k: rel(float(result.faults_after[k]), v) for k, v in FAULTS.items()}
-    spurious = [e for e in effects if e not in inj and e not in STRUCTURAL]
+    spurious = [e for e in dict.fromkeys(effects + res["effects_on"])
+                if e not in inj and e not in STRUCTURAL]
     all_found = all(found.values())
     params_ok = all_found and all(err <= PARAM_TOL for err in param_err.values())
     faults_ok = all(err <= FAULT_TOL for err in fault_err.values())

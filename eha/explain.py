@@ -1012,7 +1012,8 @@ class ResidualLoop:
             effect = EFFECTS[step.effect]
             if step.effect in STRUCTURAL or not effect.params:
                 continue
-            free = dict(self.free)
+            # (with joint=True the effects added are among self.free: not the one left out)
+            free = {k: v for k, v in self.free.items() if k not in effect.bounds}
             for other in self.steps:
                 if other is not step:
                     free.update(EFFECTS[other.effect].bounds)
@@ -1027,6 +1028,7 @@ class ResidualLoop:
                 self.steps.remove(step)
                 removed.append(Dismissal(step.effect, len(self.rounds), loss, p))
                 self.current, self.cur = without.params, without
+                self.free = {k: v for k, v in self.free.items() if k not in effect.bounds}
         self.dismissed.extend(removed)
         return removed
 

@@ -28,6 +28,19 @@ HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
                 {"effect": "flapper_dynamics", "params": {"SNF": 2513.0, "ZF": 0.6}}]
 
 
+def assert_effects_are_the_model(res):
+    """Every effect with parameters that is on in the final model is a reported step (or in
+    the prior), and every reported step is on: what the user reads is what was fitted."""
+    from eha.effects import EFFECTS
+
+    for name, effect in EFFECTS.items():
+        if effect.params and effect.is_on(res.after.params) and \
+                not effect.is_on(res.before.params):
+            assert name in res.effects, (name, res.effects, res.dismissed)
+        if name in res.effects and effect.params:
+            assert effect.is_on(res.after.params), name
+
+
 def _record(tmp_path, name, command, t_end, overrides=None, model="hf", seed=1):
     path = tmp_path / f"{name}.csv"
     synthetic_record(command, {**FAULTS, **(overrides or {})}, t_end=t_end, noise=NOISE,
@@ -134,6 +147,7 @@ def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
     assert res.effects[0] == "leakage", res.stop_reason
     assert res.steps[0].params["Clk"] == pytest.approx(5e-12, rel=0.10)
     assert res.faults_after["FDJ"] == pytest.approx(800.0, rel=0.03)
+    assert_effects_are_the_model(res)
 
 
 def test_p12_weight_measures_each_signal_in_its_noise():
@@ -207,6 +221,7 @@ def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overr
     assert effects[:2] == ["orifice_law", {"FRC": "external_load"}.get(param, param)]
     assert doc["steps"][1]["params"][param] == pytest.approx(overrides[param], rel=tol)
     assert doc["rmse_before"] >= 3 * doc["rmse_after"]
+    assert_effects_are_the_model(res)
 
 
 def test_bad_inputs_raise_one_line(tmp_path):
