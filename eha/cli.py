@@ -782,6 +782,11 @@ def explain(
                                        "eha.explain", "DEFAULTS", lambda d: d["min_gain"]),
         help="Smallest penalised held-out RMSE reduction that adds "
                                         "an effect."),
+    p12_weight: float = typer.Option(
+        ..., "--p12-weight", default_factory=library_default(
+            "eha.explain", "DEFAULTS", lambda d: d["p12_weight"]),
+        help="Weight of the record's measured P12 in every fit and score, each signal in its "
+             "own noise (0 = position only; records without P12 use the position only)."),
     command_hold: CommandHoldOption = COMMAND_HOLD,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
@@ -819,6 +824,8 @@ def explain(
         fail(f"--max-steps {max_steps}: allowed range [0, ...]")
     if not 0.0 <= min_gain <= 1.0:  # also refuses nan
         fail(f"--min-gain {min_gain}: allowed range [0, 1]")
+    if not 0.0 <= p12_weight <= 100.0:
+        fail(f"--p12-weight {p12_weight}: allowed range [0, 100]")
     if prior is not None:
         check_prior(prior)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -838,7 +845,7 @@ def explain(
                                  known=known_values, command_hold=command_hold,
                                  results=results, on_progress=step, method=method, pop=pop,
                                  seed=seed, candidates=candidates, max_steps=max_steps,
-                                 min_gain=min_gain)
+                                 min_gain=min_gain, p12_weight=p12_weight)
         except MeasuredDataError as exc:
             bar.stop()
             _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))
@@ -867,9 +874,14 @@ def explain(
                           f"nearly as good, not told apart by this record: "
                           f"{row['alternatives']}")
     for d in res.dismissed:
-        console.print(f"round {d.round + 1}: {d.effect} chosen but not added: with the rest of "
-                      f"the model refitted without it, it reduces the RMSE by only "
-                      f"{d.loss:.1%} (p = {d.p_value:.2g})")
+        when = (f"round {d.round + 1}: {d.effect} chosen but not added" if d.round <
+                len(res.rounds) else f"final check: {d.effect} removed")
+        console.print(f"{when}: with the rest of the model refitted without it, it reduces "
+                      f"the RMSE by only {d.loss:.1%} (p = {d.p_value:.2g})")
+    if res.settings.get("p12_used"):
+        console.print(f"measured P12 used in every fit and score (noise taken as "
+                      f"{res.settings['p12_noise_pa'] / 1e5:.3g} bar; --p12-weight "
+                      f"{res.settings['p12_weight']:g})")
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
                   f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
                   f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")
