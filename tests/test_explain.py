@@ -60,11 +60,13 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert result.exit_code == 0, result.output
     doc = json.loads(js.read_text())
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
-    # and the verdict, its lead, the noise, the command's hold and the effects chosen but
-    # dismissed (issue 11)
+    # and the verdict, its lead, the noise, the command's hold, the effects chosen but
+    # dismissed and whether the measured P12 was fitted (issue 11)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
                         "intervals", "level", "unexplained", "verdict", "noise_rmse",
-                        "unexplained_rmse", "leads", "command_hold", "dismissed"}
+                        "unexplained_rmse", "leads", "command_hold", "dismissed",
+                        "p12_in_fit"}
+    assert doc["p12_in_fit"] is True            # the record has P12
     assert all(set(d) == {"effect", "round", "loss", "p_value"} for d in doc["dismissed"])
     assert doc["level"] == 0.9 and doc["unexplained"] is False
     assert doc["verdict"].startswith("explained: residual")
@@ -152,7 +154,7 @@ def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
 
 def test_p12_weight_measures_each_signal_in_its_noise():
     rng = np.random.default_rng(0)
-    smooth = 1e6 * np.sin(np.linspace(0.0, 6.0, 1000))           # 1e6 Pa amplitude
+    smooth = 1e5 * np.sin(np.linspace(0.0, 6.0, 1000))           # 1 bar amplitude
     # no P12, or a zero weight: position only
     assert p12_objective_weight(1e-6, None)[0] == 0.0
     assert p12_objective_weight(1e-6, smooth, weight=0.0)[0] == 0.0
