@@ -874,6 +874,11 @@ def explain(
                           f"nearly as good, not told apart by this record: "
                           f"{row['alternatives']}")
     for d in res.dismissed:
+        if d.replaced_by:
+            console.print(f"final check: {d.effect} replaced by {d.replaced_by}: the model "
+                          f"with {d.replaced_by} in its place scores {-d.loss:.1%} better "
+                          f"(p = {d.p_value:.2g})")
+            continue
         when = (f"round {d.round + 1}: {d.effect} chosen but not added" if d.round <
                 len(res.rounds) else f"final check: {d.effect} removed")
         console.print(f"{when}: with the rest of the model refitted without it, it reduces "

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -154,10 +154,13 @@ class Dismissal:
     effect: str
     #: the round (0-based, as in ``rounds``)
     round: int
-    #: relative RMSE reduction it brought over the refit without it (scored)
+    #: relative RMSE reduction it brought over the refit without it (scored); for a swap,
+    #: minus the reduction its replacement brings over it
     loss: float
     #: significance of that reduction (:func:`significance`)
     p_value: float
+    #: the effect that replaced it in the final check (a swap), else ""
+    replaced_by: str = ""
 
 
 @dataclass
@@ -259,7 +262,8 @@ class ExplainResult:
                        "tentative": self.unexplained}
                       for s in self.steps],
             "dismissed": [{"effect": d.effect, "round": d.round, "loss": d.loss,
-                           "p_value": d.p_value} for d in self.dismissed],
+                           "p_value": d.p_value, "replaced_by": d.replaced_by}
+                          for d in self.dismissed],
         }
 
     def steps_table(self) -> list[dict[str, Any]]:
@@ -680,6 +684,10 @@ def keeps_effect(with_rmse: float, without_rmse: float, n_params: int, n_eff: fl
     return keep, loss, p
 
 
+#: Effects tried in place of an added one by the final check's swap (:meth:`ResidualLoop.swap`):
+#: those whose signature is most like the added effect's contribution.
+SWAP_CANDIDATES = 3
+
 #: Effects that are the LF model's known structure (members of COMBINATIONS): always specific.
 STRUCTURAL = frozenset(name for combo in COMBINATIONS for name in combo)
 #: A gain below this is checked for specificity (:func:`unspecific`): a real effect of a
@@ -1010,11 +1018,17 @@ class ResidualLoop:
 
     def prune(self) -> list[Dismissal]:
         """(f) After the last round: is each effect added still needed now that the later
-        ones are in? An effect added early can stand in for several missing ones (an offset
-        for a load before the leak that goes with it is found). Each added effect with
-        parameters (not the structure), earliest first, is left out and the rest refitted
-        (pattern search); it is removed, and listed as dismissed, when it no longer pays for
-        itself (:func:`keeps_effect`)."""
+        ones are in, and is it the right one? An effect added early can stand in for several
+        missing ones (an offset for a load before the leak that goes with it is found), or for
+        one the round did not try (a motor gain for a position delay on ``mixed``). Each added
+        effect with parameters (not the structure), earliest first, is left out and the rest
+        refitted (pattern search); it is removed, and listed as dismissed, when it no longer
+        pays for itself (:func:`keeps_effect`). An effect that stays is then *swapped*: each
+        effect not in the model — of those whose signature is most like the effect's
+        contribution, :data:`SWAP_CANDIDATES` — takes its place in turn (its parameters from
+        their probe values, everything refitted by pattern search); the best swap replaces it when it
+        beats the model by the same rule (:func:`keeps_effect`, the swapped model against
+        the current one) and leaves its own healthy tolerance."""
         s, removed = self.settings, []
         for step in list(self.steps):
             effect = EFFECTS[step.effect]
@@ -1037,8 +1051,60 @@ class ResidualLoop:
                 removed.append(Dismissal(step.effect, len(self.rounds), loss, p))
                 self.current, self.cur = without.params, without
                 self.free = {k: v for k, v in self.free.items() if k not in effect.bounds}
+                continue
+            swap = self.swap(step, start, free)
+            if swap is not None:
+                removed.append(swap)
         self.dismissed.extend(removed)
         return removed
+
+    def swap(self, step: Step, without: LFParams,
+             free: Mapping[str, tuple[float, float]]) -> Dismissal | None:
+        """The final check's swap of ``step`` (see :meth:`prune`); ``without`` is the model
+        with the step's effect off, ``free`` what is refitted with it. Returns the dismissal
+        of the replaced effect, or None."""
+        s, effect = self.settings, EFFECTS[step.effect]
+        in_model = {st.effect for st in self.steps}
+        others = [o for o in self.remaining()
+                  if o.name not in in_model and o.name not in STRUCTURAL and o.params]
+        if len(others) > SWAP_CANDIDATES:
+            # the effects that move the position most like the effect does in the model: a
+            # stand-in has the signature of what it stands in for
+            S, _ = signatures(self.record, without, others, {})
+            xu = self.record.run([self.current, without])
+            own = xu[0] - xu[1]
+            likeness = [abs(_corr(own, S[i])) if np.all(np.isfinite(S[i])) else 0.0
+                        for i in range(len(others))]
+            order = np.argsort(likeness)[::-1][:SWAP_CANDIDATES]
+            others = [others[i] for i in order]
+        best = None
+        for other in others:
+            trial_free = {**free, **other.bounds}
+            trial = self.refit(other.switch_on(without), trial_free,
+                               f"final check: {other.name} for {step.effect}", method="ps")
+            if other.within_tolerance({p: getattr(trial, p) for p in other.params}):
+                continue
+            ev = self.evaluate([trial])[0]
+            if math.isfinite(ev.rmse_score) and (best is None or
+                                                 ev.rmse_score < best[1].rmse_score):
+                best = (other, ev, trial_free)
+        if best is None:
+            return None
+        other, ev, trial_free = best
+        better, gain, p = keeps_effect(ev.rmse_score, self.cur.rmse_score,
+                                       len(other.params), ev.n_eff, s)
+        if not better:
+            return None
+        faults = {k: getattr(ev.params, k) for k in self.bounds}
+        self.steps[self.steps.index(step)] = replace(
+            step, effect=other.name, params={k: getattr(ev.params, k) for k in other.params},
+            rmse_after=ev.rmse_all, rmse_fit_after=ev.rmse_fit, rmse_hold_after=ev.rmse_hold,
+            faults_after=faults, chosen=f"final check: {other.name} for {step.effect}")
+        self.current, self.cur = ev.params, ev
+        self.free = {k: v for k, v in self.free.items() if k not in effect.bounds}
+        if s.joint:
+            self.free.update(other.bounds)
+        return Dismissal(step.effect, len(self.rounds), -gain, p, replaced_by=other.name)
 
     def accept(self, choice: Choice) -> list[Step]:
         """(d) Add the chosen effect(s): polish the faults and every effect in the model

@@ -7,6 +7,7 @@ the RMSE reduction.
 """
 
 import json
+import math
 
 import duckdb
 import numpy as np
@@ -67,7 +68,8 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit"}
     assert doc["p12_in_fit"] is True            # the record has P12
-    assert all(set(d) == {"effect", "round", "loss", "p_value"} for d in doc["dismissed"])
+    assert all(set(d) == {"effect", "round", "loss", "p_value", "replaced_by"}
+               for d in doc["dismissed"])
     assert doc["level"] == 0.9 and doc["unexplained"] is False
     assert doc["verdict"].startswith("explained: residual")
     lo, hi = doc["intervals"]["FDJ"]
@@ -301,3 +303,27 @@ def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
     res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
     assert "external_load" not in res.settings["effects"]
     assert "offset" in res.settings["effects"]
+
+
+@pytest.mark.slow
+def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(tmp_path):
+    """An LF record (the model is exact) with a 2 kN load: a motor offset is accepted first (a
+    stand-in: in the linear regime it moves the position like a load), then the load. The
+    final check leaves each out and refits the rest: the offset no longer pays and is removed
+    — switched off in the model, not only in the report — and the load stays within 2 %."""
+    from eha.explain import Candidate, Choice, ResidualLoop
+
+    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    loop = ResidualLoop(data, effects="offset,external_load",
+                        settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
+    loop.baseline()
+    for name in ("offset", "external_load"):
+        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
+        loop.accept(Choice(cand, set(), [name]))
+    assert [s.effect for s in loop.steps] == ["offset", "external_load"]
+    removed = loop.prune()
+    assert [d.effect for d in removed] == ["offset"]
+    assert [s.effect for s in loop.steps] == ["external_load"]
+    assert loop.current.Ofs == 0.0 and "Ofs" not in loop.free
+    assert loop.current.FRC == pytest.approx(2000.0, rel=0.02)
+    assert loop.cur.rmse_all < 1.5 * NOISE
