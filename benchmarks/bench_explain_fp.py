@@ -3,7 +3,8 @@
 Every record is the HF model of a healthy actuator -- nominal HF parameters with a healthy
 manufacturing spread drawn per record (:func:`healthy_params`: GP, GQ, CJ, MJ, FSS within
 +-3 %, GM +-1 %, FDJ ~ N(200, 20) N, Clk log-uniform 0.7e-13..1.4e-13, BKL uniform 0..30 µm) --
-plus white Gaussian noise on xu (1 µm), written to CSV, read back with
+plus white Gaussian noise on xu (1 µm) and on P12 (0.2 bar, ``--p12-noise``; -1 drops the
+P12 column), written to CSV, read back with
 :func:`eha.measured.load` and given to :func:`eha.explain.explain` with its defaults (fit
 BKL,FDJ; population ``--pop``, GA seed ``--explain-seed``). The HF really has the orifice law
 and the flapper dynamics that the LF lacks: ``orifice_law`` and ``flapper_dynamics`` are

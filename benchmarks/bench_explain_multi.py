@@ -5,7 +5,7 @@ effects of the library (:data:`eha.effects.EFFECTS`; the HF parameter has the LF
 name) in combinations a PHM engineer meets (:data:`COMBOS`: a loaded actuator with worn seals,
 a motor offset with an aerodynamic hinge moment, ...), each on two of the commands mixed,
 test (0.6 s), chirp_1cm and a random step sequence held between 1 kHz samples (``steps``:
-4-8 steps within +-5 mm, bench_explain_fp.step_sequence). 1 µm white noise; the record is
+4-8 steps within +-5 mm, bench_explain_fp.step_sequence). 1 µm white noise on xu and 0.2 bar on P12 (``--p12-noise``; -1: no P12 column); the record is
 written to CSV, read back with :func:`eha.measured.load` and given to
 :func:`eha.explain.explain` with its defaults (fit BKL,FDJ).
 
