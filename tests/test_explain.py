@@ -19,6 +19,7 @@ from eha.cli import app
 from eha.explain import (P12_NOISE_FLOOR, ExplainError, LoopSettings, augmented_base, explain,
                          noise_level, p12_objective_weight, parse_fit)
 from eha.measured import load, synthetic_record
+from eha.params import LFParams
 
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 NOISE = 1e-6
@@ -327,3 +328,25 @@ def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(tmp_p
     assert loop.current.Ofs == 0.0 and "Ofs" not in loop.free
     assert loop.current.FRC == pytest.approx(2000.0, rel=0.02)
     assert loop.cur.rmse_all < 1.5 * NOISE
+
+
+@pytest.mark.slow
+def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(tmp_path):
+    """An LF record with a 1 ms position delay on `mixed`: a motor-gain change is accepted by
+    hand (on `mixed` it stands in for the delay). The final check's swap tries the effects
+    whose signature is most like the motor gain's contribution and puts the delay in its
+    place (within 5 %); the motor gain is listed as dismissed, replaced by the delay."""
+    from eha.explain import Candidate, Choice, ResidualLoop
+
+    data = load(_record(tmp_path, "delay_lf", "mixed", 1.0, {"sensor_delay": 1e-3},
+                        model="lf"))
+    loop = ResidualLoop(data, effects="motor_gain,delay,offset,sensor_bias,external_load",
+                        settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
+    loop.baseline()
+    cand = loop.try_candidate(Candidate("motor_gain", math.nan, math.nan))
+    loop.accept(Choice(cand, set(), ["motor_gain"]))
+    removed = loop.prune()
+    assert [(d.effect, d.replaced_by) for d in removed] == [("motor_gain", "delay")]
+    assert [s.effect for s in loop.steps] == ["delay"]
+    assert loop.current.GM == LFParams().GM
+    assert loop.current.sensor_delay == pytest.approx(1e-3, rel=0.05)
