@@ -496,8 +496,8 @@ def p12_objective_weight(noise_xu: float, p12: np.ndarray | None, weight: float 
     """Metres of position per pascal of P12 residual in the fits, and the P12 noise [Pa].
 
     Each signal is measured in its own noise (``noise_xu`` [m], the P12 noise from
-    :func:`eha.measured.noise_level`): ``weight * noise_xu / noise_p12``, the P12 noise floored at :data:`P12_NOISE_FLOOR` of its standard
-    deviation. ``(0, nan)`` when the record has no P12, ``weight`` is 0, or either signal is
+    :func:`eha.measured.noise_level`): ``weight * noise_xu / noise_p12``, the P12 noise
+    floored at :data:`P12_NOISE_FLOOR` of its standard deviation. ``(0, nan)`` when the record has no P12, ``weight`` is 0, or either signal is
     noise-free and flat.
     """
     if p12 is None or weight <= 0:
@@ -782,7 +782,7 @@ class ResidualLoop:
         self.check = (_Record(validate, _initial_position(validate, base))
                       if validate is not None else None)
         self.noise = float(data.info.get("noise_m", noise_level(data.xu)))
-        # the measured load pressure joins every fit (not the scores) when the record has it
+        # the measured load pressure joins every fit and score when the record has it
         self.p12_weight, self.p12_noise = p12_objective_weight(
             self.noise, data.p12, settings.p12_weight)
         # the score of a model that leaves only noise (the P12 noise in metres of position)
@@ -1026,8 +1026,8 @@ class ResidualLoop:
         pays for itself (:func:`keeps_effect`). An effect that stays is then *swapped*: each
         effect not in the model — of those whose signature is most like the effect's
         contribution, :data:`SWAP_CANDIDATES` — takes its place in turn (its parameters from
-        their probe values, everything refitted by pattern search); the best swap replaces it when it
-        beats the model by the same rule (:func:`keeps_effect`, the swapped model against
+        their probe values, everything refitted by pattern search); the best swap replaces it
+        when it beats the model by the same rule (:func:`keeps_effect`, the swapped model against
         the current one) and leaves its own healthy tolerance."""
         s, removed = self.settings, []
         for step in list(self.steps):
@@ -1079,18 +1079,17 @@ class ResidualLoop:
             others = [others[i] for i in order]
         best = None
         for other in others:
-            trial_free = {**free, **other.bounds}
-            trial = self.refit(other.switch_on(without), trial_free,
+            trial = self.refit(other.switch_on(without), {**free, **other.bounds},
                                f"final check: {other.name} for {step.effect}", method="ps")
             if other.within_tolerance({p: getattr(trial, p) for p in other.params}):
                 continue
             ev = self.evaluate([trial])[0]
             if math.isfinite(ev.rmse_score) and (best is None or
                                                  ev.rmse_score < best[1].rmse_score):
-                best = (other, ev, trial_free)
+                best = (other, ev)
         if best is None:
             return None
-        other, ev, trial_free = best
+        other, ev = best
         better, gain, p = keeps_effect(ev.rmse_score, self.cur.rmse_score,
                                        len(other.params), ev.n_eff, s)
         if not better:

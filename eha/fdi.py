@@ -300,25 +300,21 @@ class BatchObjective:
         """Unit-cube points -> parameter values (clipped to the bounds)."""
         return self.lo + np.clip(U, 0.0, 1.0) * self.span
 
-    def simulate(self, U: np.ndarray) -> np.ndarray:
-        """Recorded LF xu of each unit-cube point, shape ``(n, n_out)``."""
+    def simulate(self, U: np.ndarray, with_p12: bool = False):
+        """Recorded LF xu of each unit-cube point, shape ``(n, n_out)`` (with ``with_p12``
+        the pair ``(xu, p12)``)."""
         U = np.atleast_2d(U)
         rows = np.tile(self.base_row, (U.shape[0], 1))
         rows[:, self.index] = self.physical(U)
         self.evaluations += U.shape[0]
         return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base,
-                                 self.recorded_start)
+                                 self.recorded_start, with_p12=with_p12)
 
     def __call__(self, U: np.ndarray) -> np.ndarray:
         if self.reference_p12 is None:
             values = objective_values(self.simulate(U), self.reference, self.objective)
         else:
-            U = np.atleast_2d(U)
-            rows = np.tile(self.base_row, (U.shape[0], 1))
-            rows[:, self.index] = self.physical(U)
-            self.evaluations += U.shape[0]
-            xu, p12 = simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out,
-                                        self.base, self.recorded_start, with_p12=True)
+            xu, p12 = self.simulate(U, with_p12=True)
             values = combined_objective(xu, self.reference, p12, self.reference_p12,
                                         self.p12_weight, self.objective)
         # an unstable parameter set (NaN/inf trace) is simply the worst candidate
