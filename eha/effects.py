@@ -50,6 +50,11 @@ class Effect:
         (the residual loop fits such values on healthy records: a -0.9 % motor gain stands in
         for a +3 % flow gain). The loop adds the effect only when a parameter leaves this band.
         Calibrated on healthy HF records (docs/explain.md, "No invented effects").
+    requires : tuple of str
+        Effects without which this one does not act on the LF model: with the linear P12 law
+        the supply pressure only bounds P12, so ``supply_pressure`` requires ``orifice_law``.
+        The residual loop tries such an effect together with the requirements the model
+        lacks.
     """
 
     name: str
@@ -58,6 +63,7 @@ class Effect:
     switch: Mapping[str, float] = field(default_factory=dict)
     probe: Mapping[str, float] = field(default_factory=dict)
     tolerance: Mapping[str, float] = field(default_factory=dict)
+    requires: tuple[str, ...] = ()
 
     @property
     def params(self) -> tuple[str, ...]:
@@ -107,6 +113,18 @@ class Effect:
         return any(getattr(params, n) != v for n, v in self.off.items())
 
 
+def missing_requirements(effect: Effect, params: LFParams) -> list[str]:
+    """The effects ``effect`` requires (:attr:`Effect.requires`) that are off in ``params``."""
+    return [name for name in effect.requires if not EFFECTS[name].is_on(params)]
+
+
+def switch_on_with_requirements(effect: Effect, params: LFParams) -> LFParams:
+    """``params`` with ``effect`` on at its probe values, and the effects it requires on."""
+    for name in missing_requirements(effect, params):
+        params = EFFECTS[name].switch_on(params)
+    return effect.switch_on(params)
+
+
 #: The registry, in the order of docs/model.md §6: stable name -> :class:`Effect`.
 EFFECTS: dict[str, Effect] = {}
 
@@ -117,6 +135,10 @@ def register(effect: Effect) -> Effect:
         spec = SPECS.get(name)
         if spec is None or "lf" not in spec.models:
             raise ParameterError(f"effect {effect.name}: {name} is not an LF parameter")
+    for name in effect.requires:
+        if name not in EFFECTS:
+            raise ParameterError(f"effect {effect.name}: requires {name}, not a registered "
+                                 f"effect")
     for name in effect.tolerance:
         if name not in effect.bounds:
             raise ParameterError(f"effect {effect.name}: tolerance of {name}, not a fitted "
@@ -172,7 +194,7 @@ register(Effect("clogging", "first-stage filter clogging: lower first-stage pres
                 tolerance={"Kintas": 0.5}))
 register(Effect("supply_pressure", "supply-pressure change",
                 bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7},
-                tolerance={"PSR": 1e6}))
+                tolerance={"PSR": 1e6}, requires=("orifice_law",)))
 register(Effect("flapper_dynamics", "second-order first stage (flapper inertia and damping) "
                 "instead of a static one", bounds={"SNF": (300.0, 2e4), "ZF": (0.1, 2.0)},
                 probe={"SNF": 2513.0, "ZF": 0.6}))

@@ -17,6 +17,15 @@ Methods (``identify(method=...)``):
     a batched compass pattern search in the unit cube (all 2k poll points in one batch, step
     halved on failure until ``xtol``). Chosen by measurement on the 12 thesis cases
     (docs/fdi.md).
+``"ps"``
+    The pattern search alone: a local polish from the values of ``base``.
+``"lm"``
+    A local least-squares polish from the values of ``base``: scipy's trust-region
+    reflective ``least_squares`` (a bounded Levenberg-Marquardt) on the residual vector, its
+    Jacobian by forward differences in one batch of k runs. Unlike the compass search it
+    follows valleys that are not along a parameter axis (an offset traded against jack
+    friction and a load); the residual loop's final estimate on the whole record
+    (docs/explain.md). Objective ``"rmse"`` only.
 
 Objectives: ``"rmse"`` (default) ``sqrt(mean((y_LF - y_ref)^2))`` and ``"objfcn"``, the
 thesis' objfcn.m as written, ``mean(sqrt((y_LF - y_ref)^2))`` = mean absolute error. When a
@@ -42,7 +51,7 @@ from eha.params import (LF, SPECS, LFParams, ParameterError, check_value, parse_
 from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
 
 #: Identification methods (see the module docstring).
-METHODS = ("ga", "ga+ps", "ps")
+METHODS = ("ga", "ga+ps", "ps", "lm")
 #: The default method (chosen by measurement, docs/fdi.md).
 DEFAULT_METHOD = "ga+ps"
 #: Objective functions: name -> one-line meaning.
@@ -88,6 +97,7 @@ def model_form_of(base: LFParams) -> str:
 #: the best objective improved by less than ``ftol`` (relative) over ``stall`` generations
 #: (Matlab ``ga``: MaxStallGenerations 50, FunctionTolerance 1e-6, MaxGenerations 100*nvars);
 #: ``xtol``/``step0``: final and initial pattern-search step in the unit cube;
+#: ``fd_step``: forward-difference step of the ``"lm"`` Jacobian in the unit cube;
 #: ``max_evals``: evaluation budget of the whole identification. ``max_gen = 0`` means Matlab's
 #: default of 100 generations per fitted variable.
 METHOD_DEFAULTS: dict[str, dict[str, float]] = {
@@ -95,6 +105,7 @@ METHOD_DEFAULTS: dict[str, dict[str, float]] = {
     "ga+ps": {"max_gen": 40, "stall": 8, "ftol": 1e-3, "step0": 0.02, "xtol": 2e-5,
               "max_evals": 20000},
     "ps": {"step0": 0.02, "xtol": 2e-5, "max_evals": 20000},
+    "lm": {"fd_step": 1e-4, "xtol": 1e-10, "max_evals": 5000},
 }
 
 
@@ -390,6 +401,50 @@ def _pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, 
     return x, f
 
 
+def _least_squares(obj: BatchObjective, x: np.ndarray, f: float, fd_step: float, xtol: float,
+                   max_evals: int, history: list[float]) -> tuple[np.ndarray, float]:
+    """Bounded least squares from ``x`` (scipy ``least_squares``, trust-region reflective).
+
+    The residual vector of a unit-cube point is ``(e_xu, p12_weight * e_p12) / sqrt(n)``
+    (its norm is the ``"rmse"`` objective), divided by the starting objective so that the
+    solver's tolerances are scale-free. The Jacobian is one batch of k forward differences
+    (a backward one at the upper bound). A point whose run is not finite gets a large
+    residual (the solver rejects the step); the result is never worse than ``x``.
+    """
+    from scipy.optimize import least_squares
+
+    k = x.size
+    n = obj.reference.size
+    scale = f if math.isfinite(f) and f > 0 else 1.0
+    size = n if obj.reference_p12 is None else 2 * n
+
+    def residuals(U: np.ndarray) -> np.ndarray:
+        if obj.reference_p12 is None:
+            r = obj.simulate(U) - obj.reference
+        else:
+            xu, p12 = obj.simulate(U, with_p12=True)
+            r = np.concatenate([xu - obj.reference,
+                                obj.p12_weight * (p12 - obj.reference_p12)], axis=1)
+        r = r / (math.sqrt(n) * scale)
+        return np.where(np.isfinite(r).all(axis=1, keepdims=True), r, 1e3 / math.sqrt(size))
+
+    def fun(u: np.ndarray) -> np.ndarray:
+        return residuals(u[None, :])[0]
+
+    def jac(u: np.ndarray) -> np.ndarray:
+        steps = np.where(u + fd_step <= 1.0, fd_step, -fd_step)
+        R = residuals(np.vstack([u, u + np.diag(steps)]))
+        return ((R[1:] - R[0]) / steps[:, None]).T
+
+    budget = max(int((max_evals - obj.evaluations) / (k + 1)), 1)
+    sol = least_squares(fun, np.clip(x, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0),
+                        method="trf", x_scale="jac", xtol=xtol, ftol=1e-12, gtol=1e-12,
+                        max_nfev=budget)
+    f_new = float(obj(sol.x[None, :])[0])
+    history.append(min(f, f_new))
+    return (sol.x, f_new) if f_new < f else (x, f)
+
+
 # --------------------------------------------------------------------------------------------
 # public API
 
@@ -417,10 +472,11 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         Default: BKL in [0, 1.25e-3] m and FDJ in [200, 4000] N (the thesis' chirp cases).
     base : LFParams, optional
         Parameters held fixed (nominal LF by default; effects switched on, ...).
-    method : {"ga", "ga+ps", "ps"}
+    method : {"ga", "ga+ps", "ps", "lm"}
         ``"ga"`` is the thesis' genetic algorithm; ``"ga+ps"`` adds a pattern-search polish;
-        ``"ps"`` is the pattern search alone, a local polish starting from the values of
-        ``base`` (clipped into the bounds): ``pop`` and ``seed`` are then unused.
+        ``"ps"`` is the pattern search alone and ``"lm"`` a least-squares polish, both local,
+        starting from the values of ``base`` (clipped into the bounds): ``pop`` and ``seed``
+        are then unused.
     pop : int
         GA population size (thesis: 20, or 40 for case 12).
     seed : int
@@ -453,7 +509,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         ``noise_xu / noise_p12``.
     **options
         Method options (:data:`METHOD_DEFAULTS`): max_gen, stall, ftol, step0, xtol,
-        max_evals.
+        fd_step, max_evals.
 
     Returns
     -------
@@ -470,6 +526,9 @@ def identify(reference_xu: np.ndarray, command: Command | str,
             raise FDIError(str(exc)) from None
     if objective not in OBJECTIVES:
         raise FDIError(f"objective {objective!r}: allowed {', '.join(OBJECTIVES)}")
+    if method == "lm" and objective != "rmse":
+        raise FDIError(f"method lm: a least-squares polish; objective {objective!r} is not a "
+                       f"sum of squares (allowed: rmse)")
     if not isinstance(pop, (int, np.integer)) or not 4 <= pop <= 10000:
         raise FDIError(f"pop={pop}: allowed range [4, 10000] individuals")
     unknown = set(options) - set(METHOD_DEFAULTS[method])
@@ -513,7 +572,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     max_gen = int(opts.get("max_gen", 0)) or 100 * len(names)
     x_base = np.clip((np.array([getattr(base, n) for n in names]) - obj.lo) / obj.span,
                      0.0, 1.0)
-    if method == "ps":
+    if method in ("ps", "lm"):
         x, f = x_base, float(obj(x_base[None, :])[0])
         history.append(f)
     else:
@@ -522,6 +581,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
                        x0=x_base if warm_start else None)
     if method in ("ga+ps", "ps"):
         x, f = _pattern_search(obj, x, f, opts["step0"], opts["xtol"], max_evals, history)
+    elif method == "lm":
+        x, f = _least_squares(obj, x, f, opts["fd_step"], opts["xtol"], max_evals, history)
     values = obj.physical(x[None, :])[0]
     extra: dict[str, Any] = {}
     if level is not None:

@@ -350,3 +350,56 @@ def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(tmp_path):
     assert [s.effect for s in loop.steps] == ["delay"]
     assert loop.current.GM == LFParams().GM
     assert loop.current.sensor_delay == pytest.approx(1e-3, rel=0.05)
+
+
+@pytest.mark.slow
+def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(tmp_path):
+    """An LF record with a 2 kN load on `mixed`: a motor offset and a sensor bias are accepted
+    by hand (together they stand in for the load). The final check's two-for-one tries single
+    effects in the pair's place: the load alone fits as well with one parameter less, so the
+    pair does not pay for itself and the load replaces it (within 2 %); both are listed as
+    dismissed, replaced by the load."""
+    from eha.explain import Candidate, Choice, ResidualLoop
+
+    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    loop = ResidualLoop(data, effects="offset,sensor_bias,external_load,delay,motor_gain",
+                        settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
+    loop.baseline()
+    for name in ("offset", "sensor_bias"):
+        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
+        loop.accept(Choice(cand, set(), [name]))
+    merged = loop.merge()
+    assert [(d.effect, d.replaced_by) for d in merged] == [("offset", "external_load"),
+                                                            ("sensor_bias", "external_load")]
+    assert [s.effect for s in loop.steps] == ["external_load"]
+    assert loop.current.Ofs == 0.0 and loop.current.sensor_bias == 0.0
+    assert "Ofs" not in loop.free and "sensor_bias" not in loop.free
+    assert loop.current.FRC == pytest.approx(2000.0, rel=0.02)
+
+
+@pytest.mark.slow
+def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
+    """An LF record with a load and a motor offset on `mixed`: the loop's model with both
+    effects, its estimates left off the truth (load +10 %, offset -30 %, FDJ +5 %: where a
+    search on the first 70 % stopped on the HF bench record load+offset+leak). The final
+    estimates (least squares on the whole record) are back within 1 % of the truth, and the
+    whole record's objective fell."""
+    from eha.explain import Candidate, Choice, ResidualLoop
+
+    data = load(_record(tmp_path, "load_offset_lf", "mixed", 0.6,
+                        {"FRC": 2000.0, "Ofs": 0.3}, model="lf"))
+    loop = ResidualLoop(data, effects="external_load,offset",
+                        settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
+    loop.baseline()
+    for name in ("external_load", "offset"):
+        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
+        loop.accept(Choice(cand, set(), [name]))
+    loop.current = loop.current.replace(FRC=2200.0, Ofs=0.21, FDJ=840.0)
+    loop.cur = loop.evaluate([loop.current])[0]
+    before = loop.cur.rmse_whole
+    loop.estimate()
+    assert loop.cur.rmse_whole < before
+    assert loop.current.FRC == pytest.approx(2000.0, rel=0.01)
+    assert loop.current.Ofs == pytest.approx(0.3, rel=0.01)
+    assert loop.current.FDJ == pytest.approx(800.0, rel=0.01)
+    assert loop.current.BKL == pytest.approx(1e-4, rel=0.01)

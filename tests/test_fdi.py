@@ -54,6 +54,36 @@ def test_pattern_search_alone_polishes_from_the_base_values(lf_reference):
     assert again.estimates == res.estimates
 
 
+def test_least_squares_polish_from_the_base_values(lf_reference):
+    """method="lm": scipy's bounded least squares from the values in ``base`` (the explain
+    loop's final estimates). Started 20 % off, it reaches the exact solution (the same 0.5 %
+    as the GA round trip) in fewer evaluations than the pattern search; with the record's own
+    P12 in the objective too; the seed changes nothing."""
+    start = LFParams().replace(BKL=2.4e-4, FDJ=960.0)
+    res = identify(lf_reference, "chirp_1cm", BOUNDS, base=start, method="lm", t_end=T_END)
+    assert res.estimates["BKL"] == pytest.approx(2e-4, rel=5e-3)
+    assert res.estimates["FDJ"] == pytest.approx(800.0, rel=5e-3)
+    assert res.history[0] > res.objective and res.method == "lm"
+    ps = identify(lf_reference, "chirp_1cm", BOUNDS, base=start, method="ps", t_end=T_END)
+    assert res.evaluations < ps.evaluations
+    again = identify(lf_reference, "chirp_1cm", BOUNDS, base=start, method="lm", seed=7,
+                     t_end=T_END)
+    assert again.estimates == res.estimates
+    trace = simulate("lf", "chirp_1cm", {"BKL": 2e-4, "FDJ": 800.0}, t_end=T_END)
+    both = identify(trace.xu, "chirp_1cm", BOUNDS, base=start, method="lm", t_end=T_END,
+                    reference_p12=trace["p12"], p12_weight=1e-6 / 2e4)
+    assert both.estimates["FDJ"] == pytest.approx(800.0, rel=5e-3)
+
+
+def test_least_squares_polish_is_never_worse_than_its_start(lf_reference):
+    """Started at the exact solution, "lm" stays there (it keeps the start unless the
+    solver's point is better)."""
+    exact = LFParams().replace(BKL=2e-4, FDJ=800.0)
+    res = identify(lf_reference, "chirp_1cm", BOUNDS, base=exact, method="lm", t_end=T_END)
+    assert res.objective <= res.history[0]
+    assert res.estimates["FDJ"] == pytest.approx(800.0, rel=1e-6)
+
+
 def test_hf_round_trip_within_model_mismatch():
     ref = fdi.hf_reference("chirp_1cm", {"BKL": 2e-4, "FDJ": 800.0}, seed=0, t_end=T_END)
     res = identify(ref.xu, "chirp_1cm", BOUNDS, seed=0, t_end=T_END)
@@ -149,6 +179,8 @@ def test_bad_bounds_rejected_with_one_line(fit, words, lf_reference):
     ({"pop": 2}, "pop"),
     ({"t_end": 0.5}, "samples"),
     ({"bogus": 1}, "unknown option"),
+    ({"method": "lm", "objective": "objfcn"}, "least-squares"),
+    ({"method": "lm", "step0": 0.1}, "unknown option"),
 ])
 def test_bad_settings_rejected(kwargs, word, lf_reference):
     kwargs.setdefault("t_end", T_END)
