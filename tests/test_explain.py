@@ -403,3 +403,26 @@ def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
     assert loop.current.Ofs == pytest.approx(0.3, rel=0.01)
     assert loop.current.FDJ == pytest.approx(800.0, rel=0.01)
     assert loop.current.BKL == pytest.approx(1e-4, rel=0.01)
+
+
+@pytest.mark.slow
+def test_supply_pressure_is_tried_with_the_orifice_law_it_requires(tmp_path):
+    """An LF record with the orifice law, a 2 kN load (known, --set) and a 16 MPa supply on
+    `chirp_1cm`. With the linear law the supply pressure only clamps P12, so alone it cannot
+    act: the round traces and refits it as `orifice_law+supply_pressure`, which recovers the
+    pressure within 2 % and scores best of the round."""
+    from eha.explain import ResidualLoop
+
+    data = load(_record(tmp_path, "supply_lf", "chirp_1cm", 0.6,
+                        {"orifice_law": 1.0, "PSR": 1.6e7, "FRC": 2000.0}, model="lf"))
+    loop = ResidualLoop(data, effects="orifice_law,supply_pressure,motor_gain,offset",
+                        base=LFParams().replace(FRC=2000.0), fixed=["FRC"],
+                        settings=LoopSettings(pop=12, seed=0, candidates=3), max_gen=20,
+                        stall=5)
+    loop.baseline()
+    _, tried = loop.candidates_of_round(loop.remaining())
+    by_name = {c.effect: c for c in tried}
+    assert "supply_pressure" not in by_name
+    cand = by_name["orifice_law+supply_pressure"]
+    assert cand.params["PSR"] == pytest.approx(1.6e7, rel=0.02)
+    assert cand.score == max(c.score for c in tried)
