@@ -654,8 +654,8 @@ def fdi(
     method: str = typer.Option(
         ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
         help="ga (the thesis), ga+ps "
-                               "(GA + pattern-search polish) or ps (pattern search from the "
-                               "--base / nominal values)."),
+                               "(GA + pattern-search polish), ps (pattern search from the "
+                               "--base / nominal values) or lm (least squares from them)."),
     pop: int = typer.Option(
         ..., "--pop", default_factory=signature_default("eha.fdi", "identify_source",
                                                               "pop"),

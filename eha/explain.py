@@ -562,6 +562,9 @@ class Choice:
     members: list[str] = field(default_factory=list)
     stop: str = ""
     alternatives: dict[str, float] = field(default_factory=dict)
+    #: candidates set aside because unrelated effects explain as much (:func:`unspecific`),
+    #: best first
+    unspecific: list[str] = field(default_factory=list)
 
 
 def choose(tried: list[Candidate], settings: LoopSettings,
@@ -593,6 +596,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
         return Choice(None, stop="no candidate improved the model (every refit left its "
                                  "effect within its healthy tolerance)")
     superseded: set[str] = set()
+    set_aside: list[str] = []
     known = {c.effect: c for c in tried}
     while True:
         pool = [c for c in tried if c.effect not in superseded]
@@ -619,6 +623,8 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             # effects match: set it aside and try the next one; the reason of the last one
             # set aside is the stop reason when nothing else can win
             superseded.add(best.effect)
+            if rivals:
+                set_aside.append(best.effect)
             if all(c.effect in superseded or c.score < settings.min_gain
                    or c.p_value >= settings.alpha for c in tried):
                 why = (f"not significant on this record (p = {best.p_value:.2g} >= alpha "
@@ -630,7 +636,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
                 kind = "significant" if not rivals else "specific"
                 return Choice(None, superseded, stop=(
                     f"no {kind} effect left: best candidate {best.effect} reduces the RMSE "
-                    f"by {best.gain:.1%}, {why}"))
+                    f"by {best.gain:.1%}, {why}"), unspecific=set_aside)
             continue
         if len(names) == 1:
             break
@@ -705,6 +711,9 @@ STRUCTURAL = frozenset(name for combo in COMBINATIONS for name in combo)
 SPECIFIC_GAIN = 0.5
 #: Rivals within this gain of the best make it unspecific.
 RIVAL_MARGIN = 0.05
+#: Candidates set aside as unspecific that the round's look-ahead extends by one effect
+#: (:meth:`ResidualLoop.look_ahead`).
+LOOK_AHEAD = 2
 
 
 def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
@@ -987,6 +996,56 @@ class ResidualLoop:
             return cand
 
         return choose(list(tried), self.settings, split, refit_members)
+
+    def look_ahead(self, rnd: Round, tried: list[Candidate], choice: Choice) -> Choice:
+        """(d) A round whose best candidates were all set aside as unspecific (unrelated
+        effects explain as much) may hold one of two effects that only stand out together:
+        with a sensor bias found, a torque-motor hysteresis and a first-stage clogging each
+        take a chirp's residual from 16 to 5.5 µm, a hinge moment alone nothing, hysteresis
+        and hinge moment together 1.8 µm. For the :data:`LOOK_AHEAD` best set-aside
+        candidates of a single effect, the residual of its fit is traced and the
+        :data:`SWAP_CANDIDATES` effects that best explain it are refitted on top (as for the
+        structure's combinations); the choice is made again with them. A pair is specific only
+        when it gains :data:`SPECIFIC_GAIN`, and each member must pay for itself (the
+        combination's split, then the confirmation). Returns the new choice, or ``choice``."""
+        s = self.settings
+        names_left = {e.name for e in self.remaining()}
+        heads = [name for name in choice.unspecific
+                 if len(set(name.split("+")) - STRUCTURAL) == 1][:LOOK_AHEAD]
+        room = s.max_steps - len(self.steps)
+        known = {c.effect for c in tried}
+        added = []
+        for name in heads:
+            head = next((c for c in [*tried, *rnd.candidates] if c.effect == name
+                         and getattr(c, "_evaluation", None) is not None), None)
+            members = set(name.split("+"))
+            if head is None or len(members) + 1 > room:
+                continue
+            free = dict(self.free)
+            for member in members:
+                free.update(EFFECTS[member].bounds)
+            rest = [e for e in self.remaining() if e.name not in members
+                    and e.name not in STRUCTURAL and e.params
+                    and not missing_requirements(e, head._evaluation.params)]
+            if not rest:
+                continue
+            on_top = self.trace(head._evaluation, free, rest)
+            for c in sorted(on_top.candidates, key=lambda c: -c.explained)[:SWAP_CANDIDATES]:
+                pair = f"{name}+{c.effect}"
+                if pair in known or c.effect not in names_left:
+                    continue
+                cand = self.try_candidate(Candidate(pair, math.nan, c.explained),
+                                          extends=head._evaluation.params)
+                rnd.candidates.append(cand)
+                added.append(cand)
+                known.add(pair)
+        # only a pair that stands out is offered to the choice: against the single effects
+        # a pair of stand-ins gains more than any of them (on a healthy record too)
+        added = [c for c in added if c.gain >= SPECIFIC_GAIN]
+        if not added:
+            return choice
+        again = self.choose(rnd, [*tried, *added])
+        return again if again.best is not None else choice
 
     def confirm(self, rnd: Round, choice: Choice) -> Choice | None:
         """(d) Is each effect of the choice needed, or did the GA on the larger search merely
@@ -1294,6 +1353,8 @@ class ResidualLoop:
                 break
             rnd, tried = self.candidates_of_round(self.remaining())
             choice = self.choose(rnd, tried)
+            if choice.best is None and choice.unspecific:
+                choice = self.look_ahead(rnd, tried, choice)
             if choice.best is None:
                 stop = choice.stop
                 break

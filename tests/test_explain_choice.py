@@ -131,6 +131,23 @@ def test_a_small_gain_that_unrelated_effects_match_is_a_stand_in_and_not_added()
     assert "no specific effect" in choice.stop and "delay" in choice.stop
 
 
+def test_an_unspecific_round_names_what_it_set_aside_and_a_pair_that_stands_out_wins():
+    # bias found on a chirp with hysteresis and a hinge moment left (HF bench record
+    # bias+hinge+hysteresis, measured): hysteresis and clogging each gain ~35 %, unspecific;
+    # the look-ahead's pair hysteresis + hinge moment gains 88 %: specific, chosen
+    hysteresis, clogging = cand("hysteresis", 0.352), cand("clogging", 0.32)
+    choice = choose([hysteresis, clogging], SETTINGS, no_split, never_refit)
+    assert choice.best is None and "no specific effect" in choice.stop
+    assert choice.unspecific == ["hysteresis", "clogging"]
+    pair = cand("hysteresis+hinge_moment", 0.877, params=2)
+    again = choose([hysteresis, clogging, pair], SETTINGS, no_split, never_refit)
+    assert again.best is pair and again.members == ["hysteresis", "hinge_moment"]
+    # a round that stops for want of significance sets nothing aside as unspecific
+    lone = choose([cand("delay", 0.40, p_value=0.2, n_eff=5)], SETTINGS, no_split,
+                  never_refit)
+    assert lone.best is None and lone.unspecific == []
+
+
 def test_a_large_gain_is_specific_even_with_an_equivalent_rival():
     # on a smooth command a load and a motor offset are equivalent: both are reported
     load, offset = cand("external_load", 0.95), cand("offset", 0.94)
