@@ -223,4 +223,5 @@ def effects_on(params: LFParams) -> list[str]:
     return [e.name for e in EFFECTS.values() if e.is_on(params)]
 
 
-__all__ = ["Effect", "EFFECTS", "COMBINATIONS", "register", "get", "effects_on"]
+__all__ = ["Effect", "EFFECTS", "COMBINATIONS", "register", "get", "effects_on",
+           "missing_requirements", "switch_on_with_requirements"]

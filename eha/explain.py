@@ -164,7 +164,8 @@ class Dismissal:
     #: the round (0-based, as in ``rounds``)
     round: int
     #: relative RMSE reduction it brought over the refit without it (scored); for a swap,
-    #: minus the reduction its replacement brings over it
+    #: minus the reduction its replacement brings over it; for a two-for-one merge, the
+    #: reduction the pair brought over its replacement (the same for both of the pair)
     loss: float
     #: significance of that reduction (:func:`significance`)
     p_value: float
@@ -488,6 +489,9 @@ class LoopSettings:
             problems.append(f"--p12-weight {self.p12_weight:g}: allowed range [0, 100]")
         if self.pop < 2:
             problems.append(f"--pop {self.pop}: allowed range [2, ...]")
+        if self.method not in ("ga", "ga+ps"):
+            problems.append(f"--method {self.method}: the loop's refits search globally; "
+                            f"allowed ga, ga+ps")
         if problems:
             raise ExplainError("; ".join(problems))
 
@@ -946,7 +950,9 @@ class ResidualLoop:
             # an effect that needs structure the model lacks is tried with it (its signature
             # was traced so): the supply pressure with the orifice law
             needed = missing_requirements(EFFECTS[cand.effect], self.current)
-            if needed and set(needed) <= names_left:
+            if needed and not set(needed) <= names_left:
+                continue        # the structure it needs is fixed off or not a candidate
+            if needed:
                 cand.effect = "+".join((*needed, cand.effect))
             self.try_candidate(cand)
         room = s.max_steps - len(self.steps)    # a combination adds one step per member
@@ -1013,7 +1019,7 @@ class ResidualLoop:
         heads = [name for name in choice.unspecific
                  if len(set(name.split("+")) - STRUCTURAL) == 1][:LOOK_AHEAD]
         room = s.max_steps - len(self.steps)
-        known = {c.effect for c in tried}
+        known = {frozenset(c.effect.split("+")) for c in [*tried, *rnd.candidates]}
         added = []
         for name in heads:
             head = next((c for c in [*tried, *rnd.candidates] if c.effect == name
@@ -1032,13 +1038,14 @@ class ResidualLoop:
             on_top = self.trace(head._evaluation, free, rest)
             for c in sorted(on_top.candidates, key=lambda c: -c.explained)[:SWAP_CANDIDATES]:
                 pair = f"{name}+{c.effect}"
-                if pair in known or c.effect not in names_left:
+                key = frozenset(pair.split("+"))
+                if key in known or c.effect not in names_left:
                     continue
                 cand = self.try_candidate(Candidate(pair, math.nan, c.explained),
                                           extends=head._evaluation.params)
                 rnd.candidates.append(cand)
                 added.append(cand)
-                known.add(pair)
+                known.add(key)
         # only a pair that stands out is offered to the choice: against the single effects
         # a pair of stand-ins gains more than any of them (on a healthy record too)
         added = [c for c in added if c.gain >= SPECIFIC_GAIN]
@@ -1130,15 +1137,17 @@ class ResidualLoop:
             if not keep:
                 self.steps.remove(step)
                 removed.append(Dismissal(step.effect, len(self.rounds), loss, p))
+                self.dismissed.append(removed[-1])     # not tried again (remaining())
                 self.current, self.cur = without.params, without
                 self.free = {k: v for k, v in self.free.items() if k not in effect.bounds}
                 continue
             swap = self.swap(step, start, free)
             if swap is not None:
                 removed.append(swap)
-        removed += self.merge()
-        self.dismissed.extend(removed)
-        return removed
+                self.dismissed.append(swap)
+        merged = self.merge()
+        self.dismissed.extend(merged)
+        return removed + merged
 
     def replacement(self, out: Sequence[Step], without: LFParams,
                     free: Mapping[str, tuple[float, float]], label: str
@@ -1146,7 +1155,8 @@ class ResidualLoop:
         """The best single effect not in the model to take the place of the steps ``out``:
         of the :data:`SWAP_CANDIDATES` whose signature is most like what ``out`` contribute
         (``current`` against ``without``, the model with them off), each is switched on at its
-        probe value and everything in ``free`` refitted with it (pattern search). None when
+        probe value and everything in ``free`` refitted with it (pattern search); effects that
+        need structure the model lacks (:attr:`Effect.requires`) are not tried. None when
         every refit leaves its effect within its healthy tolerance."""
         in_model = {st.effect for st in self.steps}
         others = [o for o in self.remaining()
@@ -1255,8 +1265,10 @@ class ResidualLoop:
         the fitted part alone, and a GA or compass search there can stop in a valley's side
         basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded
         against jack friction and a load on ``mixed``); the least-squares step follows the
-        valley. Kept only when it lowers the whole record's objective. A record to which
-        nothing was added keeps its baseline (``after`` is ``before``)."""
+        valley. Kept only when it lowers the whole record's objective and leaves every added
+        effect outside its healthy tolerance. A model without added effects keeps its fit (a
+        record to which nothing was added: ``after`` is ``before``). After it the "held-out"
+        RMSE of the final model is in-sample (reported as such in docs/explain.md)."""
         if not self.steps:
             return
         free = dict(self.bounds)
@@ -1267,7 +1279,11 @@ class ResidualLoop:
         polished = self.refit(self.current, free, "final estimates on the whole record",
                               method="lm", whole=True)
         ev = self.evaluate([polished])[0]
-        if ev.rmse_whole < self.cur.rmse_whole:
+        # an added effect polished back inside its healthy tolerance would be reported
+        # without being one: the loop's estimates stay
+        inside = any(EFFECTS[st.effect].params and EFFECTS[st.effect].within_tolerance(
+            {p: getattr(polished, p) for p in EFFECTS[st.effect].params}) for st in self.steps)
+        if ev.rmse_whole < self.cur.rmse_whole and not inside:
             self.current, self.cur = polished, ev
             if self.steps:      # the last step's "after" is the final model
                 self.steps[-1] = replace(
@@ -1470,6 +1486,9 @@ def _split_combination(members: Sequence[Effect], combined: Evaluation,
     kept = [e for e, w in zip(members, worth) if w >= penalty * max(len(e.params), 1)]
     if not kept:
         kept = [members[int(np.argmax(worth))]]
+    # an effect kept keeps the structure it requires (the supply pressure its orifice law)
+    needed = {r for e in kept for r in e.requires}
+    kept = [e for e in members if e in kept or e.name in needed]
     order: list[Effect] = []
     left = list(kept)
     while left:

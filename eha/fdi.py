@@ -21,8 +21,9 @@ Methods (``identify(method=...)``):
     The pattern search alone: a local polish from the values of ``base``.
 ``"lm"``
     A local least-squares polish from the values of ``base``: scipy's trust-region
-    reflective ``least_squares`` (a bounded Levenberg-Marquardt) on the residual vector, its
-    Jacobian by forward differences in one batch of k runs. Unlike the compass search it
+    reflective ``least_squares`` (a bounded Gauss-Newton trust-region method of the
+    Levenberg-Marquardt family) on the residual vector, its Jacobian by forward differences
+    in one batch of k + 1 runs. Unlike the compass search it
     follows valleys that are not along a parameter axis (an offset traded against jack
     friction and a load); the residual loop's final estimate on the whole record
     (docs/explain.md). Objective ``"rmse"`` only.
@@ -96,8 +97,9 @@ def model_form_of(base: LFParams) -> str:
 #: Option defaults of each method. ``max_gen``: generation limit; ``stall``/``ftol``: stop when
 #: the best objective improved by less than ``ftol`` (relative) over ``stall`` generations
 #: (Matlab ``ga``: MaxStallGenerations 50, FunctionTolerance 1e-6, MaxGenerations 100*nvars);
-#: ``xtol``/``step0``: final and initial pattern-search step in the unit cube;
-#: ``fd_step``: forward-difference step of the ``"lm"`` Jacobian in the unit cube;
+#: ``xtol``/``step0``: final and initial pattern-search step in the unit cube (for ``"lm"``,
+#: ``xtol`` is scipy's relative step tolerance); ``fd_step``: forward-difference step of the
+#: ``"lm"`` Jacobian in the unit cube, in (0, 0.1];
 #: ``max_evals``: evaluation budget of the whole identification. ``max_gen = 0`` means Matlab's
 #: default of 100 generations per fitted variable.
 METHOD_DEFAULTS: dict[str, dict[str, float]] = {
@@ -407,9 +409,11 @@ def _least_squares(obj: BatchObjective, x: np.ndarray, f: float, fd_step: float,
 
     The residual vector of a unit-cube point is ``(e_xu, p12_weight * e_p12) / sqrt(n)``
     (its norm is the ``"rmse"`` objective), divided by the starting objective so that the
-    solver's tolerances are scale-free. The Jacobian is one batch of k forward differences
-    (a backward one at the upper bound). A point whose run is not finite gets a large
-    residual (the solver rejects the step); the result is never worse than ``x``.
+    solver's tolerances are scale-free. The Jacobian is one batch of k + 1 runs (the point and
+    k forward differences, a backward one at the upper bound). A point whose run fails (not
+    finite, or 1e3 times the start's residual) gets a large residual, so the solver rejects
+    the step; a solver error returns ``x``; the result is never worse than ``x``. At most
+    ``max_evals`` runs in all (``max_evals // (k + 2)`` iterations).
     """
     from scipy.optimize import least_squares
 
@@ -418,6 +422,8 @@ def _least_squares(obj: BatchObjective, x: np.ndarray, f: float, fd_step: float,
     scale = f if math.isfinite(f) and f > 0 else 1.0
     size = n if obj.reference_p12 is None else 2 * n
 
+    worst = 1e3 / math.sqrt(size)          # residual of a failed run: norm 1e3 x the start
+
     def residuals(U: np.ndarray) -> np.ndarray:
         if obj.reference_p12 is None:
             r = obj.simulate(U) - obj.reference
@@ -425,8 +431,12 @@ def _least_squares(obj: BatchObjective, x: np.ndarray, f: float, fd_step: float,
             xu, p12 = obj.simulate(U, with_p12=True)
             r = np.concatenate([xu - obj.reference,
                                 obj.p12_weight * (p12 - obj.reference_p12)], axis=1)
-        r = r / (math.sqrt(n) * scale)
-        return np.where(np.isfinite(r).all(axis=1, keepdims=True), r, 1e3 / math.sqrt(size))
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = r / (math.sqrt(n) * scale)
+            # a diverged run (finite but huge) counts as failed like a NaN one: its
+            # differences would overflow the Jacobian
+            ok = np.isfinite(r).all(axis=1) & (np.abs(r).max(axis=1) < 1e3)
+        return np.where(ok[:, None], r, worst)
 
     def fun(u: np.ndarray) -> np.ndarray:
         return residuals(u[None, :])[0]
@@ -434,12 +444,18 @@ def _least_squares(obj: BatchObjective, x: np.ndarray, f: float, fd_step: float,
     def jac(u: np.ndarray) -> np.ndarray:
         steps = np.where(u + fd_step <= 1.0, fd_step, -fd_step)
         R = residuals(np.vstack([u, u + np.diag(steps)]))
-        return ((R[1:] - R[0]) / steps[:, None]).T
+        return np.nan_to_num(((R[1:] - R[0]) / steps[:, None]).T)
 
-    budget = max(int((max_evals - obj.evaluations) / (k + 1)), 1)
-    sol = least_squares(fun, np.clip(x, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0),
-                        method="trf", x_scale="jac", xtol=xtol, ftol=1e-12, gtol=1e-12,
-                        max_nfev=budget)
+    # each iteration is one residual and one Jacobian batch: k + 2 runs
+    budget = max(int((max_evals - obj.evaluations) // (k + 2)), 1)
+    try:
+        sol = least_squares(fun, np.clip(x, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0),
+                            method="trf", x_scale="jac", xtol=xtol, ftol=1e-12, gtol=1e-12,
+                            max_nfev=budget)
+    except (ValueError, np.linalg.LinAlgError):
+        # a solver failure (e.g. a degenerate Jacobian) leaves the start as the answer
+        history.append(f)
+        return x, f
     f_new = float(obj(sol.x[None, :])[0])
     history.append(min(f, f_new))
     return (sol.x, f_new) if f_new < f else (x, f)
@@ -536,6 +552,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         raise FDIError(f"method {method}: unknown option {sorted(unknown)[0]!r}; allowed "
                        f"{', '.join(METHOD_DEFAULTS[method])}")
     opts = {**METHOD_DEFAULTS[method], **{k: float(v) for k, v in options.items()}}
+    if method == "lm" and not 0.0 < opts["fd_step"] <= 0.1:
+        raise FDIError(f"fd_step={opts['fd_step']:g}: allowed range (0, 0.1] of each range")
     bounds = check_bounds(fit if fit is not None else default_bounds(DEFAULT_FIT))
     names = tuple(bounds)
     base = base if base is not None else LFParams()

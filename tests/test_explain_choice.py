@@ -215,3 +215,10 @@ def test_a_large_loss_on_few_effective_samples_is_not_significant():
 
 def test_an_unstable_run_without_the_effect_keeps_it():
     assert keeps_effect(10e-6, math.inf, 1, 300.0, LoopSettings())[0]
+
+
+def test_the_loop_refits_with_a_global_method():
+    with pytest.raises(ExplainError, match="--method lm"):
+        LoopSettings(method="lm")
+    with pytest.raises(ExplainError, match="--method ps"):
+        LoopSettings(method="ps")

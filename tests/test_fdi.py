@@ -269,3 +269,26 @@ def test_unstable_candidates_score_infinity(lf_reference, monkeypatch):
     res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", seed=0, t_end=T_END,
                    max_gen=5)
     assert np.isfinite(res.objective) and all(np.isfinite(res.history))
+
+
+def test_least_squares_survives_diverging_runs_and_keeps_its_budget(lf_reference, monkeypatch):
+    """Runs that blow up (finite but huge, or NaN) count as failed points: "lm" neither
+    crashes nor moves there, and it stays within max_evals runs in all."""
+    real = fdi.BatchObjective.simulate
+
+    def flaky(self, U, with_p12=False):
+        out = real(self, U, with_p12)
+        xu = out[0] if with_p12 else out
+        U = np.atleast_2d(U)
+        xu[U[:, 1] > 0.3] = 1e305           # FDJ above 0.3 of its range: a diverged run
+        xu[U[:, 0] > 0.5] = np.nan          # BKL above half its range: an unstable one
+        return out
+
+    monkeypatch.setattr(fdi.BatchObjective, "simulate", flaky)
+    start = LFParams().replace(BKL=2.4e-4, FDJ=960.0)
+    res = identify(lf_reference, "chirp_1cm", BOUNDS, base=start, method="lm", t_end=T_END,
+                   max_evals=30, level=None)
+    assert np.isfinite(res.objective) and res.objective <= res.history[0]
+    assert res.evaluations <= 30
+    with pytest.raises(FDIError, match="fd_step"):
+        identify(lf_reference, "chirp_1cm", BOUNDS, method="lm", t_end=T_END, fd_step=0.0)
