@@ -368,6 +368,7 @@ def test_messages_with_brackets_keep_them(tmp_path):
     (["--min-gain", "-0.5"], "--min-gain -0.5: allowed range [0, 1]"),
     (["--p12-weight", "-1"], "--p12-weight -1.0: allowed range [0, 100]"),
     (["--p12-weight", "nan"], "--p12-weight nan: allowed range [0, 100]"),
+    (["--method", "lm"], "--method lm: the loop's refits search globally; allowed ga, ga+ps"),
     (["--fit", "BKL,BKL"], "--fit BKL,BKL: BKL given twice"),
     (["--fit", "BKL=0:1e-3,FDJ,BKL"], "BKL given twice"),
     (["--prior", "PRIOR"], "expected the --json of an earlier eha explain (key 'steps'"),
