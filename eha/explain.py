@@ -269,12 +269,22 @@ class ExplainResult:
             "p12_in_fit": bool(self.settings.get("p12_used", False)),
             "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
-                       "tentative": self.unexplained}
+                       "tentative": self.unexplained,
+                       "alternatives": self.alternatives_of(s)}
                       for s in self.steps],
             "dismissed": [{"effect": d.effect, "round": d.round, "loss": d.loss,
                            "p_value": d.p_value, "replaced_by": d.replaced_by}
                           for d in self.dismissed],
         }
+
+    @staticmethod
+    def alternatives_of(step: Step) -> dict[str, float]:
+        """Candidates of the step's round that scored within :data:`ALTERNATIVE_MARGIN` of the
+        one chosen (name -> penalised score): explanations the record cannot tell from the
+        step's (a motor gain for a supply pressure on a chirp). Those that contain the step's
+        own effect are left out (a step put in by the final check's swap keeps its round's
+        list)."""
+        return {k: v for k, v in step.alternatives.items() if step.effect not in k.split("+")}
 
     def steps_table(self) -> list[dict[str, Any]]:
         """One row per added effect, for people (CSV / console)."""
@@ -289,7 +299,8 @@ class ExplainResult:
                  "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
                  "gain": s.gain, "score": s.score, "chosen": s.chosen,
                  "chosen_score": s.chosen_score,
-                 "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in s.alternatives.items())}
+                 "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in
+                                           self.alternatives_of(s).items())}
                 for i, s in enumerate(self.steps)]
 
 
@@ -1311,6 +1322,9 @@ class ResidualLoop:
         faults_after = {p: getattr(ev.params, p) for p in self.bounds}
         prev, faults0 = self.cur, {p: getattr(self.current, p) for p in self.bounds}
         added = []
+        # the alternatives go with the member the user reads as "the effect": the first with
+        # parameters (the supply pressure of orifice_law+supply_pressure, not the law)
+        told = next((i for i, e in enumerate(members) if e.params), 0)
         for i, effect in enumerate(members):
             params_i = ev.params
             for later in members[i + 1:]:
@@ -1321,7 +1335,7 @@ class ResidualLoop:
                               prev.rmse_all, ev_i.rmse_all, prev.rmse_fit, ev_i.rmse_fit,
                               prev.rmse_hold, ev_i.rmse_hold, faults0, faults_after,
                               gain_i, gain_i - s.penalty * len(effect.params),
-                              choice.alternatives if i == 0 else {}, best.effect,
+                              choice.alternatives if i == told else {}, best.effect,
                               best.score))
             prev, faults0 = ev_i, faults_after
         self.steps.extend(added)

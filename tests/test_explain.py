@@ -77,7 +77,8 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert lo <= doc["faults_after"]["FDJ"] <= hi
     assert doc["steps"][0]["effect"] == "orifice_law"
     assert set(doc["steps"][0]) == {"effect", "params", "rmse_before", "rmse_after",
-                                    "tentative"}
+                                    "tentative", "alternatives"}
+    assert all(isinstance(st["alternatives"], dict) for st in doc["steps"])
     assert doc["rmse_before"] >= 3 * doc["rmse_after"]
     assert doc["steps"][0]["rmse_before"] == pytest.approx(doc["rmse_before"])
     assert doc["steps"][-1]["rmse_after"] == pytest.approx(doc["rmse_after"])

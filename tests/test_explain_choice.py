@@ -222,3 +222,15 @@ def test_the_loop_refits_with_a_global_method():
         LoopSettings(method="lm")
     with pytest.raises(ExplainError, match="--method ps"):
         LoopSettings(method="ps")
+
+
+def test_a_steps_alternatives_leave_out_its_own_effect():
+    """``--json`` steps list the round's candidates that scored within 0.05 of the chosen one;
+    a step the final check swapped in keeps its round's list, minus entries with its own
+    effect."""
+    from eha.explain import ExplainResult, Step
+
+    step = Step("delay", {"sensor_delay": 1e-3}, 1.0, 0.5, 1.0, 0.5, 1.0, 0.5, {}, {}, 0.5,
+                0.48, alternatives={"motor_gain": 0.47, "delay": 0.46,
+                                    "orifice_law+flapper_dynamics+delay": 0.44})
+    assert ExplainResult.alternatives_of(step) == {"motor_gain": 0.47}
