@@ -50,6 +50,17 @@ def _record(tmp_path, name, command, t_end, overrides=None, model="hf", seed=1):
     return path
 
 
+def _accept_by_hand(loop, *names):
+    """Fit the declared faults, then refit and accept each effect in turn as if a round had
+    chosen it (the final check's and the look-ahead's tests start from such a model)."""
+    from eha.explain import Candidate, Choice
+
+    loop.baseline()
+    for name in names:
+        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
+        loop.accept(Choice(cand, set(), [name]))
+
+
 @pytest.mark.slow
 def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     """Plain nominal HF data: the missing physics is the orifice law (the 'mixed' command
@@ -313,15 +324,12 @@ def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(tmp_p
     stand-in: in the linear regime it moves the position like a load), then the load. The
     final check leaves each out and refits the rest: the offset no longer pays and is removed
     — switched off in the model, not only in the report — and the load stays within 2 %."""
-    from eha.explain import Candidate, Choice, ResidualLoop
+    from eha.explain import ResidualLoop
 
     data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="offset,external_load",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
-    loop.baseline()
-    for name in ("offset", "external_load"):
-        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
-        loop.accept(Choice(cand, set(), [name]))
+    _accept_by_hand(loop, "offset", "external_load")
     assert [s.effect for s in loop.steps] == ["offset", "external_load"]
     removed = loop.prune()
     assert [d.effect for d in removed] == ["offset"]
@@ -337,15 +345,13 @@ def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(tmp_path):
     hand (on `mixed` it stands in for the delay). The final check's swap tries the effects
     whose signature is most like the motor gain's contribution and puts the delay in its
     place (within 5 %); the motor gain is listed as dismissed, replaced by the delay."""
-    from eha.explain import Candidate, Choice, ResidualLoop
+    from eha.explain import ResidualLoop
 
     data = load(_record(tmp_path, "delay_lf", "mixed", 1.0, {"sensor_delay": 1e-3},
                         model="lf"))
     loop = ResidualLoop(data, effects="motor_gain,delay,offset,sensor_bias,external_load",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
-    loop.baseline()
-    cand = loop.try_candidate(Candidate("motor_gain", math.nan, math.nan))
-    loop.accept(Choice(cand, set(), ["motor_gain"]))
+    _accept_by_hand(loop, "motor_gain")
     removed = loop.prune()
     assert [(d.effect, d.replaced_by) for d in removed] == [("motor_gain", "delay")]
     assert [s.effect for s in loop.steps] == ["delay"]
@@ -360,15 +366,12 @@ def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(tmp_
     effects in the pair's place: the load alone fits as well with one parameter less, so the
     pair does not pay for itself and the load replaces it (within 2 %); both are listed as
     dismissed, replaced by the load."""
-    from eha.explain import Candidate, Choice, ResidualLoop
+    from eha.explain import ResidualLoop
 
     data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="offset,sensor_bias,external_load,delay,motor_gain",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
-    loop.baseline()
-    for name in ("offset", "sensor_bias"):
-        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
-        loop.accept(Choice(cand, set(), [name]))
+    _accept_by_hand(loop, "offset", "sensor_bias")
     merged = loop.merge()
     assert [(d.effect, d.replaced_by) for d in merged] == [("offset", "external_load"),
                                                             ("sensor_bias", "external_load")]
@@ -385,16 +388,13 @@ def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
     search on the first 70 % stopped on the HF bench record load+offset+leak). The final
     estimates (least squares on the whole record) are back within 1 % of the truth, and the
     whole record's objective fell."""
-    from eha.explain import Candidate, Choice, ResidualLoop
+    from eha.explain import ResidualLoop
 
     data = load(_record(tmp_path, "load_offset_lf", "mixed", 0.6,
                         {"FRC": 2000.0, "Ofs": 0.3}, model="lf"))
     loop = ResidualLoop(data, effects="external_load,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
-    loop.baseline()
-    for name in ("external_load", "offset"):
-        cand = loop.try_candidate(Candidate(name, math.nan, math.nan))
-        loop.accept(Choice(cand, set(), [name]))
+    _accept_by_hand(loop, "external_load", "offset")
     loop.current = loop.current.replace(FRC=2200.0, Ofs=0.21, FDJ=840.0)
     loop.cur = loop.evaluate([loop.current])[0]
     before = loop.cur.rmse_whole
@@ -442,9 +442,7 @@ def test_look_ahead_finds_the_pair_that_stands_out_together(tmp_path):
                         {"sensor_bias": 1e-4, "His": 0.2, "Kaer": 1.5e5}, model="lf"))
     loop = ResidualLoop(data, effects="sensor_bias,hysteresis,hinge_moment,delay,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
-    loop.baseline()
-    bias = loop.try_candidate(Candidate("sensor_bias", math.nan, math.nan))
-    loop.accept(Choice(bias, set(), ["sensor_bias"]))
+    _accept_by_hand(loop, "sensor_bias")
     rnd = loop.trace(loop.cur, loop.free, loop.remaining())
     head = loop.try_candidate(Candidate("hysteresis", math.nan, math.nan))
     choice = loop.look_ahead(rnd, [head], Choice(None, unspecific=["hysteresis"]))
