@@ -729,6 +729,9 @@ RIVAL_MARGIN = 0.05
 #: Candidates set aside as unspecific that the round's look-ahead extends by one effect
 #: (:meth:`ResidualLoop.look_ahead`).
 LOOK_AHEAD = 2
+#: Times the rounds resume after a final check (:meth:`ResidualLoop.prune`) that changed a
+#: model which still leaves the record unexplained.
+REVISITS = 1
 
 
 def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
@@ -1182,13 +1185,24 @@ class ResidualLoop:
                         for i in range(len(others))]
             order = np.argsort(likeness)[::-1][:SWAP_CANDIDATES]
             others = [others[i] for i in order]
+        # a model that leaves the record unexplained is wrong somewhere, and the replacement
+        # may lie in another basin than its probe's: it is searched globally, by the loop's
+        # GA warm-started at the probe and from scratch (a viscous jack for a low supply
+        # pressure on `test`: 38 µm by pattern search from the probe, 14 µm warm with the
+        # jack's CJ inside its healthy band, 12.6 µm from scratch with CJ 15800 for 16000)
+        searches = ((self.settings.method, True), (self.settings.method, False)) \
+            if self.unexplained() else (("ps", False),)
         best = None
         for other in others:
-            trial = self.refit(other.switch_on(without), {**free, **other.bounds},
-                               f"final check: {other.name} for {label}", method="ps")
-            if other.within_tolerance({p: getattr(trial, p) for p in other.params}):
+            trials = [self.refit(other.switch_on(without), {**free, **other.bounds},
+                                 f"final check: {other.name} for {label}", method=method,
+                                 warm_start=warm) for method, warm in searches]
+            trials = [t for t in trials
+                      if not other.within_tolerance({p: getattr(t, p) for p in other.params})]
+            if not trials:
                 continue
-            ev = self.evaluate([trial])[0]
+            ev = min(self.evaluate(trials), key=lambda e: e.rmse_score
+                     if math.isfinite(e.rmse_score) else math.inf)
             if math.isfinite(ev.rmse_score) and (best is None or
                                                  ev.rmse_score < best[1].rmse_score):
                 best = (other, ev)
@@ -1222,12 +1236,45 @@ class ResidualLoop:
         if best is None:
             return None
         other, ev = best
+        s = self.settings
+        if self.unexplained():
+            self.cross_seed([step], other, ev, free)
         better, gain, p = keeps_effect(ev.rmse_score, self.cur.rmse_score,
-                                       len(other.params), ev.n_eff, self.settings)
+                                       len(other.params), ev.n_eff, s)
+        if not better and self.unexplained():
+            # far from the noise the residual is structure: its few effective samples make the
+            # F test blind between two models of one size (a viscous jack for a low supply
+            # pressure, 25 % better at p 0.03 on 10 effective samples); the replacement is
+            # then taken when it gains what an effect must gain to be added in a round
+            better = gain - s.penalty * len(other.params) >= s.min_gain
         if not better:
             return None
         self.replace_steps([step], other, ev)
         return Dismissal(step.effect, len(self.rounds), -gain, p, replaced_by=other.name)
+
+    def cross_seed(self, out: Sequence[Step], other: Effect, ev: Evaluation,
+                   free: Mapping[str, tuple[float, float]]) -> None:
+        """Before ``other`` (fitted in ``ev`` by a global search) may replace the steps
+        ``out``, the model in place starts from the rival's basin: the rival's fit with the
+        rival off and the steps' effects back at their estimates, refitted locally (pattern
+        search); taken when it lowers the score and leaves them outside their healthy
+        tolerance. A rival must win by its effect, not by the basin its search found for the
+        other parameters (an offset at its bound for a sensor bias on a 1 cm step: 1.8 against
+        3.1 µm, all of it from the flapper, 2750 rad/s against 8130)."""
+        start, bounds = other.switch_off(ev.params), dict(free)
+        for st in out:
+            effect = EFFECTS[st.effect]
+            start = effect.switch_on(start, {p: getattr(self.current, p)
+                                             for p in effect.params})
+            bounds.update(effect.bounds)
+        label = " + ".join(st.effect for st in out)
+        trial = self.refit(start, bounds, f"final check: {label} from {other.name}'s fit",
+                           method="ps")
+        mine = self.evaluate([trial])[0]
+        inside = any(EFFECTS[st.effect].params and EFFECTS[st.effect].within_tolerance(
+            {p: getattr(trial, p) for p in EFFECTS[st.effect].params}) for st in out)
+        if mine.rmse_score < self.cur.rmse_score and not inside:
+            self.current, self.cur = trial, mine
 
     def merge(self) -> list[Dismissal]:
         """The final check's two-for-one: can one effect not in the model take the place of
@@ -1256,6 +1303,8 @@ class ResidualLoop:
                 if found is None:
                     continue
                 other, ev = found
+                if self.unexplained():
+                    self.cross_seed([a, b], other, ev, free)
                 extra = sum(len(e.params) for e in pair) - len(other.params)
                 keep, loss, p = keeps_effect(self.cur.rmse_score, ev.rmse_score, extra,
                                              self.cur.n_eff, s)
@@ -1287,9 +1336,22 @@ class ResidualLoop:
             free.update(EFFECTS[step.effect].bounds)
         if not free:
             return
-        polished = self.refit(self.current, free, "final estimates on the whole record",
-                              method="lm", whole=True)
-        ev = self.evaluate([polished])[0]
+        starts = [self.current]
+        # the structure's parameters are also restarted from their physical values (the
+        # probe: the thesis' flapper, 2513 rad/s at 0.6 damping): a round's GA may have left
+        # them in a side basin where the other estimates compensate (flapper at 1750 rad/s and
+        # 0.32 with FDJ 12 % off on a viscous `test` record; from the probe 2310 rad/s, 5 %)
+        physical = {p: v for st in self.steps if st.effect in STRUCTURAL
+                    for p, v in EFFECTS[st.effect].probe.items()}
+        if physical and any(getattr(self.current, p) != v for p, v in physical.items()):
+            starts.append(self.current.replace(**physical))
+        polished, ev = None, None
+        for start in starts:
+            trial = self.refit(start, free, "final estimates on the whole record",
+                               method="lm", whole=True)
+            ev_t = self.evaluate([trial])[0]
+            if ev is None or ev_t.rmse_whole < ev.rmse_whole:
+                polished, ev = trial, ev_t
         # an added effect polished back inside its healthy tolerance would be reported
         # without being one: the loop's estimates stay
         inside = any(EFFECTS[st.effect].params and EFFECTS[st.effect].within_tolerance(
@@ -1345,6 +1407,23 @@ class ResidualLoop:
                 self.free.update(effect.bounds)
         return added
 
+    def rounds_until_stop(self) -> str:
+        """Trace / try / choose / confirm / accept until a stop rule holds; returns why it
+        stopped."""
+        while True:
+            stop = self.stop_rule()
+            if stop:
+                return stop
+            rnd, tried = self.candidates_of_round(self.remaining())
+            choice = self.choose(rnd, tried)
+            if choice.best is None and choice.unspecific:
+                choice = self.look_ahead(rnd, tried, choice)
+            if choice.best is None:
+                return choice.stop
+            confirmed = self.confirm(rnd, choice)
+            if confirmed is not None:
+                self.accept(confirmed)
+
     def stop_rule(self) -> str:
         """(e) Why the loop stops before tracing again, or ``""`` to go on."""
         s, cur = self.settings, self.cur
@@ -1367,6 +1446,13 @@ class ResidualLoop:
         return residual_leads(data.xu - self.cur.xu, data.t, data.com, self.cur.xu,
                               full["dxj"], p12, self.noise)
 
+    def unexplained(self) -> bool:
+        """Does the current model leave the record unexplained (its position residual above
+        :data:`eha.intervals.FLAG_RATIO` times the noise, as the result will be flagged)?"""
+        from eha.intervals import is_flagged, noise_reference
+
+        return is_flagged(self.cur.rmse_all, noise_reference(self.noise, self.data.xu))
+
     def remaining(self) -> list[Effect]:
         added = {st.effect for st in self.steps} | {d.effect for d in self.dismissed}
         return [e for e in self.pool if e.name not in added]
@@ -1377,21 +1463,14 @@ class ResidualLoop:
 
         before = self.baseline()
         faults_before = {k: getattr(self.current, k) for k in self.bounds}
-        while True:
-            stop = self.stop_rule()
-            if stop:
+        for _ in range(REVISITS + 1):
+            stop = self.rounds_until_stop()
+            changed = self.prune()
+            # a final check that changed a model still far from the noise opened a path the
+            # rounds had not seen (with the viscous jack in place of the low supply pressure
+            # the flapper dynamics pays): the rounds resume from it
+            if not changed or not self.unexplained():
                 break
-            rnd, tried = self.candidates_of_round(self.remaining())
-            choice = self.choose(rnd, tried)
-            if choice.best is None and choice.unspecific:
-                choice = self.look_ahead(rnd, tried, choice)
-            if choice.best is None:
-                stop = choice.stop
-                break
-            confirmed = self.confirm(rnd, choice)
-            if confirmed is not None:
-                self.accept(confirmed)
-        self.prune()
         self.estimate()
         for rnd in self.rounds:
             for c in rnd.candidates:

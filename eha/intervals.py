@@ -61,6 +61,18 @@ NOISE_FLOOR = 1e-4
 JACOBIAN_STEP = 2e-3
 
 
+def noise_reference(noise: float, reference: np.ndarray) -> float:
+    """The noise level [m] a residual is compared with: the record's, floored at
+    :data:`NOISE_FLOOR` of its spread."""
+    return max(float(noise), NOISE_FLOOR * float(np.std(reference)))
+
+
+def is_flagged(rmse: float, noise_ref: float) -> bool:
+    """Does a residual of ``rmse`` [m] leave the record unexplained (above :data:`FLAG_RATIO`
+    times ``noise_ref``, :func:`noise_reference`)?"""
+    return bool(noise_ref > 0 and rmse > FLAG_RATIO * noise_ref)
+
+
 @dataclass(frozen=True)
 class ModelForm:
     """Model-form uncertainty of one parameter, measured on HF records with known truth.
@@ -296,7 +308,7 @@ def estimate_intervals(reference: np.ndarray, simulate_unit: Callable[[np.ndarra
                          residual_rmse=math.inf, lag=0, flagged=True, model_form=model_form,
                          notes=("the model is unstable at the estimate: no interval",))
     rmse = float(np.sqrt(np.mean(resid * resid)))
-    noise_ref = max(noise, NOISE_FLOOR * float(np.std(reference)))
+    noise_ref = noise_reference(noise, reference)
     lag = bandwidth(resid)
     notes: list[str] = []
     active = np.any(jac != 0.0, axis=0) & np.all(np.isfinite(jac), axis=0)
@@ -323,7 +335,7 @@ def estimate_intervals(reference: np.ndarray, simulate_unit: Callable[[np.ndarra
         out_bounds[name] = (float(max(a, values[i] - half)), float(min(b, values[i] + half)))
         std[name] = float(s)
         hac_std[name] = float(hac)
-    flagged = noise_ref > 0 and rmse > FLAG_RATIO * noise_ref
+    flagged = is_flagged(rmse, noise_ref)
     if flagged:
         notes.append(f"residual {1e6 * rmse:.3g} µm is {rmse / noise_ref:.1f}x the noise "
                      f"{1e6 * noise_ref:.3g} µm: the model does not explain this record; "
