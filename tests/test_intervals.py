@@ -151,3 +151,17 @@ def test_health_bank_isolates_an_offset_and_covers_it():
     for name, spec in FAULTS.items():
         lo, hi = a.intervals[name]
         assert lo <= faults.get(name, spec.healthy) <= hi, (name, lo, hi)
+
+
+def test_flag_compares_the_residual_with_the_floored_noise():
+    """The flag of an unexplained fit (shared by the intervals and the residual loop): the
+    residual against FLAG_RATIO times the noise, the noise floored at NOISE_FLOOR of the
+    record's spread (a noise-free record is not flagged for a tiny model-form residual)."""
+    from eha.intervals import FLAG_RATIO, NOISE_FLOOR, is_flagged, noise_reference
+
+    ref = np.linspace(-1e-2, 1e-2, 101)
+    assert noise_reference(1e-6, ref) == 1e-6
+    assert noise_reference(0.0, ref) == pytest.approx(NOISE_FLOOR * np.std(ref))
+    assert is_flagged(1.01 * FLAG_RATIO * 1e-6, 1e-6)
+    assert not is_flagged(0.99 * FLAG_RATIO * 1e-6, 1e-6)
+    assert not is_flagged(1.0, 0.0)
