@@ -1459,7 +1459,8 @@ class ResidualLoop:
 
     def run(self) -> ExplainResult:
         """Baseline, then trace / try / choose / accept until a stop rule holds."""
-        from eha.fdi import DEFAULT_LEVEL, intervals_at
+        from eha.fdi import DEFAULT_LEVEL, intervals_at, model_form_of
+        from eha.intervals import MODEL_FORM, loop_terms
 
         before = self.baseline()
         faults_before = {k: getattr(self.current, k) for k in self.bounds}
@@ -1480,9 +1481,14 @@ class ResidualLoop:
         for step in self.steps:
             final_bounds.update(EFFECTS[step.effect].bounds)
         data = self.data
+        # a model the loop built carries its model-form floor (the LF with the right effects
+        # is still not the actuator); a model to which nothing was added keeps its base's
+        form = model_form_of(self.current)
+        terms = loop_terms(MODEL_FORM.get(form, {}), list(final_bounds)) if self.steps else None
         iv = intervals_at(data.xu, data.command, self.current, final_bounds,
                           level=DEFAULT_LEVEL, noise=self.noise,
-                          recorded_start=self.record.recorded_start, t_end=data.t_end)
+                          recorded_start=self.record.recorded_start, t_end=data.t_end,
+                          model_form=form, terms=terms)
         s = self.settings
         settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, "n_fit": self.n_fit,
                     "effects": [e.name for e in self.pool],

@@ -624,10 +624,12 @@ def identify(reference_xu: np.ndarray, command: Command | str,
 def intervals_at(reference_xu: np.ndarray, command: Command | str, params: LFParams,
                  bounds: Mapping[str, Sequence[float]], level: float = DEFAULT_LEVEL,
                  noise: float | None = None, recorded_start: float | None = None,
-                 t_end: float | None = None, model_form: str | None = None):
+                 t_end: float | None = None, model_form: str | None = None,
+                 terms: Mapping[str, Any] | None = None):
     """Intervals of the parameters ``bounds`` names at the values in ``params`` (an estimate
     found elsewhere, e.g. the final model of the residual loop), without refitting: one batch
-    of ``2k + 1`` LF runs (:func:`eha.intervals.estimate_intervals`)."""
+    of ``2k + 1`` LF runs (:func:`eha.intervals.estimate_intervals`; ``terms``: its model-form
+    terms, default those of ``model_form``)."""
     from eha.intervals import estimate_intervals
 
     bounds = check_bounds(bounds)
@@ -641,7 +643,7 @@ def intervals_at(reference_xu: np.ndarray, command: Command | str, params: LFPar
     x = np.clip((np.array([getattr(params, n) for n in names]) - obj.lo) / obj.span, 0.0, 1.0)
     return estimate_intervals(reference, obj.simulate, x, names, obj.lo, obj.span, level=level,
                               noise=noise, model_form=model_form if model_form is not None
-                              else model_form_of(params))
+                              else model_form_of(params), terms=terms)
 
 
 def hf_reference(command: Command | str, faults: Mapping[str, float] | None = None,

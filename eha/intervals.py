@@ -108,6 +108,27 @@ MODEL_FORM: dict[str, dict[str, ModelForm]] = {
 }
 
 
+#: Model-form floor of a model the residual loop built (``eha explain`` with effects added):
+#: relative, in quadrature with the base's terms, on every fitted parameter (the faults and
+#: each added effect's). The LF with the right effects is still not the HF: at the best fit of
+#: the right model its estimates are biased by a few tenths of a percent to a few percent,
+#: more than the HAC term allows at a residual near the noise. Source: ``python
+#: benchmarks/bench_explain_coverage.py --calibrate`` (docs/explain.md).
+LOOP_MODEL_FORM = ModelForm(rel=0.0075)
+
+
+def loop_terms(terms: Mapping[str, ModelForm], names: Sequence[str]) -> dict[str, ModelForm]:
+    """``terms`` (a base's, :data:`MODEL_FORM`) with :data:`LOOP_MODEL_FORM` added to every
+    parameter of ``names``."""
+    out = {}
+    for name in names:
+        t = terms.get(name, ModelForm())
+        out[name] = ModelForm(scale=t.scale * LOOP_MODEL_FORM.scale,
+                              rel=math.hypot(t.rel, LOOP_MODEL_FORM.rel),
+                              abs=math.hypot(t.abs, LOOP_MODEL_FORM.abs))
+    return out
+
+
 def inflation(excess: float) -> float:
     """Widening factor of a fit whose residual RMSE is ``excess`` times the noise."""
     return max(1.0, excess / INFLATION_START) ** INFLATION_POWER

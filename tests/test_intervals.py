@@ -165,3 +165,20 @@ def test_flag_compares_the_residual_with_the_floored_noise():
     assert is_flagged(1.01 * FLAG_RATIO * 1e-6, 1e-6)
     assert not is_flagged(0.99 * FLAG_RATIO * 1e-6, 1e-6)
     assert not is_flagged(1.0, 0.0)
+
+
+def test_loop_floor_joins_the_base_terms_in_quadrature():
+    """A model the residual loop built: every parameter gets LOOP_MODEL_FORM's relative floor,
+    in quadrature with its base's terms (a parameter without a base term gets the floor)."""
+    import math
+
+    from eha.intervals import LOOP_MODEL_FORM, ModelForm, loop_terms, total_std
+
+    base = {"BKL": ModelForm(rel=0.001, abs=1.5e-6)}
+    terms = loop_terms(base, ["BKL", "FRC"])
+    assert terms["BKL"].rel == pytest.approx(math.hypot(0.001, LOOP_MODEL_FORM.rel))
+    assert terms["BKL"].abs == pytest.approx(1.5e-6)
+    assert terms["FRC"].rel == pytest.approx(LOOP_MODEL_FORM.rel) and LOOP_MODEL_FORM.rel > 0
+    # a load of 2000 N with a HAC std of 1 N: the floor dominates
+    assert total_std(1.0, 2000.0, terms["FRC"]) == pytest.approx(
+        math.hypot(1.0, LOOP_MODEL_FORM.rel * 2000.0))
