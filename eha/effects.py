@@ -109,6 +109,12 @@ class Effect:
         return all(abs(values[n] - off[n]) <= self.tolerance.get(n, 1e-3 * (hi - lo))
                    for n, (lo, hi) in self.bounds.items())
 
+    def within_tolerance_at(self, params: LFParams) -> bool:
+        """The effect has parameters and ``params`` holds them within their healthy tolerance
+        (:meth:`within_tolerance`): a fit that put it back there did not find it."""
+        return bool(self.params) and self.within_tolerance(
+            {n: getattr(params, n) for n in self.params})
+
     def is_on(self, params: LFParams) -> bool:
         return any(getattr(params, n) != v for n, v in self.off.items())
 

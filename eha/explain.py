@@ -1130,7 +1130,12 @@ class ResidualLoop:
         their probe values, everything refitted by pattern search); the best swap replaces it
         when it beats the model by the same rule (:func:`keeps_effect`, the swapped model against
         the current one) and leaves its own healthy tolerance. Last, :meth:`merge` tries one
-        effect in the place of each pair of added ones."""
+        effect in the place of each pair of added ones. When the model leaves the record
+        unexplained (:meth:`unexplained`) the rivals of the swap and the merge are searched
+        globally and the model in place is refitted from each winner's basin
+        (:meth:`replacement`, :meth:`cross_seed`). Returns the dismissals (removed, swapped or
+        merged effects); :meth:`run` resumes the rounds once when there are any and the model
+        is still far from the noise."""
         s, removed = self.settings, []
         for step in list(self.steps):
             effect = EFFECTS[step.effect]
@@ -1169,9 +1174,11 @@ class ResidualLoop:
         """The best single effect not in the model to take the place of the steps ``out``:
         of the :data:`SWAP_CANDIDATES` whose signature is most like what ``out`` contribute
         (``current`` against ``without``, the model with them off), each is switched on at its
-        probe value and everything in ``free`` refitted with it (pattern search); effects that
-        need structure the model lacks (:attr:`Effect.requires`) are not tried. None when
-        every refit leaves its effect within its healthy tolerance."""
+        probe value and everything in ``free`` refitted with it (pattern search; when the model
+        leaves the record unexplained, the loop's GA warm-started at the probe and from
+        scratch, the better kept); effects that need structure the model lacks
+        (:attr:`Effect.requires`) are not tried. None when every refit leaves its effect
+        within its healthy tolerance."""
         in_model = {st.effect for st in self.steps}
         others = [o for o in self.remaining()
                   if o.name not in in_model and o.name not in STRUCTURAL and o.params
@@ -1197,8 +1204,7 @@ class ResidualLoop:
             trials = [self.refit(other.switch_on(without), {**free, **other.bounds},
                                  f"final check: {other.name} for {label}", method=method,
                                  warm_start=warm) for method, warm in searches]
-            trials = [t for t in trials
-                      if not other.within_tolerance({p: getattr(t, p) for p in other.params})]
+            trials = [t for t in trials if not other.within_tolerance_at(t)]
             if not trials:
                 continue
             ev = min(self.evaluate(trials), key=lambda e: e.rmse_score
@@ -1231,7 +1237,11 @@ class ResidualLoop:
         """The final check's swap of ``step`` (see :meth:`prune`); ``without`` is the model
         with the step's effect off, ``free`` what is refitted with it. The replacement must
         score better by :func:`keeps_effect` (same size: the effect in place stays unless
-        beaten). Returns the dismissal of the replaced effect, or None."""
+        beaten); when the model leaves the record unexplained, the model in place is first
+        refitted from the replacement's basin (:meth:`cross_seed`), and a replacement that
+        the F test cannot judge on the residual's few effective samples is taken when it
+        gains ``min_gain`` after the penalty. Returns the dismissal of the replaced effect,
+        or None."""
         best = self.replacement([step], without, free, step.effect)
         if best is None:
             return None
@@ -1271,8 +1281,7 @@ class ResidualLoop:
         trial = self.refit(start, bounds, f"final check: {label} from {other.name}'s fit",
                            method="ps")
         mine = self.evaluate([trial])[0]
-        inside = any(EFFECTS[st.effect].params and EFFECTS[st.effect].within_tolerance(
-            {p: getattr(trial, p) for p in EFFECTS[st.effect].params}) for st in out)
+        inside = any(EFFECTS[st.effect].within_tolerance_at(trial) for st in out)
         if mine.rmse_score < self.cur.rmse_score and not inside:
             self.current, self.cur = trial, mine
 
@@ -1325,8 +1334,10 @@ class ResidualLoop:
         the fitted part alone, and a GA or compass search there can stop in a valley's side
         basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded
         against jack friction and a load on ``mixed``); the least-squares step follows the
-        valley. Kept only when it lowers the whole record's objective and leaves every added
-        effect outside its healthy tolerance. A model without added effects keeps its fit (a
+        valley. The polish runs from the loop's model and from it with the structure's
+        parameters at their physical values (the flapper's probe); the better is kept, only
+        when it lowers the whole record's objective and leaves every added effect outside its
+        healthy tolerance. A model without added effects keeps its fit (a
         record to which nothing was added: ``after`` is ``before``). After it the "held-out"
         RMSE of the final model is in-sample (reported as such in docs/explain.md)."""
         if not self.steps:
@@ -1345,18 +1356,18 @@ class ResidualLoop:
                     for p, v in EFFECTS[st.effect].probe.items()}
         if physical and any(getattr(self.current, p) != v for p, v in physical.items()):
             starts.append(self.current.replace(**physical))
-        polished, ev = None, None
+        polished, ev = self.current, self.cur
         for start in starts:
             trial = self.refit(start, free, "final estimates on the whole record",
                                method="lm", whole=True)
+            # an added effect polished back inside its healthy tolerance would be reported
+            # without being one: such a polish is not taken
+            if any(EFFECTS[st.effect].within_tolerance_at(trial) for st in self.steps):
+                continue
             ev_t = self.evaluate([trial])[0]
-            if ev is None or ev_t.rmse_whole < ev.rmse_whole:
+            if ev_t.rmse_whole < ev.rmse_whole:
                 polished, ev = trial, ev_t
-        # an added effect polished back inside its healthy tolerance would be reported
-        # without being one: the loop's estimates stay
-        inside = any(EFFECTS[st.effect].params and EFFECTS[st.effect].within_tolerance(
-            {p: getattr(polished, p) for p in EFFECTS[st.effect].params}) for st in self.steps)
-        if ev.rmse_whole < self.cur.rmse_whole and not inside:
+        if ev is not self.cur:
             self.current, self.cur = polished, ev
             if self.steps:      # the last step's "after" is the final model
                 self.steps[-1] = replace(
@@ -1458,7 +1469,9 @@ class ResidualLoop:
         return [e for e in self.pool if e.name not in added]
 
     def run(self) -> ExplainResult:
-        """Baseline, then trace / try / choose / accept until a stop rule holds."""
+        """Baseline, then trace / try / choose / accept until a stop rule holds, the final
+        check (resumed rounds when it changed a model still far from the noise, at most
+        :data:`REVISITS` times), the final estimates and their intervals."""
         from eha.fdi import DEFAULT_LEVEL, intervals_at, model_form_of
         from eha.intervals import MODEL_FORM, loop_terms
 

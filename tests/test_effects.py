@@ -85,3 +85,15 @@ def test_get_and_register_validate_names():
     with pytest.raises(ParameterError, match="registered twice"):
         register(Effect("offset", "again", bounds={"Ofs": (-1.0, 1.0)}))
     assert "bad" not in EFFECTS
+
+
+def test_within_tolerance_at_reads_the_effect_parameters_of_a_model():
+    """A model whose fit put an effect back within its healthy tolerance did not find it; an
+    effect without parameters (a switch) is never 'within tolerance'."""
+    from eha.effects import EFFECTS
+    from eha.params import LFParams
+
+    leak = EFFECTS["leakage"]
+    assert leak.within_tolerance_at(LFParams().replace(Clk=0.5 * leak.tolerance["Clk"]))
+    assert not leak.within_tolerance_at(LFParams().replace(Clk=5e-12))
+    assert not EFFECTS["orifice_law"].within_tolerance_at(LFParams())
