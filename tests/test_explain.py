@@ -507,3 +507,25 @@ def test_final_estimates_restart_the_structure_from_its_physical_values(tmp_path
     assert loop.current.FDJ == pytest.approx(800.0, rel=0.03)
     assert loop.current.SNF == pytest.approx(2513.0, rel=0.10)
     assert loop.current.CJ == pytest.approx(1.6e4, rel=0.05)
+
+
+@pytest.mark.slow
+def test_faults_without_the_tentative_effects(tmp_path):
+    """The span of an unexplained record's fault intervals: the declared faults refitted with
+    every added effect that is not the structure switched off (an LF load record with the load
+    accepted: without it the faults move far from their values with it); a model with only
+    the structure added has no tentative effect to leave out."""
+    from eha.explain import ResidualLoop
+
+    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    loop = ResidualLoop(data, effects="external_load,orifice_law,flapper_dynamics",
+                        settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
+    _accept_by_hand(loop, "external_load")
+    without = loop.faults_without_tentative()
+    assert set(without) == {"BKL", "FDJ"}
+    assert loop.current.FRC == pytest.approx(2000.0, rel=0.02)
+    assert loop.current.FDJ == pytest.approx(800.0, rel=0.02)
+    assert abs(without["FDJ"] - 800.0) > 0.2 * 800.0
+    loop.steps = [st for st in loop.steps if st.effect != "external_load"]
+    loop.current = loop.current.replace(FRC=0.0)
+    assert loop.faults_without_tentative() == {}
