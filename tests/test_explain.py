@@ -74,11 +74,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     doc = json.loads(js.read_text())
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
     # and the verdict, its lead, the noise, the command's hold, the effects chosen but
-    # dismissed and whether the measured P12 was fitted (issue 11)
+    # dismissed, whether the measured P12 was fitted and the intervals' notes (issue 11)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
                         "intervals", "level", "unexplained", "verdict", "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
-                        "p12_in_fit"}
+                        "p12_in_fit", "interval_notes"}
+    assert doc["interval_notes"] == []          # explained: nothing to note
     assert doc["p12_in_fit"] is True            # the record has P12
     assert all(set(d) == {"effect", "round", "loss", "p_value", "replaced_by"}
                for d in doc["dismissed"])
