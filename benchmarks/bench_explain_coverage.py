@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 import time
@@ -101,10 +100,9 @@ def spreads(loop, params, bounds) -> dict[str, dict[str, float]]:
 
 
 def covered(row: dict, truth: float, rel: float) -> bool:
-    from eha.intervals import ModelForm, normal_quantile, total_std
+    from eha.intervals import ModelForm, loop_terms, normal_quantile, total_std
 
-    b = row["base"]
-    term = ModelForm(scale=b["scale"], rel=math.hypot(b["rel"], rel), abs=b["abs"])
+    term = loop_terms({"p": ModelForm(**row["base"])}, ["p"], ModelForm(rel=rel))["p"]
     s = total_std(row["hac"], row["value"], term, row["widen"])
     return abs(row["value"] - truth) <= normal_quantile(LEVEL) * s
 

@@ -117,15 +117,16 @@ MODEL_FORM: dict[str, dict[str, ModelForm]] = {
 LOOP_MODEL_FORM = ModelForm(rel=0.0075)
 
 
-def loop_terms(terms: Mapping[str, ModelForm], names: Sequence[str]) -> dict[str, ModelForm]:
-    """``terms`` (a base's, :data:`MODEL_FORM`) with :data:`LOOP_MODEL_FORM` added to every
-    parameter of ``names``."""
+def loop_terms(terms: Mapping[str, ModelForm], names: Sequence[str],
+               floor: ModelForm = LOOP_MODEL_FORM) -> dict[str, ModelForm]:
+    """``terms`` (a base's, :data:`MODEL_FORM`) with ``floor`` (default
+    :data:`LOOP_MODEL_FORM`) added to every parameter of ``names``: scales multiplied, floors
+    in quadrature."""
     out = {}
     for name in names:
         t = terms.get(name, ModelForm())
-        out[name] = ModelForm(scale=t.scale * LOOP_MODEL_FORM.scale,
-                              rel=math.hypot(t.rel, LOOP_MODEL_FORM.rel),
-                              abs=math.hypot(t.abs, LOOP_MODEL_FORM.abs))
+        out[name] = ModelForm(scale=t.scale * floor.scale, rel=math.hypot(t.rel, floor.rel),
+                              abs=math.hypot(t.abs, floor.abs))
     return out
 
 
