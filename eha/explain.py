@@ -1592,7 +1592,8 @@ class ResidualLoop:
                     "command_hold": data.info.get("command_hold", "linear"),
                     "p12_used": bool(self.p12_weight), "p12_noise_pa": self.p12_noise,
                     "p12_m_per_pa": self.p12_weight,
-                    "structure_pinned": [e.name for e in self.pinned], **self.fdi_options}
+                    "structure_pinned": [e.name for e in self.pinned], "passes": 1,
+                    **self.fdi_options}
         return ExplainResult(
             source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
             faults_after={k: getattr(self.current, k) for k in self.bounds}, before=before,
@@ -1654,8 +1655,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
                          **fdi_options)
     result = first.run()
-    if not (result.unexplained and SECOND_PASS
-            and any(e.name in STRUCTURAL for e in first.pool)):
+    structure = [e for e in first.pool if e.name in STRUCTURAL]
+    if not (result.unexplained and SECOND_PASS and structure
+            and len(structure) <= settings.max_steps):
         return result
     # a model still far from the noise may have been led astray in its first rounds: an
     # effect fitted while the structure was missing (or in a side basin, a flapper at 760
