@@ -883,6 +883,11 @@ def explain(
                 len(res.rounds) else f"final check: {d.effect} removed")
         console.print(f"{when}: with the rest of the model refitted without it, it reduces "
                       f"the RMSE by only {d.loss:.1%} (p = {d.p_value:.2g})")
+    if res.settings.get("passes", 1) > 1:
+        console.print("the first pass left the record unexplained; a second pass ran from the "
+                      "structure pinned at its physical values: " +
+                      ("its result is reported" if res.settings.get("structure_pinned")
+                       else "not better by the loop's rule, the first pass is reported"))
     if res.settings.get("p12_used"):
         console.print(f"measured P12 used in every fit and score (noise taken as "
                       f"{res.settings['p12_noise_pa'] / 1e5:.3g} bar; --p12-weight "
