@@ -891,15 +891,16 @@ class ResidualLoop:
         # searches of many parameters get more GA starts (other seeds); the best fit is kept
         starts = 1 if method in ("ps", "lm") or len(free) < MULTISTART_PARAMS else MULTISTART
         n = len(self.data) if whole else self.n_fit
+        # what every search of this refit fits: the record's part, its start and its P12
+        record = dict(reference_xu=self.data.xu[:n], command=self.data.command,
+                      fit=dict(free), recorded_start=self.record.recorded_start, level=None,
+                      p12_weight=self.p12_weight,
+                      reference_p12=self.data.p12[:n] if self.p12_weight else None)
         best = None
         try:
             for i in range(starts):
-                res = identify(self.data.xu[:n], self.data.command, fit=dict(free),
-                               base=start, method=method, pop=s.pop, seed=s.seed + 1000 * i,
-                               warm_start=warm_start, recorded_start=self.record.recorded_start,
-                               level=None, p12_weight=self.p12_weight,
-                               reference_p12=(self.data.p12[:n] if self.p12_weight
-                                              else None), **options)
+                res = identify(base=start, method=method, pop=s.pop, seed=s.seed + 1000 * i,
+                               warm_start=warm_start, **record, **options)
                 if best is None or res.objective < best.objective:
                     best = res
             if method in GLOBAL_METHODS and LEAST_SQUARES_FINISH:
@@ -908,12 +909,8 @@ class ResidualLoop:
                 # parameters, where the fitted part is matched by a wrong trade-off that the
                 # held-out part rejects (a flapper refit on a 7-parameter steps record:
                 # 2.3 µm fitted, 17.8 µm held out after the GA; 1.0 and 2.1 µm after lm)
-                polished = identify(self.data.xu[:n], self.data.command, fit=dict(free),
-                                    base=start.replace(**best.estimates), method="lm",
-                                    recorded_start=self.record.recorded_start, level=None,
-                                    p12_weight=self.p12_weight,
-                                    reference_p12=(self.data.p12[:n] if self.p12_weight
-                                                   else None))
+                polished = identify(base=start.replace(**best.estimates), method="lm",
+                                    **record)
                 if polished.objective < best.objective:
                     best = polished
         except FDIError as exc:
@@ -939,7 +936,7 @@ class ResidualLoop:
         prev, faults0 = self.cur, {p: getattr(self.current, p) for p in self.bounds}
         start = self.current
         for effect in self.pinned:
-            start = effect.switch_on(start, dict(effect.probe))
+            start = effect.switch_on(start)         # at its probe: the physical values
         names = "+".join(e.name for e in self.pinned)
         fitted = self.refit(start, self.bounds, f"fit the declared faults with {names} pinned")
         ev = self.evaluate([fitted])[0]
@@ -1716,6 +1713,7 @@ def better_pass(first: ExplainResult, second: ExplainResult,
     gain = 1.0 - b / a if math.isfinite(a) else 1.0
     extra = max(n_params(second) - n_params(first), 0)
     return second if gain - settings.penalty * extra >= settings.min_gain else first
+
 
 def _split_combination(members: Sequence[Effect], combined: Evaluation,
                        evaluate_many: Callable[[list[LFParams]], list[Evaluation]],
