@@ -353,6 +353,9 @@ def main() -> None:
     ap.add_argument("--pop", type=int, default=20)
     ap.add_argument("--noise", type=float, default=1e-6, help="noise std on xu [m]")
     ap.add_argument("--limit", type=int, default=0, help="only the first N records (smoke run)")
+    ap.add_argument("--seeds", default=None,
+                    help="only the records of these seeds, comma-separated (a rerun of those a "
+                         "change can touch; benchmarks/merge_results.py puts them in place)")
     ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
     add_p12_arguments(ap)
     args = ap.parse_args()
@@ -361,6 +364,13 @@ def main() -> None:
     if unknown:
         ap.error(f"--commands: unknown {unknown[0]!r}; allowed: {', '.join(COMMANDS)}")
     plan = [(c, record_seed(args.seed, c, k)) for c in commands for k in range(args.per_command)]
+    if args.seeds:
+        wanted = {int(w) for w in args.seeds.split(",") if w.strip()}
+        unknown = wanted - {seed for _, seed in plan}
+        if unknown:
+            ap.error(f"--seeds: {sorted(unknown)} not among the records of --commands "
+                     f"and --seed")
+        plan = [(c, seed) for c, seed in plan if seed in wanted]
     if args.limit:
         plan = plan[:args.limit]
 
@@ -406,7 +416,7 @@ def main() -> None:
                    "commands": commands, "per_command": args.per_command, "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
-                   "limit": args.limit, "structural": list(STRUCTURAL),
+                   "limit": args.limit, "seeds": args.seeds, "structural": list(STRUCTURAL),
                    "spread": {**SPREAD, "FDJ": "N(200, 20)", "Clk": "log-uniform 0.7e-13..1.4e-13",
                               "BKL": "uniform 0..3e-5"},
                    "step_kinds": {k: {"steps": [lo, hi], "max_level_m": a}

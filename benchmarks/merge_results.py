@@ -1,0 +1,68 @@
+"""Merge JSON results of bench_explain_multi.py or bench_explain_fp.py and recompute the summary.
+
+Parts are read in order; a record of a later part replaces the record of an earlier part with
+the same key (multi: record name and seed; fp: command and seed). That serves two uses:
+
+* one seed block run as two processes (two parts with different records): their union;
+* a rerun of only the records a change of the loop can touch (``--records`` / ``--seeds``):
+  the rerun records replace the old ones, the others are kept as they were. A record is
+  untouched when the new code takes exactly the old path on it: the loop is deterministic for
+  one seed, so when the JSON shows that no refit the change acts on occurred in the record's
+  run, the old record *is* the new code's result. The provenance of every part is kept.
+
+    python benchmarks/merge_results.py multi OUT.json old_part1.json old_part2.json rerun.json
+    python benchmarks/merge_results.py fp OUT.json old.json rerun.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def key(kind: str, row: dict) -> tuple:
+    return (row["name"], row["seed"]) if kind == "multi" else (row["command"], row["seed"])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("kind", choices=("multi", "fp"))
+    ap.add_argument("out", help="merged JSON to write")
+    ap.add_argument("parts", nargs="+", help="result JSONs, later ones replacing earlier rows")
+    args = ap.parse_args()
+    docs = [json.loads(Path(p).read_text()) for p in args.parts]
+    rows: dict[tuple, dict] = {}
+    replaced = []
+    for part, doc in zip(args.parts, docs):
+        for row in doc["records"]:
+            k = key(args.kind, row)
+            if k in rows:
+                replaced.append({"record": list(k), "by": part})
+            rows[k] = row
+    merged = list(rows.values())
+    if args.kind == "multi":
+        import bench_explain_multi as bench
+        summary = bench.summarise(merged)
+    else:
+        import bench_explain_fp as bench
+        summary = bench.summarise(merged, list(dict.fromkeys(r["command"] for r in merged)))
+    summary["wall_s"] = sum(d["summary"].get("wall_s", 0.0) for d in docs)
+    provenance = []
+    for part, doc in zip(args.parts, docs):
+        prov = doc["provenance"]
+        for p in prov if isinstance(prov, list) else [prov]:
+            provenance.append({"part": Path(part).name, **p})
+    out = {"benchmark": docs[0]["benchmark"], "settings": docs[-1]["settings"],
+           "provenance": provenance, "replaced": replaced, "summary": summary,
+           "records": merged}
+    Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+    bench.print_summary(summary)
+    print(f"wrote {args.out}: {len(merged)} records, {len(replaced)} replaced")
+
+
+if __name__ == "__main__":
+    main()
