@@ -779,6 +779,20 @@ def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
 POSITION_WORSENING = 1.2
 
 
+def trades_position(current: Evaluation, candidate: Evaluation,
+                    factor: float = POSITION_WORSENING) -> bool:
+    """Does ``candidate`` make the position's RMSE (fitted and held-out parts,
+    ``hypot(rmse_fit, rmse_hold)``) worse than ``factor`` times ``current``'s?
+
+    On a record with P12 such a candidate can still score better (its gain is the pressure's):
+    the LF's P12 is a model (:data:`P12_NOISE_FLOOR`), and an effect that trades the position
+    for it stands in for the pressure model's form (a leak on a healthy HF `sine`: position
+    2.3 -> 4.4 µm, the score up 48 % on P12). The loop does not add it.
+    """
+    return (math.hypot(candidate.rmse_fit, candidate.rmse_hold)
+            > factor * math.hypot(current.rmse_fit, current.rmse_hold))
+
+
 class ResidualLoop:
     """The residual loop on one record; each step of the loop is a method.
 
@@ -1003,12 +1017,8 @@ class ResidualLoop:
             # the fit left an effect within its healthy tolerance of off: any gain is the
             # optimizer's or a healthy spread's, not the effect's
             cand.score = -math.inf
-        elif self.p12_weight and (math.hypot(ev.rmse_fit, ev.rmse_hold) > POSITION_WORSENING
-                                  * math.hypot(cur.rmse_fit, cur.rmse_hold)):
-            # the gain is the pressure's alone, bought with a worse position: the LF's P12 is
-            # a model (P12_NOISE_FLOOR), and an effect that trades the position for it stands
-            # in for the pressure model's form (a leak on a healthy HF `sine`: position 2.3 ->
-            # 4.4 µm, the score up 48 % on P12)
+        elif self.p12_weight and trades_position(cur, ev):
+            # the gain is the pressure's alone, bought with a worse position
             cand.score = -math.inf
         cand.seconds = time.perf_counter() - t0
         cand._evaluation = ev          # kept for the step, not reported

@@ -647,3 +647,23 @@ class SimpleLoopResult:
         self.after = loop.cur
         self.effects = [st.effect for st in loop.steps]
         self.dismissed = loop.dismissed
+
+
+def test_a_candidate_that_trades_the_position_for_p12_is_not_added(tmp_path):
+    """The refit of a candidate is replaced by a seal-wear leak 40x the LF's truth on an LF
+    `test` record with P12: the position gets far worse than the current model's (the truth),
+    and the candidate is switched off (score -inf), not merely scored low; without P12 in the
+    fit the same candidate keeps its (negative) score."""
+    from eha.explain import Candidate, ResidualLoop
+
+    data = load(_record(tmp_path, "lf_test", "test", 0.6, model="lf"))
+    assert data.p12 is not None
+    truth = LFParams().replace(**FAULTS)
+    for weight, switched_off in ((1.0, True), (0.0, False)):
+        loop = ResidualLoop(data, settings=LoopSettings(p12_weight=weight))
+        loop.current = truth.replace(XJ0=loop.base.XJ0)
+        loop.cur = loop.evaluate([loop.current])[0]
+        loop.refit = lambda start, free, label, **kw: start.replace(Clk=2e-11)
+        cand = loop.try_candidate(Candidate("leakage", math.nan, math.nan))
+        assert cand.rmse_fit > 2 * loop.cur.rmse_fit
+        assert (cand.score == -math.inf) is switched_off, (weight, cand.score)

@@ -234,3 +234,24 @@ def test_a_steps_alternatives_leave_out_its_own_effect():
                 0.48, alternatives={"motor_gain": 0.47, "delay": 0.46,
                                     "orifice_law+flapper_dynamics+delay": 0.44})
     assert ExplainResult.alternatives_of(step) == {"motor_gain": 0.47}
+
+
+def test_a_gain_bought_on_p12_with_a_worse_position_trades_the_position():
+    """The canned evaluations of the healthy HF `sine` of seed 6003 (bench block 6): with the
+    leak the position goes from 2.3 to 4.4 µm while the weighted P12 falls from 8 to 1 µm, so
+    the score improves; the loop must not take that gain (POSITION_WORSENING = 1.2)."""
+    from eha.explain import POSITION_WORSENING, Evaluation, trades_position
+    from eha.params import LFParams
+
+    def ev(fit, hold, p12):
+        return Evaluation(LFParams(), None, fit * 1e-6, hold * 1e-6, fit * 1e-6,
+                          p12_fit=p12 * 1e-6, p12_hold=p12 * 1e-6)
+
+    current, leak = ev(2.31, 2.14, 8.0), ev(4.40, 3.55, 1.0)
+    assert leak.rmse_score < current.rmse_score           # a gain on the score ...
+    assert trades_position(current, leak)                 # ... bought with the position
+    assert not trades_position(current, ev(2.0, 2.0, 1.0))
+    # the factor: 1.15x worse is within it, 1.25x is not
+    assert not trades_position(current, ev(2.31 * 1.15, 2.14 * 1.15, 1.0))
+    assert trades_position(current, ev(2.31 * 1.25, 2.14 * 1.25, 1.0))
+    assert POSITION_WORSENING == 1.2
