@@ -239,6 +239,12 @@ def p12_column(df, noise: float, seed: int):
     return df
 
 
+def add_fit_argument(ap) -> None:
+    ap.add_argument("--fit", default=None,
+                    help="parameters fitted throughout, as eha explain --fit (default BKL,FDJ); "
+                         "e.g. BKL,FDJ,GQ=0.18:0.22 adds the healthy flow-gain spread")
+
+
 def add_p12_arguments(ap) -> None:
     ap.add_argument("--p12-noise", type=float, default=P12_NOISE,
                     help="noise std on the recorded P12 [Pa]; -1: records without P12")
@@ -246,15 +252,17 @@ def add_p12_arguments(ap) -> None:
                     help="weight of the measured P12 in the loop's fits (default: the loop's)")
 
 
-def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = None):
-    """Write the record, read it back and run the loop with its defaults."""
+def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = None,
+                fit: str | None = None):
+    """Write the record, read it back and run the loop with its defaults (``fit``: the
+    parameters fitted throughout, ``eha explain --fit``; None: its default, BKL and FDJ)."""
     from eha.explain import explain
     from eha.measured import load
 
     df.to_csv(path, index=False)
     data = load(path)
     t0 = time.perf_counter()
-    result = explain(data, pop=pop, seed=seed, p12_weight=p12_weight)
+    result = explain(data, fit=fit, pop=pop, seed=seed, p12_weight=p12_weight)
     return data, result, time.perf_counter() - t0
 
 
@@ -358,6 +366,7 @@ def main() -> None:
                          "change can touch; benchmarks/merge_results.py puts them in place)")
     ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
     add_p12_arguments(ap)
+    add_fit_argument(ap)
     args = ap.parse_args()
     commands = [c for c in args.commands.split(",") if c]
     unknown = [c for c in commands if c not in COMMANDS]
@@ -393,7 +402,8 @@ def main() -> None:
                                   command_hold="auto")
             df = p12_column(df, args.p12_noise, seed)
             data, result, seconds = run_explain(df, Path(tmp) / f"{i:03d}_{command}.csv",
-                                                args.pop, args.explain_seed, args.p12_weight)
+                                                args.pop, args.explain_seed, args.p12_weight,
+                                                args.fit)
             res = result_json(data, result, seconds)
             spurious = [e for e in dict.fromkeys(res["effects"] + res["effects_on"])
                         if e not in STRUCTURAL]
@@ -416,7 +426,8 @@ def main() -> None:
                    "commands": commands, "per_command": args.per_command, "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
-                   "limit": args.limit, "seeds": args.seeds, "structural": list(STRUCTURAL),
+                   "limit": args.limit, "seeds": args.seeds, "fit": args.fit,
+                   "structural": list(STRUCTURAL),
                    "spread": {**SPREAD, "FDJ": "N(200, 20)", "Clk": "log-uniform 0.7e-13..1.4e-13",
                               "BKL": "uniform 0..3e-5"},
                    "step_kinds": {k: {"steps": [lo, hi], "max_level_m": a}

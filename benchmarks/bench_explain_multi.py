@@ -53,9 +53,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_explain_fp import (STRUCTURAL, add_p12_arguments, clean, fmt_effects,  # noqa: E402
-                              p12_column, provenance, result_json, run_explain, step_sequence,
-                              warm_up)
+from bench_explain_fp import (STRUCTURAL, add_fit_argument, add_p12_arguments,  # noqa: E402
+                              clean, fmt_effects, p12_column, provenance, result_json,
+                              run_explain, step_sequence, warm_up)
 
 #: Declared faults of every record (fitted by the loop).
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
@@ -215,6 +215,7 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="list the records and stop")
     ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
     add_p12_arguments(ap)
+    add_fit_argument(ap)
     args = ap.parse_args()
     plan = select(args)
     if args.list:
@@ -244,7 +245,7 @@ def main() -> None:
                                   command_hold="auto")
             df = p12_column(df, args.p12_noise, seed)
             data, result, seconds = run_explain(df, Path(tmp) / f"{n:03d}_{i}.csv", args.pop,
-                                                args.explain_seed, args.p12_weight)
+                                                args.explain_seed, args.p12_weight, args.fit)
             res = result_json(data, result, seconds)
             sc = score(res, result, inj)
             rows.append({"i": i, "name": name, "combo": combo, "command": command,
@@ -266,7 +267,7 @@ def main() -> None:
         out = {"benchmark": "explain_multi", "settings": {
                    "records": [r["name"] for r in rows], "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
-                   "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
+                   "p12_noise": args.p12_noise, "p12_weight": args.p12_weight, "fit": args.fit,
                    "limit": args.limit, "faults": FAULTS, "param_tol": PARAM_TOL,
                    "fault_tol": FAULT_TOL, "structural": list(STRUCTURAL),
                    "combos": {k: {"effects": v[0], "commands": list(v[1])}
