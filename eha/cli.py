@@ -787,6 +787,11 @@ def explain(
             "eha.explain", "DEFAULTS", lambda d: d["p12_weight"]),
         help="Weight of the record's measured P12 in every fit and score, each signal in its "
              "own noise (0 = position only; records without P12 use the position only)."),
+    flow_gain_spread: float = typer.Option(
+        ..., "--flow-gain-spread", default_factory=library_default(
+            "eha.explain", "DEFAULTS", lambda d: d["flow_gain_spread"]),
+        help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal "
+             "(the healthy actuator's own spread; 0 = held at nominal). E.g. 0.1."),
     command_hold: CommandHoldOption = COMMAND_HOLD,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
@@ -826,6 +831,8 @@ def explain(
         fail(f"--min-gain {min_gain}: allowed range [0, 1]")
     if not 0.0 <= p12_weight <= 100.0:
         fail(f"--p12-weight {p12_weight}: allowed range [0, 100]")
+    if not 0.0 <= flow_gain_spread <= 0.5:
+        fail(f"--flow-gain-spread {flow_gain_spread}: allowed range [0, 0.5]")
     if prior is not None:
         check_prior(prior)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -845,7 +852,8 @@ def explain(
                                  known=known_values, command_hold=command_hold,
                                  results=results, on_progress=step, method=method, pop=pop,
                                  seed=seed, candidates=candidates, max_steps=max_steps,
-                                 min_gain=min_gain, p12_weight=p12_weight)
+                                 min_gain=min_gain, p12_weight=p12_weight,
+                                 flow_gain_spread=flow_gain_spread)
         except MeasuredDataError as exc:
             bar.stop()
             _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))

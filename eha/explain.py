@@ -469,6 +469,15 @@ class LoopSettings:
         P12, >= 0 (0: position only). Each P12 sample counts ``p12_weight`` times as much as
         a position sample, each measured in its own noise (:func:`p12_objective_weight`);
         the reported RMSE stay those of the position.
+    flow_gain_spread : float
+        The valve flow gain GQ is fitted with the declared faults, within +- this fraction
+        of the base's value, in [0, 0.5] (0, the default: held at the base's). A healthy
+        actuator's flow gain is its own (a few per cent of manufacturing spread), and where
+        the valve saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves
+        a healthy 1 cm `sine` at 25x the noise and biases FDJ by tens of per cent. Fitted, it
+        also absorbs what reduces the flow alike (a weak torque motor); docs/explain.md,
+        "The healthy flow gain". Not fitted when GQ is a declared fault or known
+        (``fixed``).
     method, pop, seed
         Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
     """
@@ -482,6 +491,7 @@ class LoopSettings:
     noise_factor: float = 1.25
     joint: bool = True
     p12_weight: float = 1.0
+    flow_gain_spread: float = 0.0
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -504,6 +514,9 @@ class LoopSettings:
             problems.append(f"noise_factor {self.noise_factor:g}: allowed range [0, ...]")
         if not 0.0 <= self.p12_weight <= 100.0:
             problems.append(f"--p12-weight {self.p12_weight:g}: allowed range [0, 100]")
+        if not 0.0 <= self.flow_gain_spread <= 0.5:
+            problems.append(f"--flow-gain-spread {self.flow_gain_spread:g}: allowed range "
+                            f"[0, 0.5]")
         if self.pop < 2:
             problems.append(f"--pop {self.pop}: allowed range [2, ...]")
         if self.method not in ("ga", "ga+ps"):
@@ -826,6 +839,12 @@ class ResidualLoop:
                 raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
             if name == "XJ0":
                 raise ExplainError("--set XJ0: the initial position is taken from the record")
+        if settings.flow_gain_spread > 0 and "GQ" not in self.bounds and "GQ" not in fixed:
+            # the healthy flow gain is the actuator's own: fitted with the faults throughout
+            # (bounds to 6 significant digits, as typed: 0.2 +- 10 % is GQ=0.18:0.22)
+            spread = settings.flow_gain_spread
+            self.bounds["GQ"] = (float(f"{base.GQ * (1.0 - spread):.6g}"),
+                                 float(f"{base.GQ * (1.0 + spread):.6g}"))
         # effects already in the base (a prior), overlapping the declared faults or touching
         # a known (fixed) parameter are not tried
         self.pool = [e for e in pool if not set(e.params) & set(self.bounds)
@@ -1661,6 +1680,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
             alpha: float | None = None, p12_weight: float | None = None,
+            flow_gain_spread: float | None = None,
             on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -1686,6 +1706,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         The stop and choice rules (:class:`LoopSettings`, where their defaults are).
     p12_weight : float, optional
         Weight of a measured P12 in the fits (:class:`LoopSettings`; 0 = position only).
+    flow_gain_spread : float, optional
+        The healthy flow gain's range, fitted with the faults (:class:`LoopSettings`;
+        0 = GQ held at the base's value).
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
@@ -1698,7 +1721,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     """
     given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
-             "joint": joint, "p12_weight": p12_weight}
+             "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread}
     settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
                             method=method or DEFAULT_METHOD, pop=pop, seed=seed)
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
