@@ -243,6 +243,9 @@ def add_fit_argument(ap) -> None:
     ap.add_argument("--fit", default=None,
                     help="parameters fitted throughout, as eha explain --fit (default BKL,FDJ); "
                          "e.g. BKL,FDJ,GQ=0.18:0.22 adds the healthy flow-gain spread")
+    ap.add_argument("--flow-gain-spread", type=float, default=None,
+                    help="as eha explain --flow-gain-spread (default: the loop's); unlike GQ in "
+                         "--fit, a flow gain at the spread's edge goes back to nominal")
 
 
 def add_p12_arguments(ap) -> None:
@@ -253,7 +256,7 @@ def add_p12_arguments(ap) -> None:
 
 
 def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = None,
-                fit: str | None = None):
+                fit: str | None = None, flow_gain_spread: float | None = None):
     """Write the record, read it back and run the loop with its defaults (``fit``: the
     parameters fitted throughout, ``eha explain --fit``; None: its default, BKL and FDJ)."""
     from eha.explain import explain
@@ -262,7 +265,8 @@ def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = 
     df.to_csv(path, index=False)
     data = load(path)
     t0 = time.perf_counter()
-    result = explain(data, fit=fit, pop=pop, seed=seed, p12_weight=p12_weight)
+    result = explain(data, fit=fit, pop=pop, seed=seed, p12_weight=p12_weight,
+                     flow_gain_spread=flow_gain_spread)
     return data, result, time.perf_counter() - t0
 
 
@@ -403,7 +407,7 @@ def main() -> None:
             df = p12_column(df, args.p12_noise, seed)
             data, result, seconds = run_explain(df, Path(tmp) / f"{i:03d}_{command}.csv",
                                                 args.pop, args.explain_seed, args.p12_weight,
-                                                args.fit)
+                                                args.fit, args.flow_gain_spread)
             res = result_json(data, result, seconds)
             spurious = [e for e in dict.fromkeys(res["effects"] + res["effects_on"])
                         if e not in STRUCTURAL]
@@ -427,6 +431,7 @@ def main() -> None:
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
                    "limit": args.limit, "seeds": args.seeds, "fit": args.fit,
+                   "flow_gain_spread": args.flow_gain_spread,
                    "structural": list(STRUCTURAL),
                    "spread": {**SPREAD, "FDJ": "N(200, 20)", "Clk": "log-uniform 0.7e-13..1.4e-13",
                               "BKL": "uniform 0..3e-5"},

@@ -245,7 +245,8 @@ def main() -> None:
                                   command_hold="auto")
             df = p12_column(df, args.p12_noise, seed)
             data, result, seconds = run_explain(df, Path(tmp) / f"{n:03d}_{i}.csv", args.pop,
-                                                args.explain_seed, args.p12_weight, args.fit)
+                                                args.explain_seed, args.p12_weight, args.fit,
+                                                args.flow_gain_spread)
             res = result_json(data, result, seconds)
             sc = score(res, result, inj)
             rows.append({"i": i, "name": name, "combo": combo, "command": command,
@@ -268,6 +269,7 @@ def main() -> None:
                    "records": [r["name"] for r in rows], "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight, "fit": args.fit,
+                   "flow_gain_spread": args.flow_gain_spread,
                    "limit": args.limit, "faults": FAULTS, "param_tol": PARAM_TOL,
                    "fault_tol": FAULT_TOL, "structural": list(STRUCTURAL),
                    "combos": {k: {"effects": v[0], "commands": list(v[1])}

@@ -273,6 +273,7 @@ class ExplainResult:
             "leads": self.leads.to_json() if self.leads is not None else None,
             "command_hold": self.settings.get("command_hold"),
             "p12_in_fit": bool(self.settings.get("p12_used", False)),
+            "flow_gain_released": self.settings.get("flow_gain_released"),
             "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
                        "tentative": self.unexplained,
@@ -475,9 +476,11 @@ class LoopSettings:
         actuator's flow gain is its own (a few per cent of manufacturing spread), and where
         the valve saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves
         a healthy 1 cm `sine` at 25x the noise and biases FDJ by tens of per cent. Fitted, it
-        also absorbs what reduces the flow alike (a weak torque motor); docs/explain.md,
-        "The healthy flow gain". Not fitted when GQ is a declared fault or known
-        (``fixed``).
+        also absorbs what reduces the flow alike (a weak torque motor): a final GQ at the
+        edge of the spread (:func:`flow_gain_at_edge`) is read as a flow loss beyond a healthy
+        actuator's, and the loop runs again with GQ at the base's value (:func:`explain`);
+        docs/explain.md, "The healthy flow gain". Not fitted when GQ is a declared fault or
+        known (``fixed``).
     method, pop, seed
         Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
     """
@@ -839,12 +842,16 @@ class ResidualLoop:
                 raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
             if name == "XJ0":
                 raise ExplainError("--set XJ0: the initial position is taken from the record")
-        if settings.flow_gain_spread > 0 and "GQ" not in self.bounds and "GQ" not in fixed:
+        self.flow_gain_fitted = (settings.flow_gain_spread > 0 and "GQ" not in self.bounds
+                                 and "GQ" not in fixed)
+        if self.flow_gain_fitted:
             # the healthy flow gain is the actuator's own: fitted with the faults throughout
             # (bounds to 6 significant digits, as typed: 0.2 +- 10 % is GQ=0.18:0.22)
             spread = settings.flow_gain_spread
             self.bounds["GQ"] = (float(f"{base.GQ * (1.0 - spread):.6g}"),
                                  float(f"{base.GQ * (1.0 + spread):.6g}"))
+        #: why the flow gain stopped being fitted (:meth:`baseline`), or None
+        self.flow_gain_released: str | None = None
         # effects already in the base (a prior), overlapping the declared faults or touching
         # a known (fixed) parameter are not tried
         self.pool = [e for e in pool if not set(e.params) & set(self.bounds)
@@ -963,8 +970,23 @@ class ResidualLoop:
 
     # -- the steps -------------------------------------------------------------------------
     def baseline(self) -> Evaluation:
-        """(a) Fit the declared faults; the model every later step extends."""
+        """(a) Fit the declared faults; the model every later step extends.
+
+        A flow gain fitted within its healthy spread that runs to the spread's edge
+        (:func:`edge_of_spread`) is a flow loss (or surplus) beyond a healthy actuator's: GQ
+        goes back to the base's value, is no longer fitted, and the faults are fitted again.
+        (Left free, it would share the loss with the effect that causes it: on an LF record
+        with a torque motor at 80 % of its gain, GQ 0.188 and GM 0.0085, their product
+        right, each wrong.)"""
         self.current = self.refit(self.base, self.bounds, "fit the declared faults")
+        edge = edge_of_spread(self.current.GQ, self.bounds["GQ"]) \
+            if self.flow_gain_fitted else None
+        if edge is not None:
+            self.flow_gain_fitted, self.flow_gain_released = False, edge
+            del self.bounds["GQ"]
+            self.free.pop("GQ", None)
+            self.current = self.refit(self.base, self.bounds,
+                                      f"{edge}: fit the declared faults with GQ at nominal")
         self.cur = self.evaluate([self.current])[0]
         before = self.cur
         if self.pinned:
@@ -1661,6 +1683,8 @@ class ResidualLoop:
                     "p12_used": bool(self.p12_weight), "p12_noise_pa": self.p12_noise,
                     "p12_m_per_pa": self.p12_weight,
                     "structure_pinned": [e.name for e in self.pinned], "passes": 1,
+                    "flow_gain_fitted": self.flow_gain_fitted,
+                    "flow_gain_released": self.flow_gain_released,
                     **self.fdi_options}
         return ExplainResult(
             source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
@@ -1708,7 +1732,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Weight of a measured P12 in the fits (:class:`LoopSettings`; 0 = position only).
     flow_gain_spread : float, optional
         The healthy flow gain's range, fitted with the faults (:class:`LoopSettings`;
-        0 = GQ held at the base's value).
+        0 = GQ held at the base's value). A final GQ at the edge of that range
+        (:func:`flow_gain_at_edge`): the loop runs again with GQ at the base's value and that
+        run is reported (``settings["flow_gain_released"]`` says why).
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
@@ -1724,6 +1750,58 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread}
     settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
                             method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
+                     fdi_options)
+    edge = flow_gain_at_edge(result)
+    if edge is None:
+        return result
+    # the flow gain left the healthy actuator's spread: a loss (or surplus) of flow beyond
+    # it is the library's to explain (a weak torque motor, a low supply, a clogged filter),
+    # not the actuator's own; fitted, GQ would stand in for it. The loop runs again with GQ
+    # at the base's value and that run is reported
+    if on_progress:
+        on_progress(f"{edge}: the loop again with GQ at its nominal value")
+    again = _passes(data, fit, effects, validate, base,
+                    replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options)
+    again.settings["flow_gain_spread"] = settings.flow_gain_spread
+    again.settings["flow_gain_released"] = edge
+    again.seconds += result.seconds
+    return again
+
+
+#: The flow gain fitted within its healthy spread (``--flow-gain-spread``) is at the edge of
+#: that spread when it is within this fraction of the spread's width of a bound.
+FLOW_GAIN_EDGE = 0.02
+
+
+def flow_gain_at_edge(result: ExplainResult) -> str | None:
+    """``"GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"`` when the loop fitted
+    the flow gain within its healthy spread to the end (``flow_gain_spread``, GQ not a
+    declared fault) and the final model has it at the spread's edge (:func:`edge_of_spread`);
+    else None."""
+    if not result.settings.get("flow_gain_fitted") or "GQ" not in result.fit_bounds:
+        return None
+    return edge_of_spread(float(result.faults_after["GQ"]), result.fit_bounds["GQ"])
+
+
+def edge_of_spread(value: float, bounds: tuple[float, float]) -> str | None:
+    """The flow gain ``value`` is at the edge of its healthy spread ``bounds`` when it is
+    within :data:`FLOW_GAIN_EDGE` of the spread's width from a bound: the text saying so, or
+    None."""
+    lo, hi = bounds
+    margin = FLOW_GAIN_EDGE * (hi - lo)
+    if lo + margin < value < hi - margin:
+        return None
+    side = "lower" if value - lo <= hi - value else "upper"
+    return f"GQ {value:.4g} at the {side} bound of its healthy spread {lo:.4g}-{hi:.4g}"
+
+
+def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
+            validate: MeasuredData | None, base: LFParams | None, settings: LoopSettings,
+            fixed: Iterable[str], on_progress: Callable[[str], None] | None,
+            fdi_options: Mapping[str, float]) -> ExplainResult:
+    """The loop's first pass and, when it leaves the record unexplained, its second pass from
+    the structure pinned (:func:`better_pass` picks the result)."""
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
                          **fdi_options)
     result = first.run()

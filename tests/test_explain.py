@@ -695,6 +695,66 @@ def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off
     assert "Traceback" not in result.output
 
 
+def test_flow_gain_at_the_edge_of_its_spread_is_read_as_a_flow_loss():
+    """flow_gain_at_edge: a fitted GQ within 2 % of the spread's width from a bound is at its
+    edge (the healthy spread cannot hold the flow loss); inside, or GQ declared or not fitted,
+    it is not."""
+    from types import SimpleNamespace
+
+    from eha.explain import flow_gain_at_edge
+
+    def result(gq, fitted=True, bounds=(0.18, 0.22)):
+        return SimpleNamespace(settings={"flow_gain_fitted": fitted},
+                               fit_bounds={"BKL": (0, 2e-3), "GQ": bounds},
+                               faults_after={"BKL": 1e-4, "GQ": gq})
+
+    assert flow_gain_at_edge(result(0.18)) == \
+        "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
+    assert "lower bound" in flow_gain_at_edge(result(0.1807))      # within 2 % of 0.04
+    assert "upper bound" in flow_gain_at_edge(result(0.2199))
+    assert flow_gain_at_edge(result(0.1809)) is None
+    assert flow_gain_at_edge(result(0.206)) is None
+    assert flow_gain_at_edge(result(0.18, fitted=False)) is None   # declared: --fit GQ=...
+
+
+@pytest.mark.slow
+def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp_path,
+                                                                              monkeypatch):
+    """A torque motor at 80 % of its gain (GM 0.008) on an LF record. With --flow-gain-spread
+    0.1 the declared faults' fit takes the flow gain to its bound (0.18); left free it would
+    share the loss with the motor gain (measured: GQ 0.188, GM 0.0085). It goes back to
+    nominal, is no longer fitted, and the motor gain is found within 1 %, the faults within
+    2 %; the JSON says why. A final GQ still at the edge (the safety net; forced here) runs
+    the loop again with the flow gain at nominal."""
+    import eha.explain as ex
+
+    data = load(_record(tmp_path, "weak_motor", "mixed", 0.6, {"GM": 0.008}, model="lf"))
+    res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
+                  **FAST)
+    assert res.settings["flow_gain_released"] == \
+        "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
+    assert res.to_json()["flow_gain_released"] == res.settings["flow_gain_released"]
+    assert "GQ" not in res.faults_after and res.after.params.GQ == LFParams().GQ
+    assert res.effects == ["motor_gain"]
+    assert res.after.params.GM == pytest.approx(0.008, rel=0.01)
+    for name, truth in FAULTS.items():
+        assert res.faults_after[name] == pytest.approx(truth, rel=0.02)
+
+    spreads = []
+    real_passes = ex._passes
+
+    def passes(data, fit, effects, validate, base, settings, *rest):
+        spreads.append(settings.flow_gain_spread)
+        return real_passes(data, fit, effects, validate, base, settings, *rest)
+
+    monkeypatch.setattr(ex, "_passes", passes)
+    monkeypatch.setattr(ex, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
+    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST)
+    assert spreads == [0.1, 0.0]
+    assert again.settings["flow_gain_released"] == "GQ forced to its edge"
+    assert again.settings["flow_gain_spread"] == 0.1
+
+
 @pytest.mark.slow
 def test_healthy_flow_gain_is_fitted_where_the_valve_saturates(tmp_path):
     """A healthy HF actuator whose flow gain is 3 % above nominal (the FP bench's seed 6001:
