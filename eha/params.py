@@ -88,7 +88,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("Ofs", "mA", 0.0, -10.0, 10.0, "offset current", _B, fault=True),
     ParamSpec("GM", "N/mA", 0.01, 0.0, 0.1, "motor gain (demagnetisation lowers it)", fault=True),
     ParamSpec("dither_ma", "mA", 0.01, 0.0, 10.0,
-              "dither std, ZOH Gaussian every 1 ms (reconstruction; 0 = off)", _HF),
+              "dither std, ZOH Gaussian every 1 ms (reconstruction; 0 = off); LF: its "
+              "expected effect on the hysteresis (mean-field dithered play)", _B),
     # first stage
     ParamSpec("KF", "N/m", 40.0, 1.0, 1e4, "flapper spring stiffness"),
     ParamSpec("KSF", "N/m", 160.0, 1.0, 1e4, "feedback spring stiffness"),

@@ -86,7 +86,7 @@ def test_run_key_is_stable_and_changes_with_spec_and_model_version(monkeypatch):
     (base(t_end=0), "t_end=0 is out of range"),
     (base(seeds=[-1]), "seeds: -1 is out of range"),
     (base(signals=["t", "xu"]), "signals: 'com' is required"),
-    (base(params={"lf": {"dither_ma": 0.1}}), "dither_ma: not a parameter of the LF model"),
+    (base(params={"lf": {"GAI": 0.1}}), "GAI: not a parameter of the LF model"),
     (base(faults={"grid": {"XJ0": [0.5]}, "nominal": False}, params={"XJM": 0.1}),
      "XJ0=0.5 is out of range; allowed range [-0.1, 0.1] m"),
     (base(name="bad name"), "name: 'bad name' is not a valid campaign name"),

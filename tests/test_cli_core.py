@@ -40,7 +40,7 @@ def test_simulate_writes_plot(tmp_path):
     (["--command", "square"], "unknown command 'square'"),
     (["--model", "mf"], "unknown model 'mf'"),
     (["--t-end", "0"], "t_end=0 is out of range"),
-    (["--model", "lf", "--set", "dither_ma=0.1"], "dither_ma: not a parameter of the LF model"),
+    (["--model", "lf", "--set", "GAI=0.1"], "GAI: not a parameter of the LF model"),
 ])
 def test_simulate_bad_input_fails_in_one_line_and_writes_nothing(tmp_path, args, message):
     out = tmp_path / "t.parquet"

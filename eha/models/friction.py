@@ -4,6 +4,8 @@ All functions are scalar ``@njit`` helpers inlined into the model kernels. Veloc
 forces in N. ``fs`` is the static (break-away) force, ``fd`` the dynamic one.
 """
 
+import math
+
 from numba import njit
 
 
@@ -22,6 +24,31 @@ def play(x, y, half_width):
     if y > x + half_width:
         return x + half_width
     return y
+
+
+_SQRT2 = math.sqrt(2.0)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def normal_loss(z):
+    """``E[(Z - z)+]`` for a standard normal ``Z`` (the normal loss function)."""
+    return _INV_SQRT_2PI * math.exp(-0.5 * z * z) - 0.5 * z * math.erfc(z / _SQRT2)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def dithered_play(x, y, half_width, sigma):
+    """Expected output of the play when its input ``x`` carries a fresh Gaussian draw of
+    standard deviation ``sigma`` (> 0): the mean-field dithered play (docs/model.md §6).
+
+    The play pushes its output up by ``(x + d - half_width - y)+`` and down by
+    ``(y - x - d - half_width)+``; their expectations over ``d`` are ``sigma * normal_loss``
+    of the distances to the band's edges in units of ``sigma``. With ``sigma -> 0`` it is
+    :func:`play`; with ``half_width = 0`` it returns ``x``.
+    """
+    e = x - y
+    return y + sigma * (normal_loss((half_width - e) / sigma)
+                        - normal_loss((half_width + e) / sigma))
 
 
 @njit(cache=True, fastmath=True, inline="always")

@@ -11,14 +11,16 @@ import math
 
 from numba import njit, prange
 
-from eha.models.friction import (clamp, end_stop, karnopp_velocity, karnopp_velocity_first_order,
-                                 play, record)
+from eha.models.friction import (clamp, dithered_play, end_stop, karnopp_velocity,
+                                 karnopp_velocity_first_order, play, record)
 from eha.params import LF
 
 #: State variables of the LF model (SI; cor in mA).
 STATES = ("xu", "xj", "dxj", "xs", "dxs", "xf", "dxf", "xsb", "cor")
 #: Inputs: the position command [m] on the DT grid.
 INPUTS = ("com",)
+#: Interval between the dither's draws [s] (the HF's zero-order hold, docs/model.md §2).
+DITHER_PERIOD = 1e-3
 
 
 @njit(cache=True, fastmath=True)
@@ -81,6 +83,11 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
     aj = p[LF.AJ]; cj = p[LF.CJ]; dt_over_mj = dt / p[LF.MJ]; xjm = p[LF.XJM]
     fdj = p[LF.FDJ]; fsj = p[LF.FSD] * fdj
     half_bkl = 0.5 * p[LF.BKL]
+    # the dither (a fresh draw every DITHER_PERIOD, as in the HF) acts on the hysteresis only
+    # through its expectation: the mean-field dithered play at each draw, the play between
+    sigma = p[LF.dither_ma]
+    dithered = his > 0.0 and sigma > 0.0
+    steps_per_draw = max(1, int(round(DITHER_PERIOD / dt)))
 
     xj = p[LF.XJ0]; xu = xj; dxj = 0.0
     xs = 0.0; dxs = 0.0; xf = 0.0; dxf = 0.0; xsb = 0.0; cor = 0.0; p12 = 0.0
@@ -90,7 +97,11 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
     k = 0
     for i in range(1, n_out):
         for _ in range(steps_per_out):
-            cor = clamp(play(gap * (com[k] - xu) + ofs, cor, his), -corm, corm)
+            current = gap * (com[k] - xu) + ofs
+            if dithered and k % steps_per_draw == 0:
+                cor = clamp(dithered_play(current, cor, his, sigma), -corm, corm)
+            else:
+                cor = clamp(play(current, cor, his), -corm, corm)
             xsb = play(xs, xsb, gioco)
             if dynamic_flapper:
                 dxf += (gm * cor - cf * dxf - kf * xf - ksf * (xf + xsb)) * dt_over_mf
