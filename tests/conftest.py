@@ -25,6 +25,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# Rich sizes tables to the terminal: a wide one in every process of the suite (pytest-xdist's
+# workers have none), so that no check of printed text depends on where the tests run.
+os.environ["COLUMNS"] = "200"
+
 
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
             timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:
