@@ -189,7 +189,8 @@ register(Effect("hinge_moment", "load proportional to the jack position (aerodyn
 register(Effect("offset", "torque-motor offset current",
                 bounds={"Ofs": (-2.0, 2.0)}, probe={"Ofs": 0.1},
                 tolerance={"Ofs": 0.03}))
-register(Effect("hysteresis", "play-type magnetic hysteresis on the motor current",
+register(Effect("hysteresis", "play-type magnetic hysteresis on the motor current (dithered: "
+                "the expected play under the dither_ma dither, docs/model.md section 6)",
                 bounds={"His": (0.0, 1.0)}, probe={"His": 0.05},
                 tolerance={"His": 0.02}))
 register(Effect("motor_gain", "torque-motor gain change (demagnetisation)",
