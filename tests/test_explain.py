@@ -78,8 +78,9 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
                         "intervals", "level", "unexplained", "verdict", "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
-                        "p12_in_fit", "interval_notes"}
+                        "p12_in_fit", "interval_notes", "flow_gain_released"}
     assert doc["interval_notes"] == []          # explained: nothing to note
+    assert doc["flow_gain_released"] is None    # the flow gain was not fitted
     assert doc["p12_in_fit"] is True            # the record has P12
     assert all(set(d) == {"effect", "round", "loss", "p_value", "replaced_by"}
                for d in doc["dismissed"])

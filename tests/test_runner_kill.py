@@ -93,7 +93,9 @@ def test_kill_minus_9_at_any_moment_then_resume_equals_uninterrupted(tmp_path):
     for moment in moments:
         proc = start(campaign, results)
         wait_for(moment, proc)
-        assert proc.poll() is None, "the run finished before it could be killed"
+        if proc.poll() is not None:
+            raise AssertionError(f"the run finished before it could be killed (exit "
+                                 f"{proc.returncode}): {proc.stderr.read().decode()[-2000:]}")
         kill_group(proc)
         done_after_kill.append(done_count(results))
     assert min(done_after_kill) < TOTAL, done_after_kill  # the kills did interrupt the work
