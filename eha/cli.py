@@ -898,8 +898,8 @@ def explain(
                        else "not better by the loop's rule, the first pass is reported"))
     if res.settings.get("flow_gain_released"):
         console.print(f"{res.settings['flow_gain_released']}: a flow loss beyond a healthy "
-                      f"actuator's spread; the loop ran again with GQ at its nominal value "
-                      f"and that run is reported")
+                      f"actuator's spread; GQ was put back to its nominal value and no longer "
+                      f"fitted")
     if res.settings.get("p12_used"):
         console.print(f"measured P12 used in every fit and score (noise taken as "
                       f"{res.settings['p12_noise_pa'] / 1e5:.3g} bar; --p12-weight "

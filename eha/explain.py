@@ -476,10 +476,11 @@ class LoopSettings:
         actuator's flow gain is its own (a few per cent of manufacturing spread), and where
         the valve saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves
         a healthy 1 cm `sine` at 25x the noise and biases FDJ by tens of per cent. Fitted, it
-        also absorbs what reduces the flow alike (a weak torque motor): a final GQ at the
-        edge of the spread (:func:`flow_gain_at_edge`) is read as a flow loss beyond a healthy
-        actuator's, and the loop runs again with GQ at the base's value (:func:`explain`);
-        docs/explain.md, "The healthy flow gain". Not fitted when GQ is a declared fault or
+        also absorbs what reduces the flow alike (a weak torque motor): a GQ at the edge of
+        the spread (:func:`edge_of_spread`) is read as a flow loss beyond a healthy
+        actuator's and GQ goes back to the base's value, after the declared faults' fit
+        (:meth:`ResidualLoop.baseline`) or, at the end, by running the loop again
+        (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a declared fault or
         known (``fixed``).
     method, pop, seed
         Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
@@ -1732,9 +1733,10 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Weight of a measured P12 in the fits (:class:`LoopSettings`; 0 = position only).
     flow_gain_spread : float, optional
         The healthy flow gain's range, fitted with the faults (:class:`LoopSettings`;
-        0 = GQ held at the base's value). A final GQ at the edge of that range
-        (:func:`flow_gain_at_edge`): the loop runs again with GQ at the base's value and that
-        run is reported (``settings["flow_gain_released"]`` says why).
+        0 = GQ held at the base's value). A GQ at the edge of that range goes back to the
+        base's value: after the declared faults' fit (:meth:`ResidualLoop.baseline`), or, at
+        the end (:func:`flow_gain_at_edge`), by running the loop again and reporting that
+        run; ``settings["flow_gain_released"]`` says why.
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.

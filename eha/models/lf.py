@@ -84,7 +84,8 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
     fdj = p[LF.FDJ]; fsj = p[LF.FSD] * fdj
     half_bkl = 0.5 * p[LF.BKL]
     # the dither (a fresh draw every DITHER_PERIOD, as in the HF) acts on the hysteresis only
-    # through its expectation: the mean-field dithered play at each draw, the play between
+    # through its expectation: the mean-field dithered play at each draw, the plain play on
+    # the steps between draws
     sigma = p[LF.dither_ma]
     dithered = his > 0.0 and sigma > 0.0
     steps_per_draw = max(1, int(round(DITHER_PERIOD / dt)))
