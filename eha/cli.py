@@ -792,6 +792,18 @@ def explain(
             "eha.explain", "DEFAULTS", lambda d: d["flow_gain_spread"]),
         help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal "
              "(the healthy actuator's own spread; 0 = held at nominal). E.g. 0.1."),
+    alpha: float = typer.Option(
+        ..., "--alpha", default_factory=library_default(
+            "eha.explain", "DEFAULTS", lambda d: d["alpha"]),
+        help="False-positive level per record: the chance that a healthy actuator driven by "
+             "this command gets an effect added (thresholds from a healthy null)."),
+    healthy: Optional[Path] = typer.Option(
+        None, "--healthy", help="Folder of healthy records of your own actuators "
+        "(commissioning tests, >= 5): the null instead of a simulated healthy fleet."),
+    null_actuators: int = typer.Option(
+        ..., "--null-actuators", default_factory=library_default(
+            "eha.explain", "DEFAULTS", lambda d: int(d["null_actuators"])),
+        help="Healthy actuators of the simulated null (cached per command, sampling, noise)."),
     command_hold: CommandHoldOption = COMMAND_HOLD,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
 ):
@@ -833,6 +845,12 @@ def explain(
         fail(f"--p12-weight {p12_weight}: allowed range [0, 100]")
     if not 0.0 <= flow_gain_spread <= 0.5:
         fail(f"--flow-gain-spread {flow_gain_spread}: allowed range [0, 0.5]")
+    if not 0.0 < alpha < 1.0:
+        fail(f"--alpha {alpha}: allowed range (0, 1)")
+    if null_actuators < 5:
+        fail(f"--null-actuators {null_actuators}: allowed range [5, ...]")
+    if healthy is not None and not healthy.is_dir():
+        fail(f"--healthy {healthy}: not a folder")
     if prior is not None:
         check_prior(prior)
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -853,7 +871,9 @@ def explain(
                                  results=results, on_progress=step, method=method, pop=pop,
                                  seed=seed, candidates=candidates, max_steps=max_steps,
                                  min_gain=min_gain, p12_weight=p12_weight,
-                                 flow_gain_spread=flow_gain_spread)
+                                 flow_gain_spread=flow_gain_spread, alpha=alpha,
+                                 null=str(healthy) if healthy is not None else "simulate",
+                                 null_actuators=null_actuators)
         except MeasuredDataError as exc:
             bar.stop()
             _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))
@@ -912,6 +932,12 @@ def explain(
             f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
             for k, (lo, hi) in res.intervals.items()))
     console.print(f"verdict: {escape(res.verdict)}", highlight=False)
+    if res.null:
+        console.print(f"decisions at alpha {res.null['alpha']:g} against {res.null['source']}"
+                      f" on this command; what this record could not have shown:",
+                      highlight=False)
+        for line in res.undetectable():
+            console.print(f"  {escape(line)}", highlight=False)
     if res.unexplained:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "

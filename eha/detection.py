@@ -303,26 +303,56 @@ def load_calibration(path: str | Path) -> Calibration:
         raise DetectionError(f"--calibration {path}: unexpected content ({exc})") from None
 
 
-def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,
-                         faults: Sequence[str] | None = None) -> tuple[dict, dict]:
-    """Thresholds of each fault from healthy-fleet assessments.
+def tail_threshold(values: Sequence[float], alpha: float, spread: float = 0.0
+                   ) -> tuple[float, dict[str, float]]:
+    """The value a healthy statistic exceeds with probability ``alpha``: the one hypothesis
+    test of ``eha health`` and of the residual loop (:mod:`eha.explain_null`).
 
-    The statistic of a check is :func:`statistic` of the fault's posterior mean. Its spread
-    over healthy checks has two parts: the fleet's dispersion, measured (``std``), and the
-    measurement uncertainty of one check (the median of the fault's ``spread``), which a small
-    fleet can under-sample — a fault that the bank keeps at its healthy value in every healthy
-    record would otherwise get a zero threshold. The threshold is ``mean + z·sqrt(std² +
-    spread²)`` with ``z`` the normal quantile of ``1 - alpha/m``.
+    ``values`` are the statistic on healthy records. Its spread has two parts: the healthy
+    records' dispersion, measured (``std``), and ``spread``, what one record's estimate
+    scatters by that a small sample can under-sample (a check's measurement uncertainty, an
+    optimizer's resolution). The threshold is ``mean + z·scale``, ``scale = sqrt(std² +
+    spread²)``, with ``z`` the normal quantile of ``1 - alpha``: a normal tail, because the
+    1e-3 quantiles it needs cannot be read from tens of records. Callers testing ``m``
+    statistics at once pass ``alpha / m`` (union bound).
 
-    Returns ``(thresholds, healthy)``: ``thresholds[name]`` of the statistic, and per fault
-    the fleet's mean, std, spread and count of the statistic.
+    Returns
+    -------
+    threshold : float
+    summary : dict
+        ``mean``, ``std``, ``spread``, ``scale``, ``n`` and ``max`` of the statistic.
     """
     from statistics import NormalDist
 
     if not 0 < alpha < 1:
         raise DetectionError(f"alpha={alpha!r}: allowed range (0, 1)")
+    d = np.asarray(values, dtype=np.float64)
+    d = d[np.isfinite(d)]
+    if d.size < 2:
+        raise DetectionError(f"{d.size} healthy values; a threshold needs at least 2")
+    mean, std = float(d.mean()), float(d.std(ddof=1))
+    scale = math.sqrt(std * std + spread * spread)
+    z = NormalDist().inv_cdf(1.0 - alpha)
+    return mean + z * scale, {"mean": mean, "std": std, "spread": float(spread),
+                              "scale": scale, "n": int(d.size), "max": float(d.max())}
+
+
+def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,
+                         faults: Sequence[str] | None = None) -> tuple[dict, dict]:
+    """Thresholds of each fault from healthy-fleet assessments.
+
+    The statistic of a check is :func:`statistic` of the fault's posterior mean; its
+    threshold is :func:`tail_threshold` at ``alpha / m`` (``m`` faults), with the median of
+    the fault's ``spread`` (the measurement uncertainty of one check) as the spread a small
+    fleet can under-sample — a fault that the bank keeps at its healthy value in every healthy
+    record would otherwise get a zero threshold.
+
+    Returns ``(thresholds, healthy)``: ``thresholds[name]`` of the statistic, and per fault
+    the fleet's mean, std, spread and count of the statistic.
+    """
+    if not 0 < alpha < 1:
+        raise DetectionError(f"alpha={alpha!r}: allowed range (0, 1)")
     names = list(faults or FAULTS)
-    z = NormalDist().inv_cdf(1.0 - alpha / len(names))
     thresholds, healthy = {}, {}
     for name in names:
         d = np.array([statistic(name, r["means"][name]) for r in rows if name in r["means"]])
@@ -331,11 +361,9 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
         if d.size < 5:
             raise DetectionError(f"calibration: {d.size} healthy assessments of {name}; "
                                  "at least 5 are needed (use more actuators)")
-        mean, std = float(d.mean()), float(d.std(ddof=1))
         spread = float(np.median(sp)) if sp.size else 0.0
-        thresholds[name] = mean + z * math.sqrt(std * std + spread * spread)
-        healthy[name] = {"mean": mean, "std": std, "spread": spread, "n": int(d.size),
-                         "max": float(d.max())}
+        thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
+        healthy[name] = {k: summary[k] for k in ("mean", "std", "spread", "n", "max")}
     return thresholds, healthy
 
 

@@ -20,6 +20,7 @@ Examples
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
@@ -44,12 +45,6 @@ class Effect:
     probe : mapping of str to float
         "On" values used for the signature (the secant sensitivity of xu between the off and the
         probe value); a typical, clearly visible but small magnitude of the effect.
-    tolerance : mapping of str to float
-        Healthy tolerance of each fitted parameter (its unit): the largest distance from the
-        off value that a healthy actuator's spread and the LF model's known structure produce
-        (the residual loop fits such values on healthy records: a -0.9 % motor gain stands in
-        for a +3 % flow gain). The loop adds the effect only when a parameter leaves this band.
-        Calibrated on healthy HF records (docs/explain.md, "No invented effects").
     requires : tuple of str
         Effects without which this one does not act on the LF model: with the linear P12 law
         the supply pressure only bounds P12, so ``supply_pressure`` requires ``orifice_law``.
@@ -62,7 +57,6 @@ class Effect:
     bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     switch: Mapping[str, float] = field(default_factory=dict)
     probe: Mapping[str, float] = field(default_factory=dict)
-    tolerance: Mapping[str, float] = field(default_factory=dict)
     requires: tuple[str, ...] = ()
 
     @property
@@ -102,18 +96,18 @@ class Effect:
         """``base`` with every parameter of the effect back at its off value."""
         return resolve("lf", self.off, base=base)
 
-    def within_tolerance(self, values: Mapping[str, float]) -> bool:
-        """Every fitted parameter within its healthy tolerance of the off value (a parameter
-        without a tolerance: within 0.1 % of its search range, i.e. switched off)."""
-        off = self.off
-        return all(abs(values[n] - off[n]) <= self.tolerance.get(n, 1e-3 * (hi - lo))
-                   for n, (lo, hi) in self.bounds.items())
+    def shift(self, values: Mapping[str, float]) -> float:
+        """How far the fitted parameter in ``values`` is from its off value (its unit): the
+        statistic the residual loop tests against the healthy null (:mod:`eha.explain_null`).
+        An effect of several parameters (the flapper dynamics) has none: nan."""
+        if len(self.bounds) != 1:
+            return math.nan
+        (name,) = self.bounds
+        return abs(float(values[name]) - self.off[name])
 
-    def within_tolerance_at(self, params: LFParams) -> bool:
-        """The effect has parameters and ``params`` holds them within their healthy tolerance
-        (:meth:`within_tolerance`): a fit that put it back there did not find it."""
-        return bool(self.params) and self.within_tolerance(
-            {n: getattr(params, n) for n in self.params})
+    def shift_at(self, params: LFParams) -> float:
+        """:meth:`shift` of the effect's parameter in ``params``."""
+        return self.shift({n: getattr(params, n) for n in self.params})
 
     def is_on(self, params: LFParams) -> bool:
         return any(getattr(params, n) != v for n, v in self.off.items())
@@ -145,10 +139,6 @@ def register(effect: Effect) -> Effect:
         if name not in EFFECTS:
             raise ParameterError(f"effect {effect.name}: requires {name}, not a registered "
                                  f"effect")
-    for name in effect.tolerance:
-        if name not in effect.bounds:
-            raise ParameterError(f"effect {effect.name}: tolerance of {name}, not a fitted "
-                                 f"parameter")
     for name, (lo, hi) in effect.bounds.items():
         spec = SPECS[name]
         if not (spec.lo <= lo < hi <= spec.hi):
@@ -178,45 +168,33 @@ def get(names: str | Iterable[str]) -> list[Effect]:
 register(Effect("orifice_law", "HF's nonlinear orifice P12 law (uses PSR, XSS) instead of the "
                 "linear one", switch={"orifice_law": 1.0}))
 register(Effect("leakage", "leakage between the chambers in the P12 law",
-                bounds={"Clk": (0.0, 2e-11)}, probe={"Clk": 1e-12},
-                tolerance={"Clk": 5e-14}))
+                bounds={"Clk": (0.0, 2e-11)}, probe={"Clk": 1e-12}))
 register(Effect("external_load", "constant load force on the jack",
-                bounds={"FRC": (-8000.0, 8000.0)}, probe={"FRC": 500.0},
-                tolerance={"FRC": 60.0}))
+                bounds={"FRC": (-8000.0, 8000.0)}, probe={"FRC": 500.0}))
 register(Effect("hinge_moment", "load proportional to the jack position (aerodynamic hinge "
-                "moment)", bounds={"Kaer": (0.0, 1e6)}, probe={"Kaer": 5e4},
-                tolerance={"Kaer": 1e4}))
+                "moment)", bounds={"Kaer": (0.0, 1e6)}, probe={"Kaer": 5e4}))
 register(Effect("offset", "torque-motor offset current",
-                bounds={"Ofs": (-2.0, 2.0)}, probe={"Ofs": 0.1},
-                tolerance={"Ofs": 0.03}))
+                bounds={"Ofs": (-2.0, 2.0)}, probe={"Ofs": 0.1}))
 register(Effect("hysteresis", "play-type magnetic hysteresis on the motor current (dithered: "
                 "the expected play under the dither_ma dither, docs/model.md section 6)",
-                bounds={"His": (0.0, 1.0)}, probe={"His": 0.05},
-                tolerance={"His": 0.02}))
+                bounds={"His": (0.0, 1.0)}, probe={"His": 0.05}))
 register(Effect("motor_gain", "torque-motor gain change (demagnetisation)",
-                bounds={"GM": (0.002, 0.02)}, probe={"GM": 0.009},
-                tolerance={"GM": 1e-3}))
+                bounds={"GM": (0.002, 0.02)}, probe={"GM": 0.009}))
 register(Effect("clogging", "first-stage filter clogging: lower first-stage pressure gain",
-                bounds={"Kintas": (0.0, 0.95)}, probe={"Kintas": 0.3},
-                tolerance={"Kintas": 0.5}))
+                bounds={"Kintas": (0.0, 0.95)}, probe={"Kintas": 0.3}))
 register(Effect("supply_pressure", "supply-pressure change",
-                bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7},
-                tolerance={"PSR": 1e6}, requires=("orifice_law",)))
+                bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7}, requires=("orifice_law",)))
 register(Effect("flapper_dynamics", "second-order first stage (flapper inertia and damping) "
                 "instead of a static one", bounds={"SNF": (300.0, 2e4), "ZF": (0.1, 2.0)},
                 probe={"SNF": 2513.0, "ZF": 0.6}))
 register(Effect("viscous_friction", "jack viscous friction coefficient",
-                bounds={"CJ": (0.0, 2e4)}, probe={"CJ": 1000.0},
-                tolerance={"CJ": 1.2e4}))
+                bounds={"CJ": (0.0, 2e4)}, probe={"CJ": 1000.0}))
 register(Effect("sensor_bias", "measured position = XU + bias",
-                bounds={"sensor_bias": (-5e-3, 5e-3)}, probe={"sensor_bias": 1e-5},
-                tolerance={"sensor_bias": 3e-6}))
+                bounds={"sensor_bias": (-5e-3, 5e-3)}, probe={"sensor_bias": 1e-5}))
 register(Effect("sensor_gain", "measured position = gain*XU",
-                bounds={"sensor_gain": (0.8, 1.25)}, probe={"sensor_gain": 1.01},
-                tolerance={"sensor_gain": 0.005}))
+                bounds={"sensor_gain": (0.8, 1.25)}, probe={"sensor_gain": 1.01}))
 register(Effect("delay", "transport delay of the measured position",
-                bounds={"sensor_delay": (0.0, 0.02)}, probe={"sensor_delay": 2e-3},
-                tolerance={"sensor_delay": 3.5e-4}))
+                bounds={"sensor_delay": (0.0, 0.02)}, probe={"sensor_delay": 2e-3}))
 
 
 #: Effects that may only help together, so the residual loop also tries them as one candidate:

@@ -131,6 +131,9 @@ class Candidate:
     p_value: float = math.nan
     n_eff: float = math.nan
     seconds: float = 0.0
+    #: per effect tested against the healthy null: its parameter's shift from off in the
+    #: local test (:meth:`ResidualLoop.local_test`)
+    shifts: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -216,6 +219,27 @@ class ExplainResult:
     leads: LeadReport | None = None
     #: effects chosen but not added: the rest of the model refitted explained as much
     dismissed: list[Dismissal] = field(default_factory=list)
+    #: the healthy null the decisions rested on (:meth:`eha.explain_null.Null.summary`):
+    #: source, alpha, and per effect its threshold and detectable size; None without one
+    null: dict[str, Any] | None = None
+
+    def undetectable(self) -> list[str]:
+        """One line per testable effect not in the model: below which size this record's
+        command could not have shown it (the null's detectable size at ``alpha``), so that a
+        clean verdict says what it rules out."""
+        if not self.null:
+            return []
+        added = set(self.effects)
+        lines = []
+        for name, e in self.null["effects"].items():
+            if name in added or not math.isfinite(e["detectable"]):
+                continue
+            effect = EFFECTS[name]
+            (param,) = effect.params
+            lines.append(f"{name}: not detectable on this command below a change of "
+                         f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
+                         f"{effect.off[param]:.4g})")
+        return lines
 
     @property
     def verdict(self) -> str:
@@ -282,6 +306,8 @@ class ExplainResult:
             "dismissed": [{"effect": d.effect, "round": d.round, "loss": d.loss,
                            "p_value": d.p_value, "replaced_by": d.replaced_by}
                           for d in self.dismissed],
+            "null": self.null,
+            "undetectable": self.undetectable(),
         }
 
     @staticmethod
@@ -453,9 +479,17 @@ class LoopSettings:
     penalty : float
         Relative gain charged per added parameter.
     alpha : float
-        Significance level of the test an added effect must also pass
-        (:func:`significance`): the chance that a candidate with no real effect behind it is
-        added, given the record's noise and the correlation of its residual, in (0, 1).
+        False-positive level per record, in (0, 1): the probability that a healthy actuator
+        driven by the record's command gets any effect added. An effect is added only when its
+        fitted parameter leaves the band healthy actuators reach on that command
+        (:mod:`eha.explain_null`, thresholds at ``alpha / m`` for ``m`` effects).
+    significance : float
+        Level of the F test on effective samples an added effect's gain must also pass
+        (:func:`significance`): the chance that a gain on this record's correlated residual is
+        chance, in (0, 1).
+    null_actuators : int
+        Healthy actuators of the simulated null (:func:`eha.explain_null.simulated_null`),
+        >= 5.
     max_steps : int
         Most effects added.
     candidates : int
@@ -489,13 +523,15 @@ class LoopSettings:
     holdout: float = 0.3
     min_gain: float = 0.1
     penalty: float = 0.02
-    alpha: float = 0.01
+    alpha: float = 0.05
+    significance: float = 0.01
+    null_actuators: int = 20
     max_steps: int = 6
     candidates: int = 6
     noise_factor: float = 1.25
     joint: bool = True
     p12_weight: float = 1.0
-    flow_gain_spread: float = 0.0
+    flow_gain_spread: float = 0.1
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -510,6 +546,10 @@ class LoopSettings:
             problems.append(f"penalty {self.penalty:g}: allowed range [0, 1]")
         if not 0.0 < self.alpha < 1.0:
             problems.append(f"--alpha {self.alpha:g}: allowed range (0, 1)")
+        if not 0.0 < self.significance < 1.0:
+            problems.append(f"significance {self.significance:g}: allowed range (0, 1)")
+        if self.null_actuators < 5:
+            problems.append(f"--null-actuators {self.null_actuators}: allowed range [5, ...]")
         if self.max_steps < 0:
             problems.append(f"--max-steps {self.max_steps}: allowed range [0, ...]")
         if self.candidates < 0:
@@ -615,7 +655,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
     """Pick the effect (or combination) to add from the refitted candidates of a round.
 
     The best-scoring candidate wins when its penalised gain reaches ``settings.min_gain``, its
-    gain is significant (``p_value < settings.alpha``) and specific (:func:`unspecific`: no
+    gain is significant (``p_value < settings.significance``) and specific (:func:`unspecific`: no
     unrelated effect explains as much). A winning combination whose members
     do not all pay for themselves (``split`` returns the names kept) is replaced by the kept
     members as a candidate of its own (``refit_members``: the candidate refitted with only
@@ -645,7 +685,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
         if best is None:
             return Choice(None, superseded, stop=NOTHING_IMPROVED)
         structure = [c for c in pool if set(c.effect.split("+")) <= STRUCTURAL
-                     and c.score >= settings.min_gain and c.p_value < settings.alpha]
+                     and c.score >= settings.min_gain and c.p_value < settings.significance]
         if structure and not set(best.effect.split("+")) <= STRUCTURAL:
             # the model's known structure first: the LF model is known to lack it, and an
             # effect chosen before it may be its stand-in (a leak standing in for the flapper
@@ -657,8 +697,8 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             return Choice(None, superseded, stop=(
                 f"no significant effect left: best candidate {best.effect} reduces the RMSE "
                 f"by {best.gain:.1%} (penalised {best.score:.1%} < {settings.min_gain:.0%})"))
-        rivals = [] if best.p_value >= settings.alpha else unspecific(best, everything)
-        if best.p_value >= settings.alpha or rivals:
+        rivals = [] if best.p_value >= settings.significance else unspecific(best, everything)
+        if best.p_value >= settings.significance or rivals:
             # a chance gain on this record's correlated residual, or a stand-in that other
             # effects match: set it aside and try the next one; the reason of the last one
             # set aside is the stop reason when nothing else can win
@@ -666,9 +706,9 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             if rivals:
                 set_aside.append(best.effect)
             if all(c.effect in superseded or c.score < settings.min_gain
-                   or c.p_value >= settings.alpha for c in tried):
+                   or c.p_value >= settings.significance for c in tried):
                 why = (f"not significant on this record (p = {best.p_value:.2g} >= alpha "
-                       f"{settings.alpha:g}, {best.n_eff:.0f} effective samples)"
+                       f"{settings.significance:g}, {best.n_eff:.0f} effective samples)"
                        if not rivals else
                        f"but {', '.join(rivals)} reduce it as much (a residual that "
                        f"unrelated effects explain alike is the model's structure or the "
@@ -695,7 +735,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             tried.append(cand)
     alternatives = {c.effect: c.score for c in tried if c is not best
                     and c.effect not in superseded and c.score >= settings.min_gain
-                    and c.p_value < settings.alpha
+                    and c.p_value < settings.significance
                     and best.score - c.score <= ALTERNATIVE_MARGIN}
     return Choice(best, superseded, names, "", alternatives)
 
@@ -735,7 +775,7 @@ def keeps_effect(with_rmse: float, without_rmse: float, n_params: int, n_eff: fl
     p = significance(without_rmse, with_rmse, n_params, n_eff)
     n = max(int(n_params), 1)
     keep = loss - settings.penalty * n >= CONFIRM_FRACTION * settings.min_gain \
-        and p < settings.alpha
+        and p < settings.significance
     return keep, loss, p
 
 
@@ -827,9 +867,14 @@ class ResidualLoop:
                  validate: MeasuredData | None = None, base: LFParams | None = None,
                  settings: LoopSettings = LoopSettings(), fixed: Iterable[str] = (),
                  on_progress: Callable[[str], None] | None = None,
-                 pin_structure: bool = False, **fdi_options: float):
+                 pin_structure: bool = False, null: Any = None, **fdi_options: float):
         self.started = time.perf_counter()
         self.settings = settings
+        #: the healthy null (:class:`eha.explain_null.Null`) and its thresholds at ``alpha``
+        #: (effect -> largest healthy shift); empty without a null
+        self.null = null
+        self.thresholds: dict[str, float] | None = \
+            null.thresholds(settings.alpha) if null is not None else {}
         self.data, self.validate = data, validate
         self.bounds = parse_fit(fit)
         pool = get_effects(effects) if effects is not None else list(EFFECTS.values())
@@ -894,6 +939,27 @@ class ResidualLoop:
         # refitted every round: the faults (and, with joint=True, the effects already added)
         self.free = dict(self.bounds)
 
+    # -- the healthy band ------------------------------------------------------------------
+    def within_healthy(self, effect: Effect, values: Mapping[str, float]) -> bool:
+        """Is the effect's fitted parameter (``values``) within what healthy actuators reach
+        on this record's command (the null's threshold at ``alpha``)? An effect the null does
+        not cover (the structure, or no null) is within it when switched off: within
+        :data:`eha.explain_null.RESOLUTION` of its search range from off."""
+        from eha.explain_null import RESOLUTION
+
+        threshold = (self.thresholds or {}).get(effect.name)
+        if threshold is not None:
+            return effect.shift(values) <= threshold
+        off = effect.off
+        return all(abs(values[n] - off[n]) <= RESOLUTION * (hi - lo)
+                   for n, (lo, hi) in effect.bounds.items())
+
+    def within_healthy_at(self, effect: Effect, params: LFParams) -> bool:
+        """:meth:`within_healthy` of the effect's parameters in ``params`` (False for a
+        switch: a fit cannot put it back)."""
+        return bool(effect.params) and self.within_healthy(
+            effect, {n: getattr(params, n) for n in effect.params})
+
     # -- evaluation and fitting ------------------------------------------------------------
     def evaluate(self, params: list[LFParams]) -> list[Evaluation]:
         """Simulate parameter sets on the record (one batch) and score them."""
@@ -927,7 +993,7 @@ class ResidualLoop:
 
     def refit(self, start: LFParams, free: Mapping[str, tuple[float, float]], label: str,
               method: str | None = None, warm_start: bool = False,
-              whole: bool = False) -> LFParams:
+              whole: bool = False, starts: int | None = None) -> LFParams:
         """The parameters ``free`` fitted from ``start`` on the fitted part of the record
         (``whole``: on all of it)."""
         from eha.fdi import METHOD_DEFAULTS, FDIError, identify
@@ -941,7 +1007,9 @@ class ResidualLoop:
                    {k: v for k, v in self.fdi_options.items()
                     if k in METHOD_DEFAULTS[method] and method == "ps"})
         # searches of many parameters get more GA starts (other seeds); the best fit is kept
-        starts = 1 if method in ("ps", "lm") or len(free) < MULTISTART_PARAMS else MULTISTART
+        if starts is None:
+            starts = 1 if method in ("ps", "lm") or len(free) < MULTISTART_PARAMS \
+                else MULTISTART
         n = len(self.data) if whole else self.n_fit
         # what every search of this refit fits: the record's part, its start and its P12
         record = dict(reference_xu=self.data.xu[:n], command=self.data.command,
@@ -1035,16 +1103,12 @@ class ResidualLoop:
         s, cur = self.settings, self.cur
         members = [EFFECTS[name] for name in cand.effect.split("+")]
         t0 = time.perf_counter()
-        start = extends if extends is not None else self.current
-        free = dict(self.free)
-        for effect in members:
-            if not effect.is_on(start):
-                start = effect.switch_on(start, {
-                    p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
-                    if lo <= effect.off[p] <= hi})
-            free.update(effect.bounds)
+        start, free = self.candidate_start(members, extends)
         trial = self.refit(start, free, f"round {len(self.rounds)}: refit with {cand.effect}",
                            warm_start=True)
+        # the healthy null's test: the same local refit the null ran on healthy records
+        tested = [e for e in members if e.name in (self.thresholds or {})]
+        local = self.local_test(start, free, cand.effect) if tested else trial
         ev = self.evaluate([trial])[0]
         cand.refit = True
         cand.params = {p: getattr(trial, p) for e in members for p in e.params}
@@ -1055,9 +1119,11 @@ class ResidualLoop:
         added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
         cand.n_eff = ev.n_eff
         cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
-        if any(e.params and e.within_tolerance(cand.params) for e in members):
-            # the fit left an effect within its healthy tolerance of off: any gain is the
-            # optimizer's or a healthy spread's, not the effect's
+        cand.shifts = {e.name: e.shift_at(local) for e in tested}
+        if any(e.params and (self.within_healthy_at(e, local) if e in tested else
+                             self.within_healthy(e, cand.params)) for e in members):
+            # the fit left an effect within the band healthy actuators reach on this command:
+            # any gain is the optimizer's or a healthy spread's, not the effect's
             cand.score = -math.inf
         elif self.p12_weight and trades_position(cur, ev):
             # the gain is the pressure's alone, bought with a worse position
@@ -1065,6 +1131,31 @@ class ResidualLoop:
         cand.seconds = time.perf_counter() - t0
         cand._evaluation = ev          # kept for the step, not reported
         return cand
+
+    def candidate_start(self, members: Sequence[Effect], extends: LFParams | None = None
+                        ) -> tuple[LFParams, dict[str, tuple[float, float]]]:
+        """Where a candidate's refits start and what they fit: the model it extends (the
+        current one, or a combination's fit) with the new effects at their off values (at the
+        probe where off is outside the search bounds), and everything the rounds refit plus
+        the effects' parameters."""
+        start = extends if extends is not None else self.current
+        free = dict(self.free)
+        for effect in members:
+            if not effect.is_on(start):
+                start = effect.switch_on(start, {
+                    p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
+                    if lo <= effect.off[p] <= hi})
+            free.update(effect.bounds)
+        return start, free
+
+    def local_test(self, start: LFParams, free: Mapping[str, tuple[float, float]],
+                   name: str) -> LFParams:
+        """The statistic of the healthy null (:mod:`eha.explain_null`): the candidate refitted
+        by least squares from ``start`` (:meth:`candidate_start`), a local and deterministic
+        fit that the null runs alike on each healthy record; how far it moves an effect's
+        parameter from off is tested against the healthy band."""
+        return self.refit(start, free, f"round {len(self.rounds)}: local test of {name}",
+                          method="lm")
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
@@ -1100,7 +1191,7 @@ class ResidualLoop:
             if not rest or len(combo) + 1 > room:
                 continue
             if any(set(c.effect.split("+")) <= STRUCTURAL and c.score >= s.min_gain
-                   and c.p_value < s.alpha for c in chosen):
+                   and c.p_value < s.significance for c in chosen):
                 # the structure qualifies on its own: :func:`choose` takes it first whatever
                 # the combinations with it gain (a structural candidate is always specific),
                 # so they are not refitted (on a 3 s record: 6 refits, 36 of 94 s)
@@ -1233,7 +1324,7 @@ class ResidualLoop:
         cand = self.try_candidate(Candidate("+".join(kept), math.nan, math.nan),
                                   extends=params)
         rnd.candidates.append(cand)
-        if not (cand.score >= s.min_gain and cand.p_value < s.alpha):
+        if not (cand.score >= s.min_gain and cand.p_value < s.significance):
             return None
         return Choice(cand, choice.superseded | {best.effect}, kept, "", {})
 
@@ -1332,7 +1423,7 @@ class ResidualLoop:
             name = "+".join(o.name for o in group)
             trials = [self.refit(start, bounds, f"final check: {name} for {label}",
                                  method=method, warm_start=warm) for method, warm in searches]
-            trials = [t for t in trials if not any(o.within_tolerance_at(t) for o in group)]
+            trials = [t for t in trials if not any(self.within_healthy_at(o, t) for o in group)]
             if not trials:
                 continue
             ev = min(self.evaluate(trials), key=lambda e: e.rmse_score
@@ -1423,7 +1514,7 @@ class ResidualLoop:
         trial = self.refit(start, bounds, f"final check: {label} from {rivals}'s fit",
                            method="ps")
         mine = self.evaluate([trial])[0]
-        inside = any(EFFECTS[st.effect].within_tolerance_at(trial) for st in out)
+        inside = any(self.within_healthy_at(EFFECTS[st.effect], trial) for st in out)
         if mine.rmse_score < self.cur.rmse_score and not inside:
             self.current, self.cur = trial, mine
 
@@ -1505,7 +1596,7 @@ class ResidualLoop:
                                method="lm", whole=True)
             # an added effect polished back inside its healthy tolerance would be reported
             # without being one: such a polish is not taken
-            if any(EFFECTS[st.effect].within_tolerance_at(trial) for st in self.steps):
+            if any(self.within_healthy_at(EFFECTS[st.effect], trial) for st in self.steps):
                 continue
             ev_t = self.evaluate([trial])[0]
             if ev_t.rmse_whole < ev.rmse_whole:
@@ -1695,7 +1786,8 @@ class ResidualLoop:
             measured=data.xu.copy(), settings=settings,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=iv.level,
             unexplained=iv.flagged, interval_notes=notes, leads=self.leads(),
-            dismissed=self.dismissed)
+            dismissed=self.dismissed,
+            null=self.null.summary(s.alpha) if self.null is not None else None)
 
 
 def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
@@ -1705,7 +1797,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
             alpha: float | None = None, p12_weight: float | None = None,
-            flow_gain_spread: float | None = None,
+            flow_gain_spread: float | None = None, null: Any = "simulate",
+            null_actuators: int | None = None,
             on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -1740,6 +1833,17 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
+    alpha : float, optional
+        False-positive level per record (:class:`LoopSettings`, default 0.05).
+    null : "simulate", str or Path, Null or None
+        What healthy looks like on this record's command (:mod:`eha.explain_null`):
+        ``"simulate"`` (default) a simulated healthy fleet driven by the record's command,
+        cached; a folder of the user's healthy records; a ready
+        :class:`~eha.explain_null.Null`; None for no null (an effect is then refused only
+        when its fit switches it off: for records made by the LF model itself, which have no
+        healthy scatter).
+    null_actuators : int, optional
+        Healthy actuators of a simulated null (default 20).
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -1749,11 +1853,13 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     """
     given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
-             "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread}
+             "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
+             "null_actuators": null_actuators}
     settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
                             method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
-                     fdi_options)
+                     fdi_options, null)
     edge = flow_gain_at_edge(result)
     if edge is None:
         return result
@@ -1764,11 +1870,38 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     if on_progress:
         on_progress(f"{edge}: the loop again with GQ at its nominal value")
     again = _passes(data, fit, effects, validate, base,
-                    replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options)
+                    replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options,
+                    null)
     again.settings["flow_gain_spread"] = settings.flow_gain_spread
     again.settings["flow_gain_released"] = edge
     again.seconds += result.seconds
     return again
+
+
+def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
+                 base: LFParams | None, settings: LoopSettings, fixed: Iterable[str],
+                 null: Any, on_progress: Callable[[str], None] | None = None):
+    """The :class:`~eha.explain_null.Null` of :func:`explain`'s ``null`` argument for this
+    record: simulated on its command (cached), read from a folder of healthy records, given,
+    or None."""
+    from eha import explain_null
+    from eha.explain_null import Null, NullError
+
+    if null is None or isinstance(null, Null):
+        return null
+    probe = ResidualLoop(data, fit, effects, None, base, settings, fixed)
+    names = [e.name for e in probe.pool]
+    try:
+        if isinstance(null, str) and null == "simulate":
+            return explain_null.simulated_null(
+                data, probe.bounds, names, settings, actuators=settings.null_actuators,
+                base=probe.base if base is not None else None, fixed=list(fixed),
+                on_progress=on_progress)
+        return explain_null.records_null(null, probe.bounds, names, settings,
+                                         command_hold=data.info.get("command_hold", "auto"),
+                                         base=base, fixed=list(fixed), on_progress=on_progress)
+    except NullError as exc:
+        raise ExplainError(str(exc)) from None
 
 
 #: The flow gain fitted within its healthy spread (``--flow-gain-spread``) is at the edge of
@@ -1801,11 +1934,11 @@ def edge_of_spread(value: float, bounds: tuple[float, float]) -> str | None:
 def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
             validate: MeasuredData | None, base: LFParams | None, settings: LoopSettings,
             fixed: Iterable[str], on_progress: Callable[[str], None] | None,
-            fdi_options: Mapping[str, float]) -> ExplainResult:
+            fdi_options: Mapping[str, float], null: Any = None) -> ExplainResult:
     """The loop's first pass and, when it leaves the record unexplained, its second pass from
     the structure pinned (:func:`better_pass` picks the result)."""
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                         **fdi_options)
+                         null=null, **fdi_options)
     result = first.run()
     structure = [e for e in first.pool if e.name in STRUCTURAL]
     if not (result.unexplained and SECOND_PASS and structure
@@ -1818,7 +1951,7 @@ def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
     if on_progress:
         on_progress("second pass: the structure pinned at its physical values")
     second = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                          pin_structure=True, **fdi_options).run()
+                          pin_structure=True, null=null, **fdi_options).run()
     chosen = better_pass(result, second, settings)
     chosen.seconds = result.seconds + second.seconds
     chosen.settings["passes"] = 2

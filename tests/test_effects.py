@@ -87,13 +87,18 @@ def test_get_and_register_validate_names():
     assert "bad" not in EFFECTS
 
 
-def test_within_tolerance_at_reads_the_effect_parameters_of_a_model():
-    """A model whose fit put an effect back within its healthy tolerance did not find it; an
-    effect without parameters (a switch) is never 'within tolerance'."""
+def test_shift_is_the_distance_of_the_effect_parameter_from_off():
+    """The statistic the loop tests against its healthy null: the fitted parameter's distance
+    from its off value, in its unit; nan for a switch or a two-parameter effect."""
+    import math
+
     from eha.effects import EFFECTS
     from eha.params import LFParams
 
-    leak = EFFECTS["leakage"]
-    assert leak.within_tolerance_at(LFParams().replace(Clk=0.5 * leak.tolerance["Clk"]))
-    assert not leak.within_tolerance_at(LFParams().replace(Clk=5e-12))
-    assert not EFFECTS["orifice_law"].within_tolerance_at(LFParams())
+    leak, psr = EFFECTS["leakage"], EFFECTS["supply_pressure"]
+    assert leak.shift_at(LFParams().replace(Clk=5e-12)) == pytest.approx(5e-12)
+    drop = LFParams().PSR - 1.3e7
+    assert psr.shift_at(LFParams().replace(PSR=1.3e7)) == pytest.approx(drop)
+    assert psr.shift_at(LFParams()) == 0.0
+    assert math.isnan(EFFECTS["orifice_law"].shift_at(LFParams()))
+    assert math.isnan(EFFECTS["flapper_dynamics"].shift_at(LFParams()))

@@ -11,7 +11,7 @@ import pytest
 from eha.explain import (Candidate, ExplainError, LoopSettings, choose, keeps_effect,
                          significance, unspecific)
 
-SETTINGS = LoopSettings(min_gain=0.1, penalty=0.02, alpha=0.01)
+SETTINGS = LoopSettings(min_gain=0.1, penalty=0.02, significance=0.01)
 
 
 def cand(effect, gain, params=1, p_value=1e-6, n_eff=100.0):

@@ -1,0 +1,472 @@
+"""The residual loop's null: how far each effect's fit goes on *healthy* actuators driven by
+the record's own command.
+
+An effect is added by the loop (:mod:`eha.explain`) only when the refit moves its parameter
+further from its off value than healthy actuators move it on the same command, sampled and
+noised like the record: a fixed tolerance would be the worst case over every command (a
+viscous friction of 1.2e4 N·s/m hides a real one on a chirp that a healthy jack never fits
+above a few hundred). The null is
+
+1. a **healthy fleet simulated** on the record's command (:func:`simulated_null`): HF
+   actuators with the manufacturing scatter of ``eha health calibrate``
+   (:data:`eha.detection.DISPERSION`), the declared faults drawn over a typical range
+   (:data:`DECLARED_DRAW`), the HF's dither, the record's noise level (position and, when the
+   record has one, P12), sampling and command hold; or the user's own **healthy records**
+   (:func:`records_null`, ``eha explain --healthy DIR``: commissioning tests of their
+   actuators, whose scatter is the better null);
+2. on each healthy record, the loop's own candidate test (:func:`healthy_statistics`): the
+   declared faults and the model's known structure fitted (the state of the loop once it has
+   added the structure), then each library effect refitted on top by the loop's local test
+   (:meth:`eha.explain.ResidualLoop.local_test`: least squares from the effect off); the
+   statistic is the parameter's distance from its off value
+   (:meth:`eha.effects.Effect.shift`);
+3. per effect, the threshold of the shared detection engine
+   (:func:`eha.detection.tail_threshold`): a normal tail with probability ``alpha / m`` for
+   ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
+   most ``alpha`` (union bound) — the same rule as ``eha health calibrate``'s thresholds.
+
+Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
+sampling, the noise, the declared faults, the loop's fit settings and the model version
+(:data:`eha.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+from statistics import NormalDist
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+#: Version of the cached null's format (and of the procedure: a change invalidates caches).
+NULL_FORMAT = 1
+#: Healthy actuators of a simulated null.
+DEFAULT_ACTUATORS = 20
+#: Fewest healthy records a null needs (the tail threshold needs a spread).
+MIN_RECORDS = 5
+#: Declared faults of the simulated healthy actuators: name -> (law, a, b). A declared fault
+#: is fitted on every record, but its value shapes what the effects can stand in for (a large
+#: backlash hides a small offset), so the fleet spans the values a record may carry; a
+#: declared fault not listed here is drawn uniformly within its fit bounds.
+DECLARED_DRAW: dict[str, tuple[str, float, float]] = {
+    "BKL": ("uniform", 0.0, 5e-4),
+    "FDJ": ("loguniform", 100.0, 3000.0),
+}
+#: Power of the detectable sizes the null reports (:meth:`Null.detectable`).
+DETECTION_POWER = 0.9
+#: Resolution of a fitted effect parameter, as a fraction of its search range: the spread
+#: of the statistic is at least this (a null whose healthy fits all sit at the bound would
+#: otherwise give a zero threshold that any optimizer step crosses). It is the old
+#: "switched off" margin of the loop (0.1 % of the range).
+RESOLUTION = 1e-4
+
+
+class NullError(ValueError):
+    """Bad null input (``--healthy`` folder, too few records); one-line message."""
+
+
+def cache_dir() -> Path:
+    """Folder of cached nulls: ``$EHA_CACHE_DIR/explain-null`` or
+    ``~/.cache/eha/explain-null``."""
+    root = os.environ.get("EHA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache"), "eha")
+    return Path(root) / "explain-null"
+
+
+@dataclass
+class Null:
+    """Healthy statistics of each effect on one command (see the module docstring).
+
+    Attributes
+    ----------
+    source : str
+        What the healthy records were (``"simulated healthy fleet (20 actuators, seed 0)"``
+        or ``"healthy records in DIR (12)"``).
+    key : str
+        Cache key (empty for user records).
+    statistics : dict of str to list of float
+        Per effect, its :meth:`~eha.effects.Effect.shift` on each healthy record (the
+        parameter's unit).
+    gains : dict of str to list of float
+        Per effect, the relative RMSE reduction its refit brought on each healthy record.
+    resolution : dict of str to float
+        Per effect, the smallest spread of its statistic (:data:`RESOLUTION` of its range).
+    units : dict of str to str
+        Per effect, the unit of its statistic.
+    seconds : float
+        Wall time of the calibration [s].
+    """
+
+    source: str
+    key: str
+    statistics: dict[str, list[float]]
+    gains: dict[str, list[float]]
+    resolution: dict[str, float]
+    units: dict[str, str]
+    records: int
+    seconds: float
+    settings: dict[str, Any] = field(default_factory=dict)
+    model_version: str = ""
+    created_at: str = ""
+    format: int = NULL_FORMAT
+
+    def thresholds(self, alpha: float) -> dict[str, float]:
+        """Per effect, the statistic a healthy record exceeds with probability ``alpha / m``
+        (``m`` effects; :func:`eha.detection.tail_threshold`)."""
+        from eha.detection import tail_threshold
+
+        m = max(len(self.statistics), 1)
+        return {name: tail_threshold(values, alpha / m, self.resolution.get(name, 0.0))[0]
+                for name, values in self.statistics.items()}
+
+    def detectable(self, alpha: float, power: float = DETECTION_POWER) -> dict[str, float]:
+        """Per effect, the shift from off that its fit exceeds the threshold with probability
+        ``power``, assuming the fit scatters about a real effect as about a healthy one: the
+        threshold plus the ``power`` quantile of the healthy spread. An estimate of the
+        loop's minimum detectable effect on this command; ``benchmarks/bench_explain_power.py``
+        measures it."""
+        from eha.detection import tail_threshold
+
+        z = NormalDist().inv_cdf(power)
+        m = max(len(self.statistics), 1)
+        out = {}
+        for name, values in self.statistics.items():
+            threshold, summary = tail_threshold(values, alpha / m,
+                                                self.resolution.get(name, 0.0))
+            out[name] = threshold + z * summary["scale"]
+        return out
+
+    def summary(self, alpha: float) -> dict[str, Any]:
+        """The JSON of the null for a report: source, thresholds, detectable sizes."""
+        thr, det = self.thresholds(alpha), self.detectable(alpha)
+        return {"source": self.source, "key": self.key, "records": self.records,
+                "alpha": alpha, "seconds": self.seconds,
+                "effects": {name: {"threshold": thr[name], "detectable": det[name],
+                                   "unit": self.units.get(name, ""),
+                                   "healthy_max": float(np.max(v)) if v else math.nan}
+                            for name, v in self.statistics.items()}}
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(asdict(self), indent=1))
+        tmp.replace(path)           # atomic: two processes calibrating alike both succeed
+        return path
+
+
+def load_null(path: str | Path) -> Null | None:
+    """A cached null, or None when the file is missing, damaged or of another format."""
+    from eha.simulate import MODEL_VERSION
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        null = Null(**data)
+    except (OSError, ValueError, TypeError):
+        return None
+    if null.format != NULL_FORMAT or null.model_version != MODEL_VERSION:
+        return None
+    return null
+
+
+# ------------------------------------------------------------------------------------------
+# the statistic on one healthy record
+
+def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str],
+                       settings, base=None, fixed: Sequence[str] = ()
+                       ) -> tuple[dict[str, float], dict[str, float]]:
+    """The loop's candidate test of each effect on one healthy record.
+
+    The declared faults are fitted with the model's known structure at its physical values
+    (the structure the loop adds first on a simulated record), then each effect of
+    ``effects`` is refitted on top as a round of the loop refits it
+    (:meth:`eha.explain.ResidualLoop.try_candidate`, with no gate).
+
+    Returns
+    -------
+    shifts, gains : dict of str to float
+        Per effect, its parameter's distance from off and the relative RMSE gain.
+    """
+    from eha.effects import COMBINATIONS, EFFECTS, missing_requirements
+    from eha.explain import ResidualLoop, STRUCTURAL
+
+    STRUCTURAL_ORDER = [name for combo in COMBINATIONS for name in combo]
+
+    # the structure is always in the pool: the null's baseline carries it
+    pool = list(dict.fromkeys([*STRUCTURAL_ORDER, *effects]))
+    loop = ResidualLoop(data, dict(fit), pool, None, base, settings, fixed,
+                        pin_structure=True)
+    loop.thresholds = None          # the statistic itself: no gate
+    start, free = loop.current, dict(loop.bounds)
+    for effect in loop.pinned:
+        start = effect.switch_on(start)
+        free.update(effect.bounds)
+    # the state of the loop once it has added the structure: its parameters are refitted
+    # with the faults in every later round (joint refits)
+    # (one GA start: the null's baseline needs to be good, not the best of several)
+    loop.current = loop.refit(start, free, "healthy record: the declared faults", starts=1)
+    loop.cur = loop.evaluate([loop.current])[0]
+    loop.free = free
+    shifts, gains = {}, {}
+    for effect in loop.pool:
+        if effect.name in STRUCTURAL or effect.name not in effects or not effect.params:
+            continue
+        members = [EFFECTS[n] for n in missing_requirements(effect, loop.current)] + [effect]
+        start, free_e = loop.candidate_start(members)
+        local = loop.local_test(start, free_e, effect.name)
+        shifts[effect.name] = effect.shift_at(local)
+        ev = loop.evaluate([local])[0]
+        gains[effect.name] = (1.0 - ev.rmse_score / loop.cur.rmse_score
+                              if loop.cur.rmse_score > 0 else 0.0)
+    return shifts, gains
+
+
+# ------------------------------------------------------------------------------------------
+# simulated healthy fleet
+
+def _declared_values(rng: np.random.Generator, fit: Mapping[str, tuple[float, float]]
+                     ) -> dict[str, float]:
+    out = {}
+    for name, (lo, hi) in fit.items():
+        law, a, b = DECLARED_DRAW.get(name, ("uniform", lo, hi))
+        a, b = max(a, lo), min(b, hi)
+        if law == "loguniform" and a > 0:
+            out[name] = float(math.exp(rng.uniform(math.log(a), math.log(b))))
+        else:
+            out[name] = float(rng.uniform(a, b))
+    return out
+
+
+def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
+                   known: Mapping[str, float] | None = None):
+    """One simulated healthy record like ``data``: same command (its original samples and
+    hold), sampling, length and noise (position; P12 when ``data`` has it).
+
+    The actuator is :func:`eha.detection.draw_actuator` ``(seed)`` with the declared faults
+    drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
+    dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test
+    conditions) are set on every actuator.
+    """
+    from eha.detection import draw_actuator
+    from eha.measured import from_arrays, noise_level
+    from eha.simulate import simulate
+
+    overrides = draw_actuator(seed)
+    overrides.update(_declared_values(np.random.default_rng([seed, 3]), fit))
+    overrides.update(known or {})
+    t_cmd, com = data.command.samples
+    trace = simulate("hf", data.command, overrides, t_end=float(t_cmd[-1] - t_cmd[0]),
+                     seed=seed)
+    rng = np.random.default_rng([seed, 4])
+    t = np.asarray(t_cmd, dtype=np.float64) - float(t_cmd[0])
+    noise = float(data.info.get("noise_m", noise_level(data.xu)))
+    xu = np.interp(t, trace.t, trace.xu) + rng.normal(0.0, noise, t.size)
+    p12 = None
+    if data.p12 is not None:
+        sigma_p = noise_level(data.p12)
+        p12 = np.interp(t, trace.t, trace["p12"]) + rng.normal(0.0, sigma_p, t.size)
+    record = from_arrays(t, np.asarray(com, dtype=np.float64), xu, p12,
+                         source=f"healthy actuator {seed}",
+                         command_hold=data.info.get("command_hold", "auto"))
+    return record, overrides
+
+
+def _fleet_member(args):
+    data, fit, effects, settings, seed, base, fixed = args
+    known = {}
+    if base is not None and fixed:
+        from eha.params import SPECS
+        # a known test condition (a test load) is the healthy fleet's too
+        known = {n: getattr(base, n) for n in fixed if "hf" in SPECS[n].models}
+    record, _ = healthy_record(data, fit, seed, known)
+    return healthy_statistics(record, fit, effects, settings, base, fixed)
+
+
+def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str], settings,
+             actuators: int, seed: int, base=None, fixed: Sequence[str] = ()) -> str:
+    """Cache key of a simulated null for ``data``'s command, sampling and noise."""
+    from eha.detection import command_signature
+    from eha.measured import noise_level
+    from eha.simulate import MODEL_VERSION
+
+    noise = float(data.info.get("noise_m", noise_level(data.xu)))
+    parts = {
+        "format": NULL_FORMAT, "model": MODEL_VERSION,
+        "command": command_signature(np.asarray(data.command.samples[1])),
+        "command_t": command_signature(np.asarray(data.command.samples[0]) * 1e4),
+        "hold": data.info.get("command_hold", ""),
+        "noise": f"{noise:.2g}",
+        "p12_noise": f"{noise_level(data.p12):.2g}" if data.p12 is not None else "",
+        "fit": {k: [float(v[0]), float(v[1])] for k, v in sorted(fit.items())},
+        "effects": sorted(effects),
+        "settings": {k: getattr(settings, k) for k in ("holdout", "p12_weight", "method",
+                                                          "pop", "seed", "penalty")},
+        "actuators": actuators, "fleet_seed": seed,
+        "declared": DECLARED_DRAW,
+        "base": _changed(base), "fixed": sorted(fixed),
+    }
+    blob = json.dumps(parts, sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:20]
+
+
+def _changed(base) -> dict[str, float]:
+    """The parameters of an LF base that differ from nominal (a prior's effects)."""
+    if base is None:
+        return {}
+    from dataclasses import fields as dc_fields
+
+    from eha.params import LFParams
+
+    nominal = LFParams()
+    return {f.name: getattr(base, f.name) for f in dc_fields(base)
+            if f.name != "XJ0" and getattr(base, f.name) != getattr(nominal, f.name)}
+
+
+def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
+    from eha.effects import EFFECTS
+
+    units, resolution = {}, {}
+    for name in effects:
+        effect = EFFECTS[name]
+        (param, (lo, hi)), = effect.bounds.items()
+        units[name] = effect.units()[param]
+        resolution[name] = RESOLUTION * (hi - lo)
+    return units, resolution
+
+
+def testable(effects: Sequence[str]) -> list[str]:
+    """The effects a null covers: those with exactly one fitted parameter that are not the
+    model's known structure."""
+    from eha.effects import EFFECTS
+    from eha.explain import STRUCTURAL
+
+    return [n for n in effects if n not in STRUCTURAL and len(EFFECTS[n].params) == 1]
+
+
+def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str],
+                   settings, actuators: int = DEFAULT_ACTUATORS, seed: int = 0,
+                   workers: int | None = None, use_cache: bool = True, base=None,
+                   fixed: Sequence[str] = (),
+                   on_progress: Callable[[str], None] | None = None) -> Null:
+    """The null of ``data``'s command from a simulated healthy fleet (cached).
+
+    Parameters
+    ----------
+    data : MeasuredData
+        The record whose command, sampling and noise the fleet copies.
+    fit : mapping
+        The declared faults and their bounds (fitted on every healthy record).
+    effects : names
+        The candidate effects (those :func:`testable` get statistics).
+    settings : LoopSettings
+        The loop's settings (the fits of the null are the loop's).
+    actuators : int
+        Healthy actuators; actuator ``k`` has seed ``1000 * seed + k``.
+    workers : int, optional
+        Processes (default: the machine's cores, at most 2 per calibration).
+    """
+    from eha.simulate import MODEL_VERSION
+
+    names = testable(effects)
+    if actuators < MIN_RECORDS:
+        raise NullError(f"--null-actuators {actuators}: allowed range [{MIN_RECORDS}, ...]")
+    key = null_key(data, fit, names, settings, actuators, seed, base, fixed)
+    path = cache_dir() / f"{key}.json"
+    if use_cache:
+        cached = load_null(path)
+        if cached is not None:
+            return cached
+    t0 = time.perf_counter()
+    seeds = [1000 * seed + k for k in range(actuators)]
+    jobs = [(data, dict(fit), names, settings, s, base, tuple(fixed)) for s in seeds]
+    workers = workers or min(2, os.cpu_count() or 1)
+    results = []
+    say = on_progress or (lambda message: None)
+    if workers <= 1:
+        for k, job in enumerate(jobs):
+            say(f"healthy null: actuator {k + 1} of {actuators}")
+            results.append(_fleet_member(job))
+    else:
+        # spawned workers with one numba thread each: the LF batch kernel is parallel, and a
+        # forked copy of an initialised threading layer is not safe
+        previous = os.environ.get("NUMBA_NUM_THREADS")
+        os.environ["NUMBA_NUM_THREADS"] = "1"
+        try:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                for k, res in enumerate(pool.map(_fleet_member, jobs)):
+                    say(f"healthy null: actuator {k + 1} of {actuators}")
+                    results.append(res)
+        finally:
+            if previous is None:
+                os.environ.pop("NUMBA_NUM_THREADS", None)
+            else:
+                os.environ["NUMBA_NUM_THREADS"] = previous
+    null = _assemble(f"simulated healthy fleet ({actuators} actuators, seed {seed})", key,
+                     names, results, time.perf_counter() - t0)
+    null.settings = {"actuators": actuators, "seed": seed, "seeds": seeds,
+                     "declared": {k: list(v) for k, v in DECLARED_DRAW.items()}}
+    null.model_version = MODEL_VERSION
+    if use_cache:
+        null.save(path)
+    return null
+
+
+def _assemble(source: str, key: str, names: Sequence[str],
+              results: Sequence[tuple[dict[str, float], dict[str, float]]],
+              seconds: float) -> Null:
+    units, resolution = _units(names)
+    stats = {n: [float(r[0][n]) for r in results if n in r[0]] for n in names}
+    gains = {n: [float(r[1][n]) for r in results if n in r[1]] for n in names}
+    return Null(source=source, key=key, statistics=stats, gains=gains, resolution=resolution,
+                units=units, records=len(results), seconds=seconds,
+                created_at=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+
+
+def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
+                 effects: Sequence[str], settings, command_hold: str = "auto", base=None,
+                 fixed: Sequence[str] = (), on_progress: Callable[[str], None] | None = None) -> Null:
+    """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
+    ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
+    Not cached (the files are the user's)."""
+    from eha.measured import FILE_TYPES, MeasuredDataError, load
+    from eha.simulate import MODEL_VERSION
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise NullError(f"--healthy {folder}: not a folder")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in FILE_TYPES)
+    if len(files) < MIN_RECORDS:
+        raise NullError(f"--healthy {folder}: {len(files)} records; at least {MIN_RECORDS} "
+                        f"healthy records are needed")
+    records = []
+    for path in files:
+        try:
+            records.append(load(path, command_hold))
+        except MeasuredDataError as exc:
+            raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
+    names = testable(effects)
+    t0 = time.perf_counter()
+    results = []
+    for k, record in enumerate(records):
+        if on_progress:
+            on_progress(f"healthy null: record {k + 1} of {len(records)}")
+        results.append(healthy_statistics(record, fit, names, settings, base, fixed))
+    null = _assemble(f"healthy records in {folder} ({len(records)})", "", names, results,
+                     time.perf_counter() - t0)
+    null.settings = {"files": [p.name for p in files]}
+    null.model_version = MODEL_VERSION
+    return null
+
+
+__all__ = ["Null", "NullError", "simulated_null", "records_null", "healthy_statistics",
+           "healthy_record", "load_null", "cache_dir", "null_key", "testable",
+           "DEFAULT_ACTUATORS", "DECLARED_DRAW", "DETECTION_POWER", "RESOLUTION"]
