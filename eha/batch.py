@@ -164,8 +164,21 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     signals = {it[0]["run_key"]: {"xu": it[1].xu.copy(), "p12": it[1]["p12"].copy()}
                for it in done if it[0].get("want_signals")}
     return {"n": len(task["runs"]), "runs": pa.Table.from_pylist(rows, schema=_runs_schema()),
-            "parts": [("metrics", pa.table(metric_rows)), ("metrics", pa.table(pair_rows))],
+            "parts": [("metrics", _table(metric_rows)), ("metrics", _table(pair_rows))],
             "signals": signals, "errors": [(k, e) for k, (e, _) in failed.items()]}
+
+
+def bare_simulate(specs: Sequence[Mapping[str, Any]]) -> float:
+    """Seconds [s] of a bare loop of ``simulate()`` (command built and run) over ``specs``:
+    the ideal against which the benchmarks measure a campaign's efficiency; nothing stored."""
+    from eha.commands import make_command
+    from eha.simulate import simulate
+
+    t0 = time.perf_counter()
+    for s in specs:
+        simulate(s["model"], make_command(s["command"]["name"], **s["command"]["set"]),
+                 s["params"], t_end=s["t_end"], seed=s["seed"])
+    return time.perf_counter() - t0
 
 
 def _pairs_inside(items: list, stack: dict, pair_rows: dict, pair_fn) -> None:
@@ -187,6 +200,15 @@ def _pairs_inside(items: list, stack: dict, pair_rows: dict, pair_fn) -> None:
     for n, v in values.items():  # both runs of a case get the case's values
         v = [None if not np.isfinite(x) else float(x) for x in v]
         pair_rows[n] += v + v
+
+
+def _table(columns: dict[str, list]):
+    """Arrow table of metric columns; NaN (undefined: no settling, constant command) is
+    stored as NULL, as the one-run-per-task runner stored None."""
+    import pyarrow as pa
+
+    return pa.table({n: pa.array(v, type=pa.string() if n == "run_key" else pa.float64(),
+                                 from_pandas=True) for n, v in columns.items()})
 
 
 def _error(exc: BaseException) -> str:

@@ -36,10 +36,11 @@ from eha.models import OUTPUT_UNITS, OUTPUTS
 TEMP_SUFFIX = ".tmp"
 #: Largest row group [rows]; a chunk of more rows gets several.
 ROW_GROUP_ROWS = 1_048_576
-#: zstd level: 3 gives 41.7 kB per 1-s run in 0.5 ms, 9 gives 41.4 kB in 1.2 ms, 19 gives
-#: 40.5 kB in 13 ms (measured on 50 HF runs of `mixed`): the low bits of simulated signals are
-#: noise, so higher levels buy almost nothing.
-ZSTD_LEVEL = 3
+#: zstd level: 1 and 3 give 41.7 kB per 1-s run (0.4 and 0.5 ms), 9 gives 41.4 kB in 1.2 ms,
+#: 19 gives 40.5 kB in 13 ms (measured on 50 HF runs of `mixed`; without byte-stream-split
+#: 49.8 kB, snappy 58.5 kB): the low bits of simulated signals are noise, so higher levels buy
+#: almost nothing.
+ZSTD_LEVEL = 1
 
 
 def _file_mode() -> int:

@@ -1,10 +1,11 @@
 """Metrics of campaign runs (the ``metrics`` table), vectorised over the runs of a chunk.
 
 Per run these cost as much as a short simulation when computed one run at a time (measured:
-1.7 ms for a 0.2-s HF run that simulates in 1.1 ms; the lag search alone is 100-200 numpy
+1.7 ms for a 0.2-s HF run that simulates in 1.1 ms; the lag search alone was 100-200 numpy
 calls per run). :func:`batch_metrics` computes them for a whole chunk of equally long runs
-with one numpy call per lag instead (``(runs, samples)`` arrays); :func:`trace_metrics` is
-the same computation on one run. Units are SI (cor in mA).
+on ``(runs, samples)`` arrays, the lag search in one numba call
+(:func:`eha.models.metrics.lag_errors`); :func:`trace_metrics` is the same computation on one
+run. Units are SI (cor in mA).
 """
 
 from __future__ import annotations
@@ -53,12 +54,15 @@ def _lag(t: np.ndarray, xu: np.ndarray, com: np.ndarray, max_lag: float) -> np.n
     runs, n = xu.shape
     if n < 3:
         return np.full(runs, np.nan)
+    # numba is imported here, not with this module: a spawn worker sets its thread count
+    # before numba first loads (eha.runner)
+    from eha.models.metrics import lag_errors
+
     dt = float(t[1] - t[0])
     kmax = min(int(round(max_lag / dt)), n // 2)
     errs = np.empty((runs, kmax + 1))
-    for k in range(kmax + 1):  # one call per shift for the whole chunk
-        d = xu[:, k:] - com[:, :n - k]
-        errs[:, k] = np.einsum("ij,ij->i", d, d) / (n - k)
+    lag_errors(np.ascontiguousarray(xu, dtype=np.float64),
+               np.ascontiguousarray(com, dtype=np.float64), kmax, errs)
     out = np.argmin(errs, axis=1) * dt
     return np.where(np.ptp(com, axis=1) == 0, np.nan, out)
 
