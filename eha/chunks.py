@@ -43,6 +43,11 @@ ROW_GROUP_ROWS = 1_048_576
 ZSTD_LEVEL = 1
 
 
+#: Seconds to wait between writing a chunk and renaming it into place: 0, except in the kill
+#: test (tests/test_chunks.py), which sets EHA_TEST_PAUSE_BEFORE_RENAME to kill there.
+_PAUSE_BEFORE_RENAME = float(os.environ.get("EHA_TEST_PAUSE_BEFORE_RENAME", "0") or 0)
+
+
 def _file_mode() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -118,6 +123,10 @@ def write_table_atomic(table, path: str | Path) -> int:
                        row_group_size=ROW_GROUP_ROWS)
         os.chmod(tmp, FILE_MODE)  # mkstemp makes 0600; traces are shared like any output
         size = os.stat(tmp).st_size
+        if _PAUSE_BEFORE_RENAME:  # tests only: a kill -9 with the chunk half-way to its place
+            import time
+
+            time.sleep(_PAUSE_BEFORE_RENAME)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
