@@ -630,15 +630,16 @@ def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
     """Counts and an estimated wall time for running ``campaign`` on ``workers`` processes.
 
     The estimate uses measured per-run costs on this project's reference machine (HF about
-    5 ms and LF about 3 ms per simulated second at DT = 1e-5 s, plus about 6 ms of trace
-    writing per run) and about 2 s to start the worker pool; it is a guide, not a promise.
+    5 ms and LF about 3 ms per simulated second at DT = 1e-5 s, :data:`eha.batch.SIM_COST`,
+    plus about 0.5 ms per run for metrics, its share of a chunk file and the commit) and about
+    2 s to start the worker pool; it is a guide, not a promise.
     """
-    per_second = {"hf": 5e-3, "lf": 3e-3}
+    from eha.batch import estimated_run_s
+
     work = 0.0
     for j in campaign.jobs:
         if j.kind == "simulate":
-            dt = j.spec["params"].get("DT", 1e-5)
-            work += per_second[j.spec["model"]] * j.spec["t_end"] * (1e-5 / dt) + 6e-3
+            work += estimated_run_s(j.spec) + 5e-4
         else:
             work += float(j.columns.get("estimated_s", 1.0))
     workers = max(1, int(workers))
