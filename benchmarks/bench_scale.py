@@ -7,8 +7,10 @@ For each size (``--runs``) and run length (``--t-end``), on one set of warm work
   simulate seconds measured in the workers, summed, divided by the workers);
 * **campaign wall**: :func:`eha.runner.run_campaign` on the same warm workers into a fresh
   results folder (validation, database, tasks, chunk files, metrics, commits, HF-vs-LF);
-* **efficiency** = ideal / campaign wall, both measured in this run (a loaded machine slows
-  both alike; the load average is recorded);
+* **efficiency** = ideal / campaign wall, both measured in this run (the bare loop just
+  before and just after the campaign, averaged: a shared machine's load drifts; the load
+  average is recorded), and ``sim_share``: the simulate seconds recorded by the campaign's own
+  workers / (workers x wall), measured at the same moment as the wall;
 * bytes per run (trace files), files, and the time of two queries over every run's trace:
   ``count(*)``, ``avg(xu)`` and an ``avg(xu)`` filtered on a fault value joined with ``runs``,
   inside DuckDB (view built) and ``eha query "select count(*) from traces"`` end to end (a new
@@ -100,15 +102,27 @@ def query_times(results: Path, fault: float) -> dict:
 def campaign_run(camp, ex, tmp: Path) -> dict:
     from eha.runner import run_campaign
 
-    ideal = ideal_seconds(camp, ex)
+    from eha.store import query
+
+    # the bare loop just before and just after the campaign, averaged: the other users of a
+    # shared machine change its load within minutes
+    before = ideal_seconds(camp, ex)
     results = Path(tempfile.mkdtemp(dir=tmp))
     t0 = time.perf_counter()
     s = run_campaign(camp, results, executor=ex, progress=False)
     wall = time.perf_counter() - t0
+    after = ideal_seconds(camp, ex)
+    ideal = (before + after) / 2
     assert s.done == s.total and s.failed == 0, s
     st = trace_stats(results)
-    return {"runs": s.total, "ideal_s": round(ideal, 3), "wall_s": round(wall, 3),
-            "jobs_s": round(s.jobs_s, 3), "efficiency": round(ideal / wall, 3),
+    sim = float(query(results, "SELECT sum(sim_s) AS s FROM runs")["s"][0])
+    return {"runs": s.total, "ideal_s": round(ideal, 3),
+            "ideal_before_after_s": [round(before, 3), round(after, 3)],
+            "wall_s": round(wall, 3), "jobs_s": round(s.jobs_s, 3),
+            "efficiency": round(ideal / wall, 3),
+            # simulate() seconds inside the campaign's own workers / (workers x wall): the
+            # same ratio, measured at the same moment as the wall
+            "sim_share": round(sim / ex.workers / wall, 3),
             "files": st["files"], "bytes_per_run": round(st["bytes"] / s.total),
             "results": str(results)}
 
