@@ -146,7 +146,8 @@ def plot_campaign(results: str | Path = "results", campaign: str = "thesis-matri
                          f"{results / 'eha.duckdb'}")
     out = Path(out) if out is not None else results / "plots" / campaign
     runs = runs[runs["seed"] == runs["seed"].min()]
-    traces = {rk: read_trace(results / p) for rk, p in zip(runs["run_key"], runs["trace_path"])}
+    traces = {rk: read_trace(results / p, rk)
+              for rk, p in zip(runs["run_key"], runs["trace_path"])}
     fault_sets = sorted({json.dumps(f, sort_keys=True): f for f in runs["faults"]}.values(),
                         key=fault_order)
     fault_keys = [json.dumps(f, sort_keys=True) for f in fault_sets]

@@ -38,15 +38,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
-#: Tolerance band of the settling time: fraction of the command's peak magnitude.
-SETTLING_BAND = 0.02
-#: Largest command-to-position lag searched [s].
-MAX_LAG = 0.2
 #: Numba threads per worker process (one process per core already).
 WORKER_NUMBA_THREADS = 1
-#: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` results).
+#: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` runs): a
+#: commit costs tens of milliseconds whatever its rows, the parent shares the cores with the
+#: workers, and a crash loses at most this much finished work.
 BATCH_SECONDS = 0.5
-BATCH_ROWS = 200
+BATCH_ROWS = 5000
 
 
 class CampaignChanged(ValueError):
@@ -57,78 +55,9 @@ def _now() -> datetime:
     return datetime.now(timezone.utc).replace(tzinfo=None)
 
 
-# =========================================================================== metrics
-def rmse(a, b) -> float:
-    """Root-mean-square difference of two equally sampled signals."""
-    import numpy as np
-
-    return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
-
-
-def max_abs_error(a, b) -> float:
-    """Largest absolute difference of two equally sampled signals."""
-    import numpy as np
-
-    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
-
-
-def settling_time(t, xu, com, band: float = SETTLING_BAND) -> float | None:
-    """Time [s] from which ``|xu - com|`` stays within ``band * max|com|``; None if it never does
-    (or the command is zero)."""
-    import numpy as np
-
-    tol = band * float(np.max(np.abs(com)))
-    if tol <= 0:
-        return None
-    outside = np.flatnonzero(np.abs(xu - com) > tol)
-    if outside.size == 0:
-        return float(t[0])
-    last = outside[-1]
-    return None if last == len(t) - 1 else float(t[last + 1])
-
-
-def lag(t, xu, com, max_lag: float = MAX_LAG) -> float | None:
-    """Shift [s] in ``[0, max_lag]`` of ``com`` that best matches ``xu`` (least squares);
-    None for a constant command."""
-    import numpy as np
-
-    if np.ptp(com) == 0 or len(t) < 3:
-        return None
-    dt = float(t[1] - t[0])
-    n = len(t)
-    kmax = min(int(round(max_lag / dt)), n // 2)
-    errs = [np.mean((xu[k:] - com[:n - k]) ** 2) for k in range(kmax + 1)]
-    return float(np.argmin(errs) * dt)
-
-
-def trace_metrics(trace) -> dict[str, float | None]:
-    """Metrics of one run (columns of the ``metrics`` table, SI units, cor in mA)."""
-    import numpy as np
-
-    t, xu, com, p12 = trace.t, trace.xu, trace["com"], trace["p12"]
-    return {
-        "rmse_xu_com": rmse(xu, com), "max_err_xu_com": max_abs_error(xu, com),
-        "final_err_xu_com": float(xu[-1] - com[-1]),
-        "settling_time": settling_time(t, xu, com), "lag": lag(t, xu, com),
-        "xu_min": float(np.min(xu)), "xu_max": float(np.max(xu)),
-        "xs_abs_max": float(np.max(np.abs(trace["xs"]))),
-        "p12_min": float(np.min(p12)), "p12_max": float(np.max(p12)),
-        "p12_abs_max": float(np.max(np.abs(p12))),
-        "cor_abs_max": float(np.max(np.abs(trace["cor"]))),
-    }
-
-
-def pair_metrics(hf, lf) -> dict[str, float | None]:
-    """HF-vs-LF metrics of one case (same command, faults, seed, t_end).
-
-    ``hf``, ``lf``: :class:`~eha.simulate.Trace` or mappings with ``"xu"`` and ``"p12"``.
-    """
-    import numpy as np
-
-    out = {"rmse_xu_hf_lf": rmse(hf["xu"], lf["xu"]),
-           "max_err_xu_hf_lf": max_abs_error(hf["xu"], lf["xu"]),
-           "rmse_p12_hf_lf": rmse(hf["p12"], lf["p12"])}
-    return {k: (None if v is None or not np.isfinite(v) else v) for k, v in out.items()}
+# Metrics live in eha.run_metrics (vectorised over a chunk); the names stay importable here.
+from eha.run_metrics import (MAX_LAG, SETTLING_BAND, lag, max_abs_error,  # noqa: E402,F401
+                             pair_metrics, rmse, settling_time, trace_metrics)
 
 
 # =========================================================================== worker side
@@ -177,11 +106,15 @@ def warm_worker() -> str:
     """
     import tempfile
 
+    from eha.batch import run_chunk
+
     with tempfile.TemporaryDirectory(prefix="eha-warm-") as tmp:
-        for model in ("hf", "lf"):
-            spec = {"model": model, "command": {"name": "step_1mm", "set": {}}, "params": {},
-                    "seed": 0, "t_end": 2e-3, "signals": ["t", "com", "xu"]}
-            _run_simulation(spec, "0" * 16, "warm-up", str(Path(tmp) / f"{model}.parquet"))
+        runs = [{"run_key": f"{i:016x}", "case_key": "warm", "model": model,
+                 "spec": {"model": model, "command": {"name": "step_1mm", "set": {}},
+                          "params": {}, "seed": 0, "t_end": 2e-3}}
+                for i, model in enumerate(("hf", "lf"))]
+        run_chunk({"campaign": "warm-up", "trace_file": str(Path(tmp) / "w.parquet"),
+                   "trace_path": "w.parquet", "signals": ["t", "com", "xu"], "runs": runs})
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
@@ -561,7 +494,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     """
     from eha.campaign import Campaign, load_campaign
     from eha.simulate import MODEL_VERSION
-    from eha.store import ResultStore, clean_temp_files, trace_path
+    from eha.store import ResultStore, clean_temp_files
 
     t_start = time.perf_counter()
     camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
@@ -588,22 +521,17 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
             "n_runs": len(camp.jobs), "definition": camp.definition,
             "created_at": old["created_at"] if old else now, "updated_at": now})
         trace_dir = db.results / "traces" / camp.name
-        clean_temp_files(trace_dir)  # we hold the database lock: no other writer is active
-        done = db.done_with_trace(camp.name)
+        done, intact = db.verify_traces(camp.name)
+        # we hold the database lock: no other writer is active; files no intact done run
+        # refers to (a crash before a commit, a damaged chunk) are removed, not shown twice
+        clean_temp_files(trace_dir, {Path(p).name for p in intact})
         todo = [j for j in camp.jobs if j.run_key not in done]
         summary.skipped = len(camp.jobs) - len(todo)
         db.add_pending([{"run_key": j.run_key, "campaign": j.campaign, "kind": j.kind,
                          "status": "pending", "spec": j.spec, "queued_at": now,
                          **{k: v for k, v in j.columns.items() if k in _RUN_COLUMNS}}
                         for j in todo])
-        payloads = []
-        for j in todo:
-            path = trace_path(db.results, camp.name, j.run_key)
-            payloads.append({"kind": j.kind, "spec": j.spec, "run_key": j.run_key,
-                             "campaign": camp.name, "trace_file": str(path),
-                             "trace_path": str(path.relative_to(db.results)),
-                             "case_key": j.columns.get("case_key"),
-                             "model": j.columns.get("model")})
+        payloads = _tasks(camp, todo, db.results)
         if payloads:
             _execute(payloads, db, summary, workers, scheduler, progress, executor)
         _finish_pairs(db, camp.name)
@@ -616,64 +544,135 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
 _RUN_COLUMNS = {"model", "command", "faults", "fault_label", "seed", "t_end", "case_key", "label"}
 
 
+def _tasks(camp, todo: list, results: Path) -> list[dict]:
+    """The tasks of the runs ``todo``: simulations by chunk (:func:`eha.batch.plan_chunks`,
+    planned on the whole campaign so that a resume writes the same files), other kinds one
+    run per task."""
+    from eha.batch import plan_chunks
+    from eha.chunks import chunk_name
+    from eha.store import trace_path
+
+    wanted = {j.run_key for j in todo}
+    tasks: list[dict] = []
+    for chunk in plan_chunks(camp.jobs):
+        runs = [j for j in chunk if j.run_key in wanted]
+        if not runs:
+            continue
+        path = trace_path(results, camp.name, "x").with_name(
+            chunk_name([j.run_key for j in runs]))
+        tasks.append({"kind": "chunk", "campaign": camp.name, "trace_file": str(path),
+                      "trace_path": str(path.relative_to(results)),
+                      "signals": runs[0].spec["signals"],
+                      "runs": [{"run_key": j.run_key, "spec": j.spec,
+                                "case_key": j.columns.get("case_key"),
+                                "model": j.columns.get("model")} for j in runs]})
+    for j in todo:
+        if j.kind == "simulate":
+            continue
+        path = trace_path(results, camp.name, j.run_key)
+        tasks.append({"kind": j.kind, "spec": j.spec, "run_key": j.run_key,
+                      "campaign": camp.name, "trace_file": str(path),
+                      "trace_path": str(path.relative_to(results)),
+                      "case_key": j.columns.get("case_key"), "model": j.columns.get("model")})
+    return tasks
+
+
+def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
+    """Run one task in a worker: a chunk of simulations (:func:`eha.batch.run_chunk`) or a
+    single job of another kind (:func:`execute_job`)."""
+    if task["kind"] == "chunk":
+        from eha.batch import run_chunk
+
+        return run_chunk(task)
+    return execute_job(task)
+
+
 def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bool,
              executor: Executor | None) -> None:
     import contextlib
 
     t0 = time.perf_counter()
     own = executor is None
+    n_runs = sum(len(p["runs"]) if p["kind"] == "chunk" else 1 for p in payloads)
     with (make_executor(workers, scheduler) if own else contextlib.nullcontext(executor)) as ex, \
             _progress(progress) as bar:
         task = bar.add_task(f"{summary.campaign} (starting {ex.workers} workers)",
-                            total=len(payloads))
+                            total=n_runs)
         ex.warm_up()
         summary.startup_s = time.perf_counter() - t0
         bar.update(task, description=f"{summary.campaign} ({ex.workers} workers)")
-        buffer: list[dict] = []
+        buffer: list[dict] = []     # results of single jobs (dicts)
+        batches: list[dict] = []    # results of chunks (Arrow tables)
+        pending_runs = 0
         pairs = _Pairs(payloads)
         last = time.perf_counter()
         try:
-            for res in ex.map_unordered(execute_job, payloads):
+            for res in ex.map_unordered(execute_task, payloads):
                 pairs.add(res)
-                buffer.append(res)
-                if res["status"] == "done":
-                    summary.done += 1
-                elif len(summary.errors) < 20:
-                    summary.errors.append(f"{res['run_key']}: {res['error']}")
-                bar.advance(task)
-                if len(buffer) >= BATCH_ROWS or time.perf_counter() - last > BATCH_SECONDS:
-                    db.record(buffer, {"metrics": pairs.take()})
-                    buffer, last = [], time.perf_counter()
+                if "runs" in res:   # a chunk
+                    batches.append(res)
+                    n = res["n"]
+                    summary.done += n - len(res["errors"])
+                    errors = [f"{k}: {e}" for k, e in res["errors"]]
+                else:
+                    buffer.append(res)
+                    n = 1
+                    summary.done += res["status"] == "done"
+                    errors = [] if res["status"] == "done" else [
+                        f"{res['run_key']}: {res['error']}"]
+                summary.errors += errors[:max(0, 20 - len(summary.errors))]
+                bar.advance(task, n)
+                pending_runs += n
+                if pending_runs >= BATCH_ROWS or time.perf_counter() - last > BATCH_SECONDS:
+                    db.record(buffer, {"metrics": pairs.take()}, batches)
+                    buffer, batches, pending_runs, last = [], [], 0, time.perf_counter()
         finally:
-            db.record(buffer, {"metrics": pairs.take()})  # on Ctrl-C too: keep what is done
+            # on Ctrl-C too: keep what is done
+            db.record(buffer, {"metrics": pairs.take()}, batches)
             summary.jobs_s = time.perf_counter() - t0 - summary.startup_s
 
 
 class _Pairs:
-    """HF-vs-LF metrics as results arrive: a case whose HF and LF runs are both in this session
-    pairs the two runs' signals in memory (the workers send them back for those runs only)."""
+    """HF-vs-LF metrics of the cases split across tasks, as results arrive.
+
+    A case whose HF and LF runs are in one chunk is paired by its worker. One split across
+    two tasks of this session is paired here from the signals the workers send back for those
+    runs only; one whose other run was done in an earlier session is paired at the end
+    (:func:`_finish_pairs`).
+    """
 
     def __init__(self, payloads: list[dict]):
-        by_case: dict[str, set] = {}
-        for p in payloads:
-            if p["kind"] == "simulate" and p.get("case_key") and p.get("model"):
-                by_case.setdefault(p["case_key"], set()).add(p["model"])
-        both = {c for c, models in by_case.items() if models >= {"hf", "lf"}}
+        where: dict[str, dict[str, tuple[int, dict]]] = {}
+        for i, p in enumerate(payloads):
+            for run in (p["runs"] if p["kind"] == "chunk" else [p]):
+                if (p["kind"] in ("chunk", "simulate") and run.get("case_key")
+                        and run.get("model")):
+                    where.setdefault(run["case_key"], {})[run["model"]] = (i, run)
         self.case: dict[str, tuple[str, str]] = {}
-        for p in payloads:
-            if p.get("case_key") in both:
-                p["want_signals"] = True
-                self.case[p["run_key"]] = (p["case_key"], p["model"])
+        for case, models in where.items():
+            if "hf" in models and "lf" in models and models["hf"][0] != models["lf"][0]:
+                for model in ("hf", "lf"):
+                    run = models[model][1]
+                    run["want_signals"] = True
+                    self.case[run["run_key"]] = (case, model)
         self.waiting: dict[str, dict[str, tuple[str, dict]]] = {}
         self.rows: list[dict] = []
 
     def add(self, result: dict) -> None:
-        signals = result.pop("signals", None)
-        if signals is None or result["status"] != "done" or result["run_key"] not in self.case:
-            return
-        case, model = self.case[result["run_key"]]
+        if "runs" in result:
+            signals = result.pop("signals", {})
+        else:
+            one = result.pop("signals", None)
+            signals = {result["run_key"]: one} if one is not None and \
+                result["status"] == "done" else {}
+        for key, sig in signals.items():
+            if key in self.case:
+                self._add(key, sig)
+
+    def _add(self, run_key: str, signals: dict) -> None:
+        case, model = self.case[run_key]
         mine = self.waiting.setdefault(case, {})
-        mine[model] = (result["run_key"], signals)
+        mine[model] = (run_key, signals)
         if "hf" in mine and "lf" in mine:
             (hf_key, hf), (lf_key, lf) = mine.pop("hf"), mine.pop("lf")
             del self.waiting[case]
@@ -694,8 +693,8 @@ def _finish_pairs(db, campaign: str) -> int:
     rows = []
     for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):
         try:
-            hf = read_trace(db.results / hf_path)
-            lf = read_trace(db.results / lf_path)
+            hf = read_trace(db.results / hf_path, hf_key)
+            lf = read_trace(db.results / lf_path, lf_key)
         except Exception:  # vanished or damaged (ArrowInvalid): not paired now; the resume
             continue       # re-runs a damaged trace (eha.store.trace_intact)
         if len(hf) != len(lf):
@@ -710,5 +709,5 @@ def _finish_pairs(db, campaign: str) -> int:
 
 
 __all__ = ["run_campaign", "RunSummary", "CampaignChanged", "Executor", "LocalPoolExecutor",
-           "DaskExecutor", "make_executor", "execute_job", "JOB_RUNNERS", "trace_metrics",
+           "DaskExecutor", "make_executor", "execute_job", "execute_task", "JOB_RUNNERS", "trace_metrics",
            "pair_metrics", "rmse", "max_abs_error", "settling_time", "lag"]

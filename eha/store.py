@@ -1,8 +1,10 @@
 """Storage: the only module that reads or writes Parquet and DuckDB.
 
-Traces are Parquet files (one per run, metadata under the key ``eha``), written atomically:
-a temporary name in the same directory, then ``os.replace``, so a reader never sees a file
-half-written.
+Traces are Parquet files written atomically: a temporary name in the same directory, then
+``os.replace``, so a reader never sees a file half-written. A campaign's simulations are stored
+many runs per file (:mod:`eha.chunks`: a ``run_key`` column, sorted); a single trace
+(:func:`write_trace`) and a campaign run before issue 25 have one file per run, whose run key is
+in its name and its metadata (key ``eha``). Both layouts are read alike.
 
 Campaign results live in ``DIR/eha.duckdb`` (DuckDB). The campaign's parent process is its only
 writer (:class:`ResultStore`); queries go through a read-only connection (:func:`query`) that
@@ -13,7 +15,8 @@ to runs, its name to :data:`RESULT_TABLES`.
 Layout of a results directory::
 
     DIR/eha.duckdb                          campaigns, runs, metrics (+ other result tables)
-    DIR/traces/<campaign>/<run_key>.parquet one trace per run (run key also in the metadata)
+    DIR/traces/<campaign>/chunk-<hash>.parquet  the runs of one task (column run_key)
+    DIR/traces/<campaign>/<run_key>.parquet     a task of one run, or an older campaign
 """
 
 from __future__ import annotations
@@ -27,23 +30,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+# No simulation code at import time (eha.simulate loads numba): `eha query` starts fast.
+from eha.chunks import FILE_MODE as _FILE_MODE, TEMP_SUFFIX, read_run
 from eha.models import OUTPUTS
-from eha.simulate import Trace
 
 
-def _file_mode() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-_FILE_MODE = _file_mode()
-
-#: Suffix of the temporary files of :func:`write_trace` (removed by :func:`clean_temp_files`).
-TEMP_SUFFIX = ".tmp"
-
-
-def write_trace(trace: Trace, path: str | Path, columns: Sequence[str] | None = None) -> Path:
+def write_trace(trace, path: str | Path, columns: Sequence[str] | None = None) -> Path:
     """Write ``trace`` to ``path`` (Parquet) atomically; returns the path.
 
     Parameters
@@ -74,21 +66,19 @@ def write_trace(trace: Trace, path: str | Path, columns: Sequence[str] | None = 
     return path
 
 
-def read_trace(path: str | Path) -> Trace:
-    """Read a trace written by :func:`write_trace` (signals not stored come back as NaN)."""
-    import pyarrow.parquet as pq
+def read_trace(path: str | Path, run_key: str | None = None):
+    """Read one run's :class:`~eha.simulate.Trace` from a file of :func:`write_trace` or a
+    chunk file (``run_key`` needed when it holds several runs); signals not stored come back
+    as NaN."""
+    from eha.simulate import Trace
 
-    table = pq.read_table(path)
-    meta_raw = (table.schema.metadata or {}).get(b"eha", b"{}")
-    names = set(table.column_names)
-    data = np.column_stack([table.column(n).to_numpy() if n in names
-                            else np.full(table.num_rows, np.nan) for n in OUTPUTS])
-    return Trace(np.ascontiguousarray(data, dtype=np.float64), json.loads(meta_raw))
+    data, meta = read_run(path, run_key)
+    return Trace(data, meta)
 
 
-#: A resume reads the Parquet footer (row count) of every done run up to this many runs
-#: (about 0.2 ms each); beyond, it checks sizes and the Parquet magic bytes (about 20 µs each),
-#: so that verifying a 200 000-run campaign takes seconds, not minutes.
+#: A resume reads the Parquet footer (row count) of every trace file of the done runs up to
+#: this many files (about 0.2 ms each); beyond, it checks sizes and the Parquet magic bytes
+#: (about 20 µs each), so that verifying a 200 000-file campaign takes seconds, not minutes.
 DEEP_VERIFY_MAX = 5000
 
 
@@ -415,11 +405,14 @@ def trace_path(results: str | Path, campaign: str, run_key: str) -> Path:
     return Path(results) / TRACES / campaign / f"{run_key}.parquet"
 
 
-def clean_temp_files(folder: str | Path) -> int:
-    """Remove temporary files left by interrupted :func:`write_trace` calls; returns how many.
+def clean_temp_files(folder: str | Path, keep: set[str] | None = None) -> int:
+    """Remove temporary files left by interrupted writes, and (``keep`` given) every trace
+    file of ``folder`` whose name is not in ``keep``; returns how many files went.
 
-    Only call this while no writer can be active in ``folder`` (the runner does it while it
-    holds the database lock, before starting its workers).
+    A file no committed run refers to is left by a crash between its rename and the commit,
+    or by runs discarded or re-run elsewhere; its rows would show twice in the ``traces``
+    view. Only call this while no writer can be active in ``folder`` (the runner does it
+    while it holds the database lock, before starting its workers).
     """
     folder = Path(folder)
     n = 0
@@ -427,6 +420,11 @@ def clean_temp_files(folder: str | Path) -> int:
         for tmp in folder.glob(f".*{TEMP_SUFFIX}"):
             tmp.unlink(missing_ok=True)
             n += 1
+        if keep is not None:
+            for f in folder.glob("*.parquet"):
+                if f.name not in keep:
+                    f.unlink(missing_ok=True)
+                    n += 1
     return n
 
 
@@ -471,14 +469,44 @@ def connect(results: str | Path, read_only: bool = False):
     return con
 
 
+def _arrow(rows: Sequence[Mapping[str, Any]]):
+    """Arrow table of ``rows`` (dicts with the same keys), JSON columns as text: the campaign
+    path's bulk inserts without pandas (importing it alone took 1.4 s of a campaign's start)."""
+    import pyarrow as pa
+
+    names = list(rows[0])
+    cols = {}
+    for n in names:
+        values = [r[n] for r in rows]
+        if any(isinstance(v, (dict, list)) for v in values):
+            values = [json.dumps(v, sort_keys=True) if v is not None else None
+                      for v in values]
+        cols[n] = values
+    return pa.Table.from_pydict(cols)
+
+
 def _frame(rows: Sequence[Mapping[str, Any]]):
     import pandas as pd
 
     frame = pd.DataFrame(list(rows))
-    for col in frame.columns:  # JSON columns travel as text
-        if frame[col].map(lambda v: isinstance(v, (dict, list))).any():
+    for col in frame.columns:  # JSON columns travel as text (only object columns can hold them)
+        if frame[col].dtype == object and \
+                frame[col].map(lambda v: isinstance(v, (dict, list))).any():
             frame[col] = frame[col].map(lambda v: json.dumps(v, sort_keys=True))
     return frame
+
+
+def _concat(tables: Sequence[Any]) -> list:
+    """Arrow tables of one schema as a list of at most one table (empty ones left out)."""
+    import pyarrow as pa
+
+    tables = [t for t in tables if t.num_rows]
+    return [pa.concat_tables(tables)] if tables else []
+
+
+def _columns(obj) -> list[str]:
+    """Column names of a pandas frame or an Arrow table."""
+    return list(obj.column_names if hasattr(obj, "column_names") else obj.columns)
 
 
 class ResultStore:
@@ -525,8 +553,7 @@ class ResultStore:
 
     def register_campaign(self, row: Mapping[str, Any]) -> None:
         """Insert or update a ``campaigns`` row (keeps ``created_at`` of an existing one)."""
-        frame = _frame([row])
-        self.con.register("_c", frame)
+        self.con.register("_c", _arrow([row]))
         try:
             self.con.execute("""
                 INSERT INTO campaigns BY NAME SELECT * FROM _c
@@ -538,30 +565,38 @@ class ResultStore:
             self.con.unregister("_c")
 
     def discard_runs(self, campaign: str, keep: set[str] | frozenset[str] = frozenset()) -> int:
-        """Remove the runs of ``campaign`` whose key is not in ``keep``: their trace files,
-        result rows and ``runs`` rows; returns how many.
+        """Remove the runs of ``campaign`` whose key is not in ``keep``: their result rows,
+        ``runs`` rows and trace files; returns how many.
 
-        Files go first: if this is interrupted, the runs are still listed and the runner re-runs
-        whatever trace is missing.
+        A kept run whose chunk file also holds discarded runs goes back to ``pending`` and its
+        file is removed (the file would keep the discarded runs' rows in the ``traces`` view);
+        the runner re-runs it. Rows go first, in one transaction; a file left by an
+        interruption after it is removed by the next run (:func:`clean_temp_files`).
         """
-        rows = self.con.execute("SELECT run_key FROM runs WHERE campaign = ?",
+        rows = self.con.execute("SELECT run_key, trace_path FROM runs WHERE campaign = ?",
                                 [campaign]).fetchall()
-        gone = [k for (k,) in rows if k not in keep]
-        for key in gone:
-            trace_path(self.results, campaign, key).unlink(missing_ok=True)
+        gone = [k for k, _ in rows if k not in keep]
+        files = {p for k, p in rows if k not in keep and p is not None}
+        reset = [k for k, p in rows if k in keep and p in files]
         if gone:
             self.con.register("_gone", _frame([{"run_key": k} for k in gone]))
+            self.con.register("_reset", _frame([{"run_key": k} for k in reset or ["-"]]))
             self.con.execute("BEGIN")
             try:
                 for table in RESULT_TABLES + ("runs",):
                     self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
                                      "(SELECT run_key FROM _gone)")
+                self.con.execute("UPDATE runs SET status = 'pending', trace_path = NULL "
+                                 "WHERE run_key IN (SELECT run_key FROM _reset)")
                 self.con.execute("COMMIT")
             except BaseException:
                 self.con.execute("ROLLBACK")
                 raise
             finally:
                 self.con.unregister("_gone")
+                self.con.unregister("_reset")
+        for path in files:
+            (self.results / path).unlink(missing_ok=True)
         return len(gone)
 
     # ---- runs
@@ -575,58 +610,92 @@ class ResultStore:
         return dict(self.con.execute(sql, args).fetchall())
 
     def done_with_trace(self, campaign: str) -> set[str]:
-        """Run keys recorded as done whose trace file is intact (a damaged or missing one is
-        re-run): :func:`trace_intact` against the size and rows recorded at commit (rows read
-        from the footers up to :data:`DEEP_VERIFY_MAX` runs)."""
-        rows = self.con.execute("SELECT run_key, trace_path, trace_bytes, trace_rows FROM runs "
-                                "WHERE campaign = ? AND status = 'done'", [campaign]).fetchall()
+        """Run keys recorded as done whose trace file is intact; the runs of a damaged or
+        missing file are re-run (see :meth:`verify_traces`)."""
+        return self.verify_traces(campaign)[0]
+
+    def verify_traces(self, campaign: str) -> tuple[set[str], set[str]]:
+        """``(run keys, trace paths)`` of the done runs of ``campaign`` whose trace file is
+        intact, and those files (relative to the results folder).
+
+        A file is checked once for all the runs it holds (:func:`trace_intact`): its size is
+        the one recorded at commit and its footer holds the sum of the rows recorded for its
+        runs (footers read up to :data:`DEEP_VERIFY_MAX` files).
+        """
+        rows = self.con.execute("""
+            SELECT trace_path, list(run_key), max(trace_bytes), min(trace_bytes),
+                   CASE WHEN count(trace_rows) = count(*) THEN sum(trace_rows) END
+            FROM runs WHERE campaign = ? AND status = 'done' GROUP BY trace_path""",
+                                [campaign]).fetchall()
         deep = len(rows) <= DEEP_VERIFY_MAX
-        return {k for k, p, size, n in rows
-                if p is None or trace_intact(self.results / p, size, n, deep=deep)}
+        done: set[str] = set()
+        files: set[str] = set()
+        for path, keys, size, size_lo, n in rows:
+            if path is None or (size == size_lo and
+                                trace_intact(self.results / path, size,
+                                             None if n is None else int(n), deep=deep)):
+                done.update(keys)
+                files.add(path)
+        files.discard(None)
+        return done, files
 
     def add_pending(self, rows: Sequence[Mapping[str, Any]]) -> None:
         """Insert ``pending`` runs; runs already recorded are left as they are."""
         if not rows:
             return
-        self.con.register("_p", _frame(rows))
+        self.con.register("_p", _arrow(rows))
         try:
             self.con.execute("INSERT OR IGNORE INTO runs BY NAME SELECT * FROM _p")
         finally:
             self.con.unregister("_p")
 
     def record(self, results: Sequence[Mapping[str, Any]],
-               extra: Mapping[str, Sequence[Mapping[str, Any]]] | None = None) -> None:
-        """Store finished runs in one transaction.
+               extra: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
+               batches: Sequence[Any] = ()) -> None:
+        """Store finished runs in one transaction, as bulk updates and inserts.
 
         Each result has ``run_key``, ``status`` and the other ``runs`` columns to update
         (``error``, ``worker``, timings, ``trace_path``), and ``rows``: result-table name ->
         one row (dict of columns) for that run. ``extra``: result-table name -> rows upserted
-        after them (e.g. the HF-vs-LF columns of runs recorded now or before).
+        after them (e.g. the HF-vs-LF columns of runs recorded now or before). ``batches``:
+        results of whole chunks as Arrow tables, ``{"runs": table, "parts": [(TABLE, table),
+        ...]}`` (``runs`` has ``run_key`` and the columns to update; each part is upserted).
         """
-        if not results and not extra:
+        if not results and not extra and not batches:
             return
         run_cols = {"status", "error", "worker", "started_at", "finished_at", "sim_s",
                     "elapsed_s", "trace_path", "trace_bytes", "trace_rows"}
         updates = [{"run_key": r["run_key"], **{k: r.get(k) for k in run_cols}} for r in results]
-        per_table: dict[str, list[dict]] = {}
+        per_table: dict[str, list] = {}
         for r in results:
             for table, row in (r.get("rows") or {}).items():
-                if table not in RESULT_TABLES:
-                    raise StoreError(f"result table {table!r} is not in the schema "
-                                     f"({', '.join(RESULT_TABLES)})")
                 per_table.setdefault(table, []).append({"run_key": r["run_key"], **row})
+        parts: list[tuple[str, Any]] = [(t, _frame(rows)) for t, rows in per_table.items()]
+        runs = [_frame(updates)] if updates else []
+        # one statement per table for all the chunks of this commit (a statement costs
+        # milliseconds whatever its rows)
+        runs += _concat([b["runs"] for b in batches])
+        same: dict[tuple, list] = {}
+        for b in batches:
+            for t, v in b.get("parts", ()):
+                same.setdefault((t, tuple(v.column_names)), []).append(v)
+        parts += [(t, v) for (t, _), vs in same.items() for v in _concat(vs)]
+        parts += [(t, _frame(rows)) for t, rows in (extra or {}).items() if rows]
+        for table, _ in parts:
+            if table not in RESULT_TABLES:
+                raise StoreError(f"result table {table!r} is not in the schema "
+                                 f"({', '.join(RESULT_TABLES)})")
         self.con.execute("BEGIN")
         try:
-            if updates:
-                self.con.register("_u", _frame(updates))
-                sets = ", ".join(f"{c} = _u.{c}" for c in sorted(run_cols))
+            for obj in runs:
+                self.con.register("_u", obj)
+                cols = [c for c in _columns(obj) if c != "run_key"]
+                sets = ", ".join(f"{c} = _u.{c}" for c in sorted(cols))
                 self.con.execute(f"UPDATE runs SET {sets} FROM _u "
                                  "WHERE runs.run_key = _u.run_key")
                 self.con.unregister("_u")
-            for table, rows in per_table.items():
-                self.upsert(table, rows)
-            for table, rows in (extra or {}).items():
-                self.upsert(table, rows)
+            for table, obj in parts:
+                self._upsert(table, obj)
             self.con.execute("COMMIT")
         except BaseException:
             self.con.execute("ROLLBACK")
@@ -636,12 +705,14 @@ class ResultStore:
         """Insert or replace rows of a result table (by ``run_key``); columns by name."""
         if table not in RESULT_TABLES:
             raise StoreError(f"{table!r} is not a result table ({', '.join(RESULT_TABLES)})")
-        if not rows:
-            return
-        frame = _frame(rows)
-        self.con.register("_r", frame)
+        if rows:
+            self._upsert(table, _frame(rows))
+
+    def _upsert(self, table: str, obj) -> None:
+        """Upsert a pandas frame or Arrow table (one bulk statement)."""
+        self.con.register("_r", obj)
         try:
-            cols = [c for c in frame.columns if c != "run_key"]
+            cols = [c for c in _columns(obj) if c != "run_key"]
             sets = ", ".join(f"{c} = excluded.{c}" for c in cols)
             self.con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r ON CONFLICT "
                              f"(run_key) DO UPDATE SET {sets}")
@@ -671,18 +742,21 @@ class ResultStore:
 def _create_traces_view(con, results: Path) -> None:
     """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``, and
     every signal of :data:`eha.models.OUTPUTS` (NULL where a campaign did not store it)."""
-    files = list((results / TRACES).glob("*/*.parquet"))
-    if files:
+    if next((results / TRACES).glob("*/*.parquet"), None) is not None:
         pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
         con.execute(f"""
             CREATE OR REPLACE TEMP VIEW _traces_raw AS
             SELECT * FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
         present = {r[0] for r in con.execute("DESCRIBE _traces_raw").fetchall()}
         signals = ", ".join(c if c in present else f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
+        # chunk files carry the run key in a column; a file of the one-file-per-run layout
+        # (a campaign run before issue 25) only in its name
+        by_name = "regexp_extract(filename, '([0-9a-f]{16})\\.parquet$', 1)"
+        key = f"coalesce(run_key, {by_name})" if "run_key" in present else by_name
         con.execute(f"""
             CREATE OR REPLACE TEMP VIEW traces AS
             SELECT regexp_extract(filename, '([^/\\\\]+)[/\\\\][^/\\\\]+$', 1) AS campaign,
-                   regexp_extract(filename, '([0-9a-f]{{16}})\\.parquet$', 1) AS run_key,
+                   {key} AS run_key,
                    {signals}
             FROM _traces_raw""")
     else:

@@ -71,8 +71,8 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     runs = campaign_runs(results, "thesis-nominal")
     for cmd in dict.fromkeys(runs["command"]):
         sel = runs[runs["command"] == cmd].set_index("model")
-        hf = read_trace(results / sel.loc["hf", "trace_path"])
-        lf = read_trace(results / sel.loc["lf", "trace_path"])
+        hf = read_trace(results / sel.loc["hf", "trace_path"], sel.loc["hf", "run_key"])
+        lf = read_trace(results / sel.loc["lf", "trace_path"], sel.loc["lf", "run_key"])
         plots.append(plot_traces([hf, lf], results / "plots" / f"nominal_{cmd}.png",
                                  title=f"Nominal HF vs LF — {cmd}"))
         err = float(sel.loc["hf", "rmse_xu_hf_lf"])

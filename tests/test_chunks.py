@@ -1,0 +1,267 @@
+"""Chunk files and batched tasks (issue 25): many runs per Parquet file, the same rows and
+traces as one run per task, a damaged chunk re-run, a results folder of the one-file-per-run
+layout still read, kill -9 while a chunk is written, Dask within 15 % of the pool.
+
+Most tests run the campaign in this process (an executor that calls the worker function
+directly: no pool to start); the kill and Dask tests use real processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from eha.runner import Executor, run_campaign
+from eha.store import query, read_trace
+
+CHUNKY = textwrap.dedent("""
+    name = "chunky"
+    models = ["hf", "lf"]
+    commands = ["ramp", "step_1mm"]
+    seeds = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]
+    t_end = 0.02
+    signals = ["t", "com", "xu", "xs", "p12", "cor"]
+    [faults]
+    nominal = true
+    single = {BKL = [1e-4, 5e-4, 1e-3]}
+""")   # 256 runs: 4 per chunk (MIN_TASKS = 64), each chunk two HF/LF cases
+
+
+class Inline(Executor):
+    """Runs every task in this process, in order."""
+
+    workers = 1
+
+    def map_unordered(self, fn, payloads):
+        for p in payloads:
+            yield fn(p)
+
+
+def state(results):
+    runs = query(results, "SELECT * FROM runs JOIN metrics USING (run_key) ORDER BY run_key")
+    return runs.drop(columns=["worker", "queued_at", "started_at", "finished_at", "sim_s",
+                              "elapsed_s"])
+
+
+@pytest.fixture(scope="module")
+def chunky(tmp_path_factory):
+    root = tmp_path_factory.mktemp("chunky")
+    (root / "chunky.toml").write_text(CHUNKY)
+    s = run_campaign(root / "chunky.toml", root / "results", executor=Inline(), progress=False)
+    assert (s.done, s.failed) == (256, 0)
+    return root / "chunky.toml", root / "results"
+
+
+def copy(chunky, tmp_path):
+    import shutil
+
+    camp, results = chunky
+    shutil.copytree(results, tmp_path / "results")
+    return camp, tmp_path / "results"
+
+
+def test_run_keys_are_those_of_the_full_identity_hash():
+    """Hashing the shared identity text once gives the keys of hashing every job whole."""
+    from eha.campaign import _expand_simulations, _hash, _model_version, load_campaign
+    import tomllib
+
+    from eha.campaign import campaigns_dir
+
+    path = campaigns_dir() / "thesis-matrix.toml"
+    table = tomllib.loads(path.read_text())
+    drafts = _expand_simulations(table, table["name"], [])
+    old = [_hash({"campaign": table["name"], "kind": d.kind, "spec": d.spec,
+                  "identity": d.identity, "model_version": _model_version()}) for d in drafts]
+    assert [j.run_key for j in load_campaign(path).jobs] == old
+
+
+def test_chunk_metrics_equal_those_of_one_run_at_a_time():
+    from eha.run_metrics import batch_metrics, trace_metrics
+    from eha.simulate import simulate
+
+    traces = [simulate(m, c, {"BKL": 2e-4}, t_end=0.3, seed=1)
+              for m in ("hf", "lf") for c in ("mixed", "step_1mm", "ramp")]
+    stack = {n: np.stack([tr[n] for tr in traces]) for n in ("xu", "com", "xs", "p12", "cor")}
+    batch = batch_metrics(traces[0].t, stack)
+    for i, tr in enumerate(traces):
+        one = trace_metrics(tr)
+        for name, v in one.items():
+            assert (v is None and np.isnan(batch[name][i])) or v == pytest.approx(
+                batch[name][i], rel=1e-12, abs=1e-15), name
+        # the lag as the one-run-per-task runner searched it (one numpy call per shift)
+        t, xu, com = tr.t, tr.xu, tr["com"]
+        n, kmax = len(t), min(200, len(t) // 2)
+        errs = [np.mean((xu[k:] - com[:n - k]) ** 2) for k in range(kmax + 1)]
+        if np.ptp(com) == 0:   # a step at t = 0: no lag defined
+            assert one["lag"] is None
+        else:
+            assert one["lag"] == pytest.approx(np.argmin(errs) * 1e-3)
+
+
+def test_many_runs_per_file_same_rows_and_traces(chunky):
+    camp, results = chunky
+    runs = state(results)
+    files = sorted((results / "traces" / "chunky").glob("*.parquet"))
+    assert len(runs) == 256 and set(runs["status"]) == {"done"}
+    assert len(files) == 64 and all(f.name.startswith("chunk-") for f in files)
+    assert runs.groupby("trace_path")["case_key"].nunique().eq(2).all()  # whole cases
+    for f in files[:3]:
+        table = pq.read_table(f)
+        keys = table.column("run_key").to_pylist()
+        assert keys == sorted(keys) and len(set(keys)) == 4
+        assert table.column_names == ["run_key", "t", "com", "xu", "xs", "p12", "cor"]
+        meta = pq.ParquetFile(f).metadata
+        assert meta.num_row_groups == 1
+        col = meta.row_group(0).column(3)  # xu
+        assert col.compression == "ZSTD" and "BYTE_STREAM_SPLIT" in col.encodings
+    # each run's trace is its simulation; its metrics are those of one run at a time
+    from eha.run_metrics import pair_metrics, trace_metrics
+    from eha.simulate import simulate
+
+    for _, r in runs.iloc[::37].iterrows():
+        tr = read_trace(results / r["trace_path"], r["run_key"])
+        again = simulate(r["model"], json.loads(r["spec"])["command"]["name"],
+                         json.loads(r["faults"]), t_end=0.02, seed=int(r["seed"]))
+        np.testing.assert_array_equal(tr.xu, again.xu)
+        assert tr.meta["run_key"] == r["run_key"] and tr.meta["campaign"] == "chunky"
+        assert trace_metrics(again)["rmse_xu_com"] == pytest.approx(r["rmse_xu_com"])
+    for _, case in runs.groupby("case_key"):
+        tr = {m: read_trace(results / p, k) for m, p, k in
+              zip(case["model"], case["trace_path"], case["run_key"])}
+        assert case["rmse_xu_hf_lf"].tolist() == pytest.approx(
+            [pair_metrics(tr["hf"], tr["lf"])["rmse_xu_hf_lf"]] * 2)
+    got = query(results, "SELECT count(*) AS n, count(DISTINCT run_key) AS k, "
+                         "count(xs) AS xs, count(xj) AS xj FROM traces JOIN runs USING (run_key)")
+    assert got.iloc[0].tolist() == [256 * 21, 256, 256 * 21, 0]
+    again = run_campaign(camp, results, executor=Inline(), progress=False)
+    assert (again.done, again.skipped) == (0, 256)
+
+
+def test_damaged_chunk_is_detected_and_its_runs_redone(chunky, tmp_path):
+    camp, results = copy(chunky, tmp_path)
+    before = state(results)
+    victim = results / before["trace_path"].iloc[0]
+    in_it = int((before["trace_path"] == before["trace_path"].iloc[0]).sum())
+    victim.write_bytes(victim.read_bytes()[:3000])   # truncated
+    s = run_campaign(camp, results, executor=Inline(), progress=False)
+    assert (s.done, s.skipped) == (in_it, 256 - in_it)
+    assert state(results).equals(before)
+    # same-size garbage in another chunk: its footer no longer reads
+    other = results / before["trace_path"].iloc[-1]
+    other.write_bytes(os.urandom(other.stat().st_size))
+    s = run_campaign(camp, results, executor=Inline(), progress=False)
+    assert s.done == int((before["trace_path"] == before["trace_path"].iloc[-1]).sum())
+    assert state(results).equals(before)
+    assert len(list((results / "traces" / "chunky").iterdir())) == 64  # no stray file
+
+
+def test_results_folder_of_one_file_per_run_is_still_read(tmp_path):
+    """A campaign run before chunk files: one file per run, written by write_trace (no
+    run_key column, the key in the name), recorded with that file's size. It is read by the
+    traces view, resumes as done, and a grown campaign adds chunk files beside it."""
+    from eha.store import ResultStore, write_trace
+
+    small = CHUNKY.replace("seeds = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]",
+                           "seeds = [0, 1]")          # 32 runs: one run per file
+    (tmp_path / "c.toml").write_text(small)
+    results = tmp_path / "results"
+    run_campaign(tmp_path / "c.toml", results, executor=Inline(), progress=False)
+    with ResultStore(results) as db:                   # rewrite it as the old runner did
+        for key, path in db.con.execute("SELECT run_key, trace_path FROM runs").fetchall():
+            tr = read_trace(results / path, key)
+            tr.meta.pop("run_key", None)
+            write_trace(type(tr)(tr.data, {**tr.meta, "run_key": key}), results / path,
+                        columns=["t", "com", "xu", "xs", "p12", "cor"])
+            db.con.execute("UPDATE runs SET trace_bytes = ? WHERE run_key = ?",
+                           [(results / path).stat().st_size, key])
+    files = sorted((results / "traces" / "chunky").glob("*.parquet"))
+    assert len(files) == 32 and "run_key" not in pq.read_schema(files[0]).names
+    got = query(results, "SELECT count(DISTINCT t.run_key) AS k, count(*) AS n FROM traces t "
+                         "JOIN runs r USING (run_key)")
+    assert got.iloc[0].tolist() == [32, 32 * 21]
+    s = run_campaign(tmp_path / "c.toml", results, executor=Inline(), progress=False)
+    assert (s.done, s.skipped) == (0, 32)
+    (tmp_path / "c.toml").write_text(CHUNKY)           # grown to 256 runs
+    s = run_campaign(tmp_path / "c.toml", results, executor=Inline(), progress=False,
+                     replace=True)
+    assert (s.done, s.skipped, s.failed) == (224, 32, 0)
+    got = query(results, "SELECT count(DISTINCT run_key) AS k, count(*) AS n FROM traces")
+    assert got.iloc[0].tolist() == [256, 256 * 21]
+    names = [p.name for p in (results / "traces" / "chunky").glob("*.parquet")]
+    assert sum(n.startswith("chunk-") for n in names) > 0 and len(names) > 32
+
+
+@pytest.mark.slow
+def test_kill_minus_9_during_a_chunk_write_then_resume_equals_uninterrupted(tmp_path):
+    """Kill the whole process group while a chunk file is written (its temporary file in
+    place, not yet renamed), twice, then resume: the rows and files of an uninterrupted run."""
+    camp = tmp_path / "chunky.toml"
+    camp.write_text(CHUNKY)
+    cmd = [sys.executable, "-m", "eha", "campaign", "run", str(camp), "--workers", "2",
+           "--no-progress", "--results"]
+    ref = subprocess.run(cmd + [str(tmp_path / "reference")], capture_output=True, text=True,
+                         timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    results = tmp_path / "results"
+    folder = results / "traces" / "chunky"
+    env = {**os.environ, "EHA_TEST_PAUSE_BEFORE_RENAME": "0.3"}
+    for wait_files in (0, 20):
+        proc = subprocess.Popen(cmd + [str(results)], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, start_new_session=True, env=env)
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None:
+            names = [p.name for p in folder.iterdir()] if folder.is_dir() else []
+            if (len([n for n in names if n.endswith(".parquet")]) >= wait_files
+                    and any(n.endswith(".tmp") for n in names)):
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        assert any(p.name.endswith(".tmp") for p in folder.iterdir())  # killed mid-write
+    final = subprocess.run(cmd + [str(results)], capture_output=True, text=True, timeout=300)
+    assert final.returncode == 0, final.stderr
+    assert state(results).equals(state(tmp_path / "reference"))
+    files = sorted(p.relative_to(results) for p in results.rglob("*") if p.is_file())
+    ref_files = sorted(p.relative_to(tmp_path / "reference")
+                       for p in (tmp_path / "reference").rglob("*") if p.is_file())
+    assert files == ref_files
+
+
+@pytest.mark.slow
+def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
+    """The same campaign on 2 single-threaded Dask worker processes and on the local pool of
+    2: wall times within 15 % (best of two alternating rounds each, warm workers)."""
+    distributed = pytest.importorskip("distributed")
+    from eha.campaign import build_campaign
+    from eha.runner import DaskExecutor, LocalPoolExecutor
+
+    table = {"name": "race", "models": ["hf"], "commands": ["mixed"],
+             "seeds": list(range(160)), "t_end": 1.0,
+             "faults": {"nominal": True, "single": {"BKL": [1e-4, 5e-4]}}}   # 480 runs
+    camp = build_campaign(table)
+    os.environ["NUMBA_NUM_THREADS"] = "1"   # inherited by the Dask worker processes
+    walls: dict[str, list[float]] = {"pool": [], "dask": []}
+    with LocalPoolExecutor(2) as pool, \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                     dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        dask = DaskExecutor(client)
+        pool.warm_up()
+        dask.warm_up()
+        for i in range(2):
+            for name, ex in (("pool", pool), ("dask", dask)):
+                t0 = time.perf_counter()
+                s = run_campaign(camp, tmp_path / f"{name}{i}", executor=ex, progress=False)
+                walls[name].append(time.perf_counter() - t0)
+                assert s.done == 480 and s.failed == 0
+    assert state(tmp_path / "dask0").equals(state(tmp_path / "pool0"))
+    assert min(walls["dask"]) <= 1.15 * min(walls["pool"]), walls
