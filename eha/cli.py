@@ -417,7 +417,8 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
     table as `eha report thesis` writes it.
 
     Runs campaigns/thesis-*.toml into --results (resuming what is done), then writes the
-    HF-vs-LF figures, reports/summary.md and one CSV per campaign.
+    HF-vs-LF figures, reports/summary.md, one CSV per campaign and the HTML report of the
+    folder, reports/report.html (as eha report html writes it).
 
     Example: eha reproduce --results results
     """
@@ -443,6 +444,9 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
                   f"{results}/reports (summary.md), database {results}/eha.duckdb")
     console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
                   f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
+    html = out["html"]
+    console.print(escape(f"report (open in a browser): {html.path} "
+                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)"))
 
 
 # --------------------------------------------------------------------------- campaigns
