@@ -115,7 +115,8 @@ def _health(results: Path, rng) -> None:
                        "weights": {"none": 1.0} if grp == "healthy" else {"FDJ": 1.0},
                        "best": "none", "flagged": False, "residual_rmse": 2e-6,
                        "noise_rmse": 2e-6, "n_eff": 100.0, "seconds": 1.0})
-    _campaign(results, camp, {"name": camp, "kind": "health"}, len(assess), "canned detection campaign")
+    _campaign(results, camp, {"name": camp, "kind": "health"}, len(assess),
+              "canned detection campaign")
     replace_rows(results, "runs", _runs(camp, "health", [a["run_key"] for a in assess],
                                         command="chirp_1cm"), {"campaign": camp})
     replace_rows(results, "health_assessments", assess, {"command": "chirp_1cm"})
@@ -129,7 +130,8 @@ def _fdi(results: Path, rng) -> None:
         for case in definition["fdi"]["cases"]:
             for seed in (0, 1, 2):
                 truth = {"BKL": case["faults"].get("BKL", 0.0), "FDJ": case["faults"]["FDJ"]}
-                err = {"BKL": float(rng.normal(3, 2) * (1 + shift)) if truth["BKL"] else 0.0,
+                err = {"BKL": float(rng.normal(3, 2) * (1 + shift)) if truth["BKL"]
+                       else 0.0,
                        "FDJ": float(rng.normal(-2, 1) * (1 + shift))}
                 est = {k: v * (1 - err[k] / 100) for k, v in truth.items()}
                 if not truth["BKL"]:

@@ -27,8 +27,8 @@ from eha.store import query, replace_rows
 
 
 class _Tables(HTMLParser):
-    """Every ``table.data`` of a page: name -> list of rows {column key: raw data-v}; and
-    the ids of the sections."""
+    """Every ``table.data`` of a page: name -> list of rows {column key: raw data-v, and
+    ``key + "#text"``: the text shown}; and the ids of the sections."""
 
     def __init__(self):
         super().__init__()
@@ -36,6 +36,7 @@ class _Tables(HTMLParser):
         self.sections: list[str] = []
         self._table = None
         self._row = None
+        self._cell = None
 
     def handle_starttag(self, tag, attrs):
         a = dict(attrs)
@@ -47,8 +48,16 @@ class _Tables(HTMLParser):
             self._row = {}
         elif tag == "td" and self._row is not None:
             self._row[a["data-k"]] = a.get("data-v", "")
+            self._cell = a["data-k"] + "#text"
+            self._row[self._cell] = ""
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._row[self._cell] += data
 
     def handle_endtag(self, tag):
+        if tag == "td":
+            self._cell = None
         if tag == "tr" and self._row is not None:
             if self._row:
                 self._table.append(self._row)
@@ -103,6 +112,9 @@ def test_fleet_table_equals_the_last_rul_prediction_of_each_actuator(canned):
         est, iv = json.loads(d["estimates"]), json.loads(d["intervals"])
         for name in ("BKL", "FDJ", "GM"):
             assert num(r[name]) == pytest.approx(est[name], rel=1e-12)
+            f = 1e6 if name == "BKL" else 1.0                 # shown in µm
+            assert r[f"{name}#text"] == (f"{f * est[name]:.4g} [{f * iv[name][0]:.4g}, "
+                                         f"{f * iv[name][1]:.4g}]")
         assert r["FDJ_verdict"] in ("below limit", "interval reaches limit", "beyond limit")
         assert r["GM_verdict"] == "tracked"                  # tracked, no limit
         assert num(r["true_eol"]) == report_data.ACTUATORS[aid]   # truth.json found

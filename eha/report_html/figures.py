@@ -11,7 +11,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.report_html.data import Fleet, direction, fault_key, unit_of
+from eha.report_html.data import Fleet, fault_key, unit_of
 
 #: Colours of the report (plotly's default sequence, named where one has a meaning).
 BLUE, ORANGE, GREEN, RED, GREY = "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#7f7f7f"
