@@ -13,6 +13,7 @@ import numpy as np
 
 from eha.report_html import figures as F
 from eha.report_html.data import Fleet, Health, Identification, fleet_table, unit_of
+from eha.report_html.fits import fit_figures
 from eha.report_html.page import Column, Page, esc, fmt_int, fmt_num, tag
 
 
@@ -159,6 +160,11 @@ def identification_section(page: Page, ident: Identification) -> str:
         parts.append(f"<h3>{esc(name)}</h3><p class=\"note\">{note}</p>"
                      + page.table(cols, rows, f"fdi {name}")
                      + page.plot(F.mean_error_figure(table, name)))
+        fits = fit_figures(ident.rows[name], camp)
+        if fits:
+            parts.append('<p class="note">Fit of record vs model: the HF reference of a case '
+                         "against the LF model with the identified faults (lowest seed, "
+                         "re-simulated).</p>" + page.choice("Case:", fits)[0])
     return "".join(parts)
 
 
