@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -237,9 +235,7 @@ def test_missing_or_empty_results_folder_is_one_line_and_exit_2(tmp_path):
 
 def test_cli_prints_where_the_report_is(canned, tmp_path):
     results, _, _ = canned
-    proc = subprocess.run([sys.executable, "-m", "eha", "report", "html", "--results",
-                           str(results), "--out", str(tmp_path / "x.html")],
-                          capture_output=True, text=True, timeout=120)
+    proc = invoke_eha("report", "html", "--results", results, "--out", tmp_path / "x.html")
     assert proc.returncode == 0, proc.stderr
     assert "x.html" in proc.stdout and "fleet, health" in proc.stdout
     assert (tmp_path / "x.html").stat().st_size > 1_000_000
