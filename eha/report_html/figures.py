@@ -80,6 +80,7 @@ def actuator_figure(fleet: Fleet, aid: str) -> dict:
     cyc = grp["cycle"].to_numpy(float)
     last = grp.iloc[-1]
     eol = (fleet.truth or {}).get(aid)
+    shown: set[str] = set()                  # legend entries already drawn
     for i, name in enumerate(faults, start=1):
         unit, f = unit_of(name)
         est = np.array(_none((e or {}).get(name) for e in grp["estimates"]))
@@ -87,7 +88,8 @@ def actuator_figure(fleet: Fleet, aid: str) -> dict:
         lo, hi = np.array(_none(v[0] for v in ivs)), np.array(_none(v[1] for v in ivs))
         flagged = grp["flagged"].fillna(False).to_numpy(bool)
         fig.add_trace(go.Scatter(
-            x=cyc, y=f * est, mode="markers+lines", name=f"{name} identified (interval)",
+            x=cyc, y=f * est, mode="markers+lines",
+            name="identified (90 % interval; grey: flagged)",
             marker={"size": 6, "color": [GREY if fl else BLUE for fl in flagged]},
             line={"width": 1, "color": BLUE},
             error_y={"type": "data", "symmetric": False, "color": BLUE,
@@ -96,7 +98,8 @@ def actuator_figure(fleet: Fleet, aid: str) -> dict:
             customdata=np.c_[f * lo, f * hi, flagged.astype(float)],
             hovertemplate=(f"cycle %{{x:.0f}}: {name} %{{y:.4g}} {unit} "
                            f"[%{{customdata[0]:.4g}}, %{{customdata[1]:.4g}}] {unit}"
-                           "<extra></extra>"), showlegend=False), row=i, col=1)
+                           "<extra></extra>"), legendgroup="est", showlegend=i == 1),
+            row=i, col=1)
         lim = fleet.limits.get(name)
         if lim is not None:
             fig.add_hline(y=f * lim, line={"color": RED, "dash": "dash", "width": 1.2},
@@ -107,14 +110,17 @@ def actuator_figure(fleet: Fleet, aid: str) -> dict:
                 c_lo = cr.get("lo") if cr.get("lo") is not None else cr["median"]
                 c_hi = cr.get("hi") if cr.get("hi") is not None else cr["median"]
                 fig.add_trace(go.Scatter(
-                    x=[cr["median"]], y=[f * lim], mode="markers", name="predicted crossing",
+                    x=[cr["median"]], y=[f * lim], mode="markers",
+                    name="predicted crossing (5-95 %)",
                     marker={"symbol": "diamond", "size": 11, "color": ORANGE},
                     error_x={"type": "data", "symmetric": False,
                              "array": [c_hi - cr["median"]],
                              "arrayminus": [cr["median"] - c_lo]},
                     hovertemplate=(f"{name} reaches {f * lim:.4g} {unit} at cycle "
                                    f"%{{x:.0f}} [{c_lo:.0f}, {c_hi:.0f}] (5-95 %)"
-                                   "<extra></extra>"), showlegend=False), row=i, col=1)
+                                   "<extra></extra>"), legendgroup="cross",
+                    showlegend="cross" not in shown), row=i, col=1)
+                shown.add("cross")
         fig.update_yaxes(title_text=f"{name} [{unit}]", row=i, col=1)
     r = len(faults) + 1
     med, rlo, rhi = (np.array(_none(grp[k])) for k in ("rul", "rul_lo", "rul_hi"))
