@@ -141,6 +141,19 @@ def test_fleet_verdicts_follow_the_limit_and_the_interval(tmp_path):
     assert [table[a]["status"] for a in "XYZ"] == ["end of life", "attention", "ok"]
 
 
+def test_a_truth_given_with_truth_replaces_the_one_beside_the_records(canned, tmp_path):
+    results, _, _ = canned
+    (tmp_path / "eol.csv").write_text("actuator,eol\nA1,1111\nA2,2222\nA3,\n")
+    res = invoke_eha("report", "html", "--results", results, "--out", tmp_path / "t.html",
+                     "--truth", tmp_path / "eol.csv")
+    assert res.returncode == 0, res.stderr
+    rows = {r["actuator"]: r for r in
+            parse(tmp_path / "t.html").tables[f"fleet {report_data.FLEET_RUN}"]}
+    assert [num(rows[a]["true_eol"]) for a in ("A1", "A2", "A3")] == [1111.0, 2222.0, None]
+    res = invoke_eha("report", "html", "--results", results, "--truth", tmp_path / "no.csv")
+    assert "--truth" in error_line(res, 2)
+
+
 def test_thesis_table_equals_fdi_table_csv(canned, tmp_path, monkeypatch):
     import eha.thesis_report as tr
 
