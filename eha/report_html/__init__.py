@@ -72,6 +72,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     """
     from eha.report_html import data as D
     from eha.report_html import sections as S
+    from eha.report_html.figures import shared_template
     from eha.report_html.page import Page, esc
     from eha.simulate import MODEL_VERSION
     from eha.store import connect, db_path
@@ -102,9 +103,10 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
                 ("identification", ident, S.identification_section),
                 ("explain", explain, S.explain_section),
                 ("campaigns", camps, S.campaigns_section)]
-    for sid, value, build in builders:
-        if value is not None:
-            page.add_section(sid, SECTIONS[sid], build(page, value))
+    with shared_template():
+        for sid, value, build in builders:
+            if value is not None:
+                page.add_section(sid, SECTIONS[sid], build(page, value))
     if not page.sections:
         raise ReportError(f"--results {results}: the database holds no result to report; run "
                           "eha reproduce, eha rul or eha campaign run first")

@@ -7,6 +7,7 @@ carry the unit of each value. Built with :mod:`plotly.graph_objects` (validated)
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -25,9 +26,36 @@ def _go():
     return go
 
 
+#: The look of every figure: one plotly template, embedded once in the page and applied by its
+#: script (not copied into each figure).
+TEMPLATE = "plotly_white"
+
+
+@contextmanager
+def shared_template():
+    """While building the report's figures: figures get no template of their own (plotly's
+    default is deep-copied into every figure otherwise, a third of the build time); the page
+    applies :data:`TEMPLATE` to each when it draws it."""
+    import plotly.io as pio
+
+    before = pio.templates.default
+    pio.templates.default = "none"
+    try:
+        yield
+    finally:
+        pio.templates.default = before
+
+
+def template_json() -> dict:
+    """:data:`TEMPLATE` as JSON (the page's script sets it as each figure's template)."""
+    import plotly.io as pio
+
+    return pio.templates[TEMPLATE].to_plotly_json()
+
+
 def _done(fig, title: str, height: int = 420) -> dict:
     fig.update_layout(title={"text": title, "font": {"size": 15}}, height=height,
-                      margin={"l": 70, "r": 30, "t": 60, "b": 55}, template="plotly_white",
+                      margin={"l": 70, "r": 30, "t": 60, "b": 55},
                       hoverlabel={"namelength": -1}, legend={"font": {"size": 11}})
     return fig.to_plotly_json()
 
@@ -424,7 +452,7 @@ def hf_lf_figure(runs, campaign: str) -> dict:
                 z[a.index(f[names[0]]), b.index(f[names[1]])] = log(v)
             fig.add_trace(go.Heatmap(
                 z=z, x=[f"{fb * v:.4g}" for v in b], y=[f"{fa * v:.4g}" for v in a],
-                coloraxis="coloraxis", text=np.round(10 ** z, 3).astype(str),
+                coloraxis="coloraxis", text=_sig3(z),
                 texttemplate="%{text}",
                 hovertemplate=(f"{cmd}: {names[0]} %{{y}} {ua}, {names[1]} %{{x}} {ub}: RMSE "
                                "xu HF vs LF %{text} µm<extra></extra>")), row=1, col=k)
@@ -436,7 +464,7 @@ def hf_lf_figure(runs, campaign: str) -> dict:
         z = np.array([[log(med.get((c, fault_key(f)))) for c in commands] for f in sets])
         fig = go.Figure(go.Heatmap(
             z=z, x=commands, y=labels, coloraxis="coloraxis",
-            text=np.round(10 ** z, 3).astype(str), texttemplate="%{text}",
+            text=_sig3(z), texttemplate="%{text}",
             hovertemplate="%{x}, %{y}: RMSE xu HF vs LF %{text} µm<extra></extra>"))
         fig.update_yaxes(type="category", autorange="reversed")
         fig.update_xaxes(title_text="command")
@@ -446,6 +474,12 @@ def hf_lf_figure(runs, campaign: str) -> dict:
         "tickvals": list(range(-3, 5)), "ticktext": [f"{10.0 ** p:g}" for p in range(-3, 5)]}})
     return _done(fig, f"{campaign}: HF vs LF position error (RMSE of xu, median over seeds)",
                  height=height)
+
+
+def _sig3(logz: np.ndarray) -> np.ndarray:
+    """Text of 10**logz with 3 significant digits ('' where NaN)."""
+    return np.vectorize(lambda v: "" if not np.isfinite(v) else f"{10.0 ** v:.3g}",
+                        otypes=[object])(logz)
 
 
 def figure_json(fig: dict) -> str:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Callable, Mapping, Sequence
 
-from eha.report_html.figures import figure_json
+from eha.report_html.figures import figure_json, template_json
 
 #: The page allows no request: scripts and styles are inline, images data URLs only.
 CSP = ("default-src 'none'; script-src 'unsafe-inline'; "
@@ -176,7 +176,9 @@ class Page:
             f'<meta http-equiv="Content-Security-Policy" content="{CSP}">'
             '<meta name="viewport" content="width=device-width, initial-scale=1">'
             f"<title>{esc(self.title)}</title><style>{asset('report.css')}</style>"
-            f"<script>{plotly_js()}</script></head><body>"
+            f"<script>{plotly_js()}</script>"
+            f'<script type="application/json" id="template">{figure_json(template_json())}'
+            "</script></head><body>"
             f"<header><h1>{esc(self.title)}</h1><p>{self.subtitle}</p></header>"
             f"<nav>{nav}</nav><main>{secs}</main><footer>{footer}</footer>"
             f"<script>{asset('report.js')}</script></body></html>\n")

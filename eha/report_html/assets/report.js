@@ -9,7 +9,11 @@
     return JSON.parse(document.getElementById(id).textContent);
   }
 
+  var TEMPLATE = null;   /* the figures' shared look (one plotly template for all) */
+
   function draw(div, fig) {
+    if (TEMPLATE === null) { TEMPLATE = readJSON("template"); }
+    fig.layout.template = TEMPLATE;
     return Plotly.react(div, fig.data, fig.layout, CONFIG);
   }
 
