@@ -417,7 +417,8 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
     table as `eha report thesis` writes it.
 
     Runs campaigns/thesis-*.toml into --results (resuming what is done), then writes the
-    HF-vs-LF figures, reports/summary.md and one CSV per campaign.
+    HF-vs-LF figures, reports/summary.md, one CSV per campaign and the HTML report of the
+    folder, reports/report.html (as eha report html writes it).
 
     Example: eha reproduce --results results
     """
@@ -443,6 +444,9 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
                   f"{results}/reports (summary.md), database {results}/eha.duckdb")
     console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
                   f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
+    html = out["html"]
+    console.print(escape(f"report (open in a browser): {html.path} "
+                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)"))
 
 
 # --------------------------------------------------------------------------- campaigns
@@ -1006,6 +1010,40 @@ def report_health(results: ResultsOption = RESULTS,
         fail(str(exc))
     for kind, path in paths.items():
         console.print(f"{kind}: {path}")
+
+
+@report_app.command("html")
+def report_html(results: ResultsOption = RESULTS,
+                out: Optional[Path] = typer.Option(None, "--out", help="HTML file to write "
+                                                   "(default RESULTS/reports/report.html)."),
+                truth: Optional[Path] = typer.Option(None, "--truth", help="True end of life "
+                                                     "of the fleet (truth.json of eha fleet "
+                                                     "simulate, or CSV actuator,eol); default: "
+                                                     "a truth.json beside the records.")):
+    """One self-contained, interactive HTML report of a results folder (opens offline).
+
+    Sections for what the folder holds: Fleet (eha rul), Health (eha health check, detection
+    campaigns), Identification (FDI campaigns, the thesis table), Residual loop (eha explain),
+    Campaigns (runs by status, HF-vs-LF errors). See docs/report.md.
+
+    Example: eha report html --results results --out report.html
+    """
+    from eha.report_html import ReportError, build_report
+    from eha.store import StoreError
+
+    out = out if out is not None else results / "reports" / "report.html"
+    check_out_file(out, "--out", (".html", ".htm"))
+    if truth is not None and not truth.is_file():
+        fail(f"--truth {truth}: file not found")
+    try:
+        res = build_report(results, out, truth)
+    except ReportError as exc:
+        fail(str(exc))
+    except StoreError as exc:
+        fail(str(exc), code=1)
+    console.print(escape(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
+                         f"{', '.join(res.sections)}, {res.figures} figures, "
+                         f"{res.seconds:.1f} s)"))
 
 
 # --------------------------------------------------------------------------- health

@@ -53,7 +53,8 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     -------
     dict
         ``summaries`` (one :class:`eha.runner.RunSummary` per campaign), ``nominal`` (rows:
-        command, RMSE of xu HF vs LF [m], as % of the command peak), ``plots``, ``reports``.
+        command, RMSE of xu HF vs LF [m], as % of the command peak), ``plots``, ``reports``,
+        ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.report_html.ReportResult`).
     """
     from eha.runner import LocalPoolExecutor, run_campaign
     from eha.store import read_trace
@@ -86,8 +87,12 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     fdi = thesis_report(results)        # reports/thesis: fdi_table.csv, mean_error.png, summary
     plots.append(fdi["plot"])
     reports += [fdi["table"], fdi["summary"]]
+    from eha.report_html import build_report
+
+    html = build_report(results, results / "reports" / "report.html")   # one page of it all
+    reports.append(html.path)
     return {"summaries": summaries, "nominal": nominal, "plots": plots, "reports": reports,
-            "fdi": fdi}
+            "fdi": fdi, "html": html}
 
 
 def _summary_markdown(results: Path, summaries, nominal: list[dict]) -> Path:

@@ -152,6 +152,7 @@ def test_scheduler_that_is_not_an_address(tmp_path):
                   "--hi", "2000", "--json", f / "x.json"],
     lambda f, d: ["rul", d, "--limit", "BKL=5e-4", "--json", f / "x.json"],
     lambda f, d: ["rul", d, "--limit", "BKL=5e-4", "--plots", f / "p"],
+    lambda f, d: ["report", "html", "--results", d.parent, "--out", f / "report.html"],
 ])
 def test_output_path_under_a_file_is_refused_before_any_work(tmp_path, command):
     blocker = tmp_path / "F"
