@@ -525,7 +525,7 @@ class LoopSettings:
     penalty: float = 0.02
     alpha: float = 0.05
     significance: float = 0.01
-    null_actuators: int = 20
+    null_actuators: int = 12
     max_steps: int = 6
     candidates: int = 6
     noise_factor: float = 1.25
@@ -1857,7 +1857,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
              "null_actuators": null_actuators}
     settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
                             method=method or DEFAULT_METHOD, pop=pop, seed=seed)
-    null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress)
+    null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
+                        fdi_options)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
                      fdi_options, null)
     edge = flow_gain_at_edge(result)
@@ -1880,7 +1881,8 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
 
 def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
                  base: LFParams | None, settings: LoopSettings, fixed: Iterable[str],
-                 null: Any, on_progress: Callable[[str], None] | None = None):
+                 null: Any, on_progress: Callable[[str], None] | None = None,
+                 fdi_options: Mapping[str, float] | None = None):
     """The :class:`~eha.explain_null.Null` of :func:`explain`'s ``null`` argument for this
     record: simulated on its command (cached), read from a folder of healthy records, given,
     or None."""
@@ -1896,10 +1898,11 @@ def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | No
             return explain_null.simulated_null(
                 data, probe.bounds, names, settings, actuators=settings.null_actuators,
                 base=probe.base if base is not None else None, fixed=list(fixed),
-                on_progress=on_progress)
+                on_progress=on_progress, fdi_options=fdi_options)
         return explain_null.records_null(null, probe.bounds, names, settings,
                                          command_hold=data.info.get("command_hold", "auto"),
-                                         base=base, fixed=list(fixed), on_progress=on_progress)
+                                         base=base, fixed=list(fixed), on_progress=on_progress,
+                                         fdi_options=fdi_options)
     except NullError as exc:
         raise ExplainError(str(exc)) from None
 

@@ -50,7 +50,7 @@ import numpy as np
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 1
 #: Healthy actuators of a simulated null.
-DEFAULT_ACTUATORS = 20
+DEFAULT_ACTUATORS = 12
 #: Fewest healthy records a null needs (the tail threshold needs a spread).
 MIN_RECORDS = 5
 #: Declared faults of the simulated healthy actuators: name -> (law, a, b). A declared fault
@@ -68,6 +68,22 @@ DETECTION_POWER = 0.9
 #: otherwise give a zero threshold that any optimizer step crosses). It is the old
 #: "switched off" margin of the loop (0.1 % of the range).
 RESOLUTION = 1e-4
+
+
+#: Noise classes per decade: a record's noise estimate is rounded to the nearest class
+#: 10**(k/10) (steps of 26 %, a round 1 µm at a class's centre), which the healthy fleet is
+#: simulated with and the cache is keyed by: estimates of one sensor's noise scatter by a few
+#: per cent from record to record.
+NOISE_CLASSES_PER_DECADE = 10
+
+
+def noise_class(noise: float) -> float:
+    """The noise level [the unit of ``noise``] a null is simulated with for a record whose
+    noise is estimated at ``noise``: the nearest class 10**(k/10) (0 stays 0)."""
+    if not noise > 0:
+        return 0.0
+    k = round(math.log10(noise) * NOISE_CLASSES_PER_DECADE)
+    return float(10.0 ** (k / NOISE_CLASSES_PER_DECADE))
 
 
 class NullError(ValueError):
@@ -182,7 +198,8 @@ def load_null(path: str | Path) -> Null | None:
 # the statistic on one healthy record
 
 def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str],
-                       settings, base=None, fixed: Sequence[str] = ()
+                       settings, base=None, fixed: Sequence[str] = (),
+                       fdi_options: Mapping[str, float] | None = None
                        ) -> tuple[dict[str, float], dict[str, float]]:
     """The loop's candidate test of each effect on one healthy record.
 
@@ -204,7 +221,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     # the structure is always in the pool: the null's baseline carries it
     pool = list(dict.fromkeys([*STRUCTURAL_ORDER, *effects]))
     loop = ResidualLoop(data, dict(fit), pool, None, base, settings, fixed,
-                        pin_structure=True)
+                        pin_structure=True, **dict(fdi_options or {}))
     loop.thresholds = None          # the statistic itself: no gate
     start, free = loop.current, dict(loop.bounds)
     for effect in loop.pinned:
@@ -268,11 +285,11 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
                      seed=seed)
     rng = np.random.default_rng([seed, 4])
     t = np.asarray(t_cmd, dtype=np.float64) - float(t_cmd[0])
-    noise = float(data.info.get("noise_m", noise_level(data.xu)))
+    noise = noise_class(float(data.info.get("noise_m", noise_level(data.xu))))
     xu = np.interp(t, trace.t, trace.xu) + rng.normal(0.0, noise, t.size)
     p12 = None
     if data.p12 is not None:
-        sigma_p = noise_level(data.p12)
+        sigma_p = noise_class(noise_level(data.p12))
         p12 = np.interp(t, trace.t, trace["p12"]) + rng.normal(0.0, sigma_p, t.size)
     record = from_arrays(t, np.asarray(com, dtype=np.float64), xu, p12,
                          source=f"healthy actuator {seed}",
@@ -281,31 +298,33 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
 
 
 def _fleet_member(args):
-    data, fit, effects, settings, seed, base, fixed = args
+    data, fit, effects, settings, seed, base, fixed, fdi_options = args
     known = {}
     if base is not None and fixed:
         from eha.params import SPECS
         # a known test condition (a test load) is the healthy fleet's too
         known = {n: getattr(base, n) for n in fixed if "hf" in SPECS[n].models}
     record, _ = healthy_record(data, fit, seed, known)
-    return healthy_statistics(record, fit, effects, settings, base, fixed)
+    return healthy_statistics(record, fit, effects, settings, base, fixed, fdi_options)
 
 
 def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str], settings,
-             actuators: int, seed: int, base=None, fixed: Sequence[str] = ()) -> str:
+             actuators: int, seed: int, base=None, fixed: Sequence[str] = (),
+             fdi_options: Mapping[str, float] | None = None) -> str:
     """Cache key of a simulated null for ``data``'s command, sampling and noise."""
     from eha.detection import command_signature
     from eha.measured import noise_level
     from eha.simulate import MODEL_VERSION
 
-    noise = float(data.info.get("noise_m", noise_level(data.xu)))
+    noise = noise_class(float(data.info.get("noise_m", noise_level(data.xu))))
     parts = {
         "format": NULL_FORMAT, "model": MODEL_VERSION,
         "command": command_signature(np.asarray(data.command.samples[1])),
         "command_t": command_signature(np.asarray(data.command.samples[0]) * 1e4),
         "hold": data.info.get("command_hold", ""),
-        "noise": f"{noise:.2g}",
-        "p12_noise": f"{noise_level(data.p12):.2g}" if data.p12 is not None else "",
+        "noise": f"{noise:.4g}",
+        "p12_noise": f"{noise_class(noise_level(data.p12)):.4g}" if data.p12 is not None
+        else "",
         "fit": {k: [float(v[0]), float(v[1])] for k, v in sorted(fit.items())},
         "effects": sorted(effects),
         "settings": {k: getattr(settings, k) for k in ("holdout", "p12_weight", "method",
@@ -313,6 +332,7 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
         "actuators": actuators, "fleet_seed": seed,
         "declared": DECLARED_DRAW,
         "base": _changed(base), "fixed": sorted(fixed),
+        "fdi_options": dict(sorted((fdi_options or {}).items())),
     }
     blob = json.dumps(parts, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:20]
@@ -343,7 +363,7 @@ def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
     return units, resolution
 
 
-def testable(effects: Sequence[str]) -> list[str]:
+def covered_effects(effects: Sequence[str]) -> list[str]:
     """The effects a null covers: those with exactly one fitted parameter that are not the
     model's known structure."""
     from eha.effects import EFFECTS
@@ -355,7 +375,7 @@ def testable(effects: Sequence[str]) -> list[str]:
 def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str],
                    settings, actuators: int = DEFAULT_ACTUATORS, seed: int = 0,
                    workers: int | None = None, use_cache: bool = True, base=None,
-                   fixed: Sequence[str] = (),
+                   fixed: Sequence[str] = (), fdi_options: Mapping[str, float] | None = None,
                    on_progress: Callable[[str], None] | None = None) -> Null:
     """The null of ``data``'s command from a simulated healthy fleet (cached).
 
@@ -366,7 +386,7 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
     fit : mapping
         The declared faults and their bounds (fitted on every healthy record).
     effects : names
-        The candidate effects (those :func:`testable` get statistics).
+        The candidate effects (those :func:`covered_effects` get statistics).
     settings : LoopSettings
         The loop's settings (the fits of the null are the loop's).
     actuators : int
@@ -376,10 +396,10 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
     """
     from eha.simulate import MODEL_VERSION
 
-    names = testable(effects)
+    names = covered_effects(effects)
     if actuators < MIN_RECORDS:
         raise NullError(f"--null-actuators {actuators}: allowed range [{MIN_RECORDS}, ...]")
-    key = null_key(data, fit, names, settings, actuators, seed, base, fixed)
+    key = null_key(data, fit, names, settings, actuators, seed, base, fixed, fdi_options)
     path = cache_dir() / f"{key}.json"
     if use_cache:
         cached = load_null(path)
@@ -387,7 +407,8 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
             return cached
     t0 = time.perf_counter()
     seeds = [1000 * seed + k for k in range(actuators)]
-    jobs = [(data, dict(fit), names, settings, s, base, tuple(fixed)) for s in seeds]
+    jobs = [(data, dict(fit), names, settings, s, base, tuple(fixed), dict(fdi_options or {}))
+            for s in seeds]
     workers = workers or min(2, os.cpu_count() or 1)
     results = []
     say = on_progress or (lambda message: None)
@@ -433,7 +454,8 @@ def _assemble(source: str, key: str, names: Sequence[str],
 
 def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
                  effects: Sequence[str], settings, command_hold: str = "auto", base=None,
-                 fixed: Sequence[str] = (), on_progress: Callable[[str], None] | None = None) -> Null:
+                 fixed: Sequence[str] = (), fdi_options: Mapping[str, float] | None = None,
+                 on_progress: Callable[[str], None] | None = None) -> Null:
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
     Not cached (the files are the user's)."""
@@ -453,13 +475,14 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
             records.append(load(path, command_hold))
         except MeasuredDataError as exc:
             raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
-    names = testable(effects)
+    names = covered_effects(effects)
     t0 = time.perf_counter()
     results = []
     for k, record in enumerate(records):
         if on_progress:
             on_progress(f"healthy null: record {k + 1} of {len(records)}")
-        results.append(healthy_statistics(record, fit, names, settings, base, fixed))
+        results.append(healthy_statistics(record, fit, names, settings, base, fixed,
+                                          fdi_options))
     null = _assemble(f"healthy records in {folder} ({len(records)})", "", names, results,
                      time.perf_counter() - t0)
     null.settings = {"files": [p.name for p in files]}
@@ -468,5 +491,5 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
 
 
 __all__ = ["Null", "NullError", "simulated_null", "records_null", "healthy_statistics",
-           "healthy_record", "load_null", "cache_dir", "null_key", "testable",
+           "healthy_record", "load_null", "cache_dir", "null_key", "covered_effects",
            "DEFAULT_ACTUATORS", "DECLARED_DRAW", "DETECTION_POWER", "RESOLUTION"]

@@ -30,6 +30,19 @@ ROOT = Path(__file__).resolve().parents[1]
 os.environ["COLUMNS"] = "200"
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _explain_null_cache(tmp_path_factory):
+    """The residual loop's healthy nulls (eha.explain_null) are cached for the session in a
+    temporary folder: never in the user's cache, shared by the tests of one command."""
+    old = os.environ.get("EHA_CACHE_DIR")
+    os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))
+    yield
+    if old is None:
+        os.environ.pop("EHA_CACHE_DIR", None)
+    else:
+        os.environ["EHA_CACHE_DIR"] = old
+
+
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
             timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:
     """``python -m eha ARGS`` in a subprocess (the installed package of this interpreter)."""

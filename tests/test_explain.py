@@ -23,7 +23,11 @@ from eha.params import LFParams
 
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 NOISE = 1e-6
-FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0}
+FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0,
+        "null_actuators": 5}
+#: For records the LF model made: no healthy scatter and no structure to tell from an effect,
+#: so no null (an effect is refused only when its fit switches it off).
+FAST_LF = {**FAST, "null": None}
 #: The structural differences of HF from LF at the HF's values (docs/model.md §2 vs §6): the prior of
 #: the injected-effect tests, so that the undeclared effect is the only thing left to find.
 HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
@@ -68,7 +72,9 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     data = _record(tmp_path, "nominal", "mixed", 1.0)
     js, out, res = tmp_path / "r.json", tmp_path / "out", tmp_path / "results"
     result = CliRunner().invoke(app, ["explain", str(data), "--fit", "BKL,FDJ", "--pop", "12",
-                                      "--candidates", "4", "--json", str(js), "--out",
+                                      "--candidates", "4", "--null-actuators", "5",
+                                      "--json", str(js),
+                                      "--out",
                                       str(out), "--results", str(res), "--no-progress"])
     assert result.exit_code == 0, result.output
     doc = json.loads(js.read_text())
@@ -203,11 +209,11 @@ def test_noise_only_adds_nothing(tmp_path):
     """An LF record (the model is exact) plus noise: nothing to explain."""
     data = load(_record(tmp_path, "noise", "mixed", 1.0, model="lf"))
     assert noise_level(data.xu) == pytest.approx(NOISE, rel=0.2)
-    res = explain(data, **FAST)
+    res = explain(data, **FAST_LF)
     assert res.steps == [] and "noise level" in res.stop_reason
     assert res.rmse_after == res.rmse_before < 1.3 * NOISE
     # without the noise-floor stop, the significance test alone rejects every candidate
-    res = explain(data, noise_factor=0.0, max_steps=3, **FAST)
+    res = explain(data, noise_factor=0.0, max_steps=3, **FAST_LF)
     assert res.steps == [] and res.rmse_after == res.rmse_before
     assert "noise level" not in res.stop_reason
     # refitted: the best-ranked singles, the orifice_law+flapper_dynamics combination, and
@@ -265,7 +271,9 @@ def test_load_test_calibration_finds_the_nominal_leakage_through_the_cli(tmp_pat
     data = _record(tmp_path, "loadtest", "mixed", 1.0, {"FRC": 4000.0})
     js = tmp_path / "cal.json"
     result = CliRunner().invoke(app, ["explain", str(data), "--set", "FRC=4000", "--pop", "12",
-                                      "--candidates", "4", "--json", str(js), "--out",
+                                      "--candidates", "4", "--null-actuators", "5",
+                                      "--json", str(js),
+                                      "--out",
                                       str(tmp_path / "out"), "--results",
                                       str(tmp_path / "results"), "--no-progress"])
     assert result.exit_code == 0, result.output
@@ -732,7 +740,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
 
     data = load(_record(tmp_path, "weak_motor", "mixed", 0.6, {"GM": 0.008}, model="lf"))
     res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
-                  **FAST)
+                  **FAST_LF)
     assert res.settings["flow_gain_released"] == \
         "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
     assert res.to_json()["flow_gain_released"] == res.settings["flow_gain_released"]
@@ -751,7 +759,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
 
     monkeypatch.setattr(ex, "_passes", passes)
     monkeypatch.setattr(ex, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
-    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST)
+    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST_LF)
     assert spreads == [0.1, 0.0]
     assert again.settings["flow_gain_released"] == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1

@@ -1,0 +1,234 @@
+"""The residual loop's healthy null (eha.explain_null) and the shared threshold engine.
+
+Pure parts (thresholds, detectable sizes, cache keys and files, the gate) on canned numbers;
+one slow round trip simulates a small healthy fleet on a short command and checks what it
+stores, that it is cached, and that a healthy record of the same command passes its gate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+
+from eha.detection import DetectionError, tail_threshold
+from eha.explain_null import (Null, NullError, load_null, noise_class, null_key, records_null,
+                              covered_effects)
+
+
+def _null(stats: dict[str, list[float]], resolution: float = 0.0) -> Null:
+    from eha.simulate import MODEL_VERSION
+
+    return Null(source="canned", key="k", statistics=stats,
+                gains={k: [0.0] * len(v) for k, v in stats.items()},
+                resolution={k: resolution for k in stats}, units={k: "N" for k in stats},
+                records=len(next(iter(stats.values()))), seconds=0.0,
+                model_version=MODEL_VERSION)
+
+
+def test_tail_threshold_is_mean_plus_z_scale():
+    """The one threshold rule of eha health and of the loop: mean + z(1 - alpha) * sqrt(std² +
+    spread²) (exact arithmetic, tolerance 1e-12)."""
+    values = [1.0, 2.0, 3.0, 4.0, 5.0]
+    z = NormalDist().inv_cdf(0.99)
+    thr, summary = tail_threshold(values, 0.01)
+    assert thr == pytest.approx(3.0 + z * float(np.std(values, ddof=1)), rel=1e-12)
+    assert summary["n"] == 5 and summary["max"] == 5.0
+    # a spread the sample under-represents widens it; values all equal give the spread alone
+    thr0, _ = tail_threshold([0.0] * 6, 0.01, spread=2.0)
+    assert thr0 == pytest.approx(2.0 * z, rel=1e-12)
+    with pytest.raises(DetectionError, match="at least 2"):
+        tail_threshold([1.0], 0.01)
+    with pytest.raises(DetectionError, match="allowed range"):
+        tail_threshold(values, 1.5)
+
+
+def test_health_calibration_thresholds_come_from_the_shared_engine():
+    """eha health's per-fault thresholds are tail_threshold at alpha / m with the median
+    spread: one definition for both."""
+    from eha.detection import calibrate_thresholds, statistic
+    from eha.health import FAULTS
+
+    rng = np.random.default_rng(3)
+    rows = [{"means": {n: FAULTS[n].healthy + rng.normal(0, 0.01 * (abs(FAULTS[n].healthy)
+                                                                     or 1.0))
+                       for n in FAULTS},
+             "spread": {n: 0.001 for n in FAULTS}} for _ in range(8)]
+    thr, healthy = calibrate_thresholds(rows, alpha=0.02)
+    name = "BKL"
+    stats = [statistic(name, r["means"][name]) for r in rows]
+    assert thr[name] == pytest.approx(tail_threshold(stats, 0.02 / len(FAULTS), 0.001)[0],
+                                      rel=1e-12)
+    assert healthy[name]["n"] == 8
+
+
+def test_null_thresholds_share_alpha_over_the_effects_and_detectable_sizes_exceed_them():
+    """alpha is the chance that a healthy record passes any gate: each of m effects is tested
+    at alpha / m; a smaller alpha raises every threshold; the detectable size (90 % power)
+    lies above the threshold by z(0.9) healthy scales."""
+    null = _null({"a": [0.0, 1.0, 2.0, 1.0, 0.5], "b": [10.0, 12.0, 9.0, 11.0, 10.5]})
+    z = NormalDist().inv_cdf(1 - 0.05 / 2)
+    a = np.array(null.statistics["a"])
+    assert null.thresholds(0.05)["a"] == pytest.approx(a.mean() + z * a.std(ddof=1))
+    loose, strict = null.thresholds(0.2), null.thresholds(0.01)
+    assert all(strict[k] > loose[k] for k in loose)
+    det = null.detectable(0.05)
+    scale = a.std(ddof=1)
+    assert det["a"] == pytest.approx(null.thresholds(0.05)["a"]
+                                     + NormalDist().inv_cdf(0.9) * scale)
+    summary = null.summary(0.05)
+    assert summary["effects"]["b"]["healthy_max"] == 12.0 and summary["alpha"] == 0.05
+
+
+def test_null_file_round_trip_and_damaged_or_stale_files_are_ignored(tmp_path):
+    null = _null({"a": [0.0, 1.0, 2.0]})
+    path = null.save(tmp_path / "n.json")
+    again = load_null(path)
+    assert again is not None and again.statistics == null.statistics
+    path.write_text("{not json")
+    assert load_null(path) is None                       # damaged: calibrated again
+    data = json.loads(json.dumps(null.__dict__))
+    data["model_version"] = "0"
+    path.write_text(json.dumps(data))
+    assert load_null(path) is None                       # another model version
+    assert load_null(tmp_path / "missing.json") is None
+
+
+def test_cache_key_follows_the_command_noise_and_settings():
+    """Same record and settings, same key; another command, noise level or population, another
+    key (a null belongs to one command, sampling, noise and fit)."""
+    from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
+    from eha.measured import from_arrays
+
+    t = np.arange(301) * 1e-3
+    com = 1e-3 * np.sin(2 * np.pi * 3 * t)
+    rng = np.random.default_rng(0)
+
+    def record(c, noise):
+        return from_arrays(t, c, c + rng.normal(0, noise, t.size))
+
+    names = covered_effects(["leakage", "offset", "orifice_law", "flapper_dynamics"])
+    assert names == ["leakage", "offset"]
+    s = LoopSettings()
+    k = null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
+    assert k == null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
+    assert k != null_key(record(2 * com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
+    assert k != null_key(record(com, 1e-5), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
+    # noise estimates a few per cent apart share their class (one calibration per sensor)
+    assert noise_class(1.0e-6) == noise_class(1.1e-6) == noise_class(0.9e-6) == 1e-6
+    assert noise_class(1.2e-6) != noise_class(1.0e-6) and noise_class(0.0) == 0.0
+    assert k != null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names,
+                         LoopSettings(pop=12), 20, 0)
+    assert k != null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 21, 0)
+
+
+def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
+    """An effect the null covers is refused while its shift is within the threshold; one it
+    does not cover (the structure) only when its fit switched it off."""
+    from eha.effects import EFFECTS
+    from eha.explain import LoopSettings, ResidualLoop
+    from eha.measured import from_arrays
+
+    t = np.arange(401) * 1e-3
+    com = 1e-3 * np.sin(2 * np.pi * 3 * t)
+    data = from_arrays(t, com, com + np.random.default_rng(1).normal(0, 1e-6, t.size))
+    null = _null({"external_load": [10.0, 20.0, 15.0, 12.0, 18.0]})
+    loop = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=null)
+    thr = null.thresholds(0.05)["external_load"]
+    load = EFFECTS["external_load"]
+    assert loop.within_healthy(load, {"FRC": 0.9 * thr})
+    assert loop.within_healthy(load, {"FRC": -0.9 * thr})
+    assert not loop.within_healthy(load, {"FRC": 1.1 * thr})
+    flapper = EFFECTS["flapper_dynamics"]
+    assert loop.within_healthy(flapper, dict(flapper.off))
+    assert not loop.within_healthy(flapper, {"SNF": 2513.0, "ZF": 0.6})
+    # without a null: only a switched-off fit is refused
+    plain = ResidualLoop(data)
+    assert not plain.within_healthy(load, {"FRC": 5.0}) and plain.within_healthy(load,
+                                                                                 {"FRC": 0.0})
+
+
+def test_undetectable_lines_name_each_effect_not_added():
+    from eha.explain import ExplainResult
+
+    null = _null({"external_load": [10.0, 20.0, 15.0, 12.0, 18.0],
+                  "viscous_friction": [50.0, 80.0, 60.0, 70.0, 65.0]})
+    res = ExplainResult.__new__(ExplainResult)
+    res.steps, res.null = [], null.summary(0.05)
+    lines = res.undetectable()
+    assert len(lines) == 2 and lines[1].startswith("viscous_friction: not detectable on this "
+                                                   "command below a change of")
+    assert "in CJ (healthy 50)" in lines[1]
+
+
+def test_healthy_folder_needs_five_readable_records(tmp_path):
+    from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
+
+    with pytest.raises(NullError, match="not a folder"):
+        records_null(tmp_path / "none", DEFAULT_FAULT_BOUNDS, ["offset"], LoopSettings())
+    (tmp_path / "h").mkdir()
+    (tmp_path / "h" / "a.csv").write_text("t,com,xu\n0,0,0\n0.001,0,0\n")
+    with pytest.raises(NullError, match="1 records; at least 5"):
+        records_null(tmp_path / "h", DEFAULT_FAULT_BOUNDS, ["offset"], LoopSettings())
+
+
+def test_cli_healthy_and_alpha_are_checked_before_any_work(tmp_path):
+    """Bad --alpha, --null-actuators or --healthy: one line naming the option and its range,
+    exit 2, nothing written."""
+    from conftest import error_line, files_under, invoke_eha
+
+    rec = tmp_path / "r.csv"
+    t = np.arange(201) * 1e-3
+    rows = "\n".join(f"{a},{1e-3 * math.sin(30 * a)},{1e-3 * math.sin(30 * a)}" for a in t)
+    rec.write_text("t,com,xu\n" + rows + "\n")
+    before = files_under(tmp_path)
+    for args, message in ((["--alpha", "0"], "--alpha 0.0: allowed range (0, 1)"),
+                          (["--alpha", "1.5"], "--alpha 1.5: allowed range (0, 1)"),
+                          (["--null-actuators", "3"], "--null-actuators 3: allowed range [5"),
+                          (["--healthy", str(tmp_path / "nope")], "not a folder")):
+        line = error_line(invoke_eha("explain", rec, "--results", tmp_path / "res",
+                                     "--no-progress", *args), 2)
+        assert message in line
+    assert files_under(tmp_path) == before
+
+
+@pytest.mark.slow
+def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_path,
+                                                                        monkeypatch):
+    """Five healthy actuators on a 0.4 s sine (the tests' small GA): every testable effect
+    gets five statistics; the second call reads the cache (same object, no new fit); a
+    healthy record of another seed passes every gate at alpha 0.05. Reproducible: the same
+    seed gives the same statistics (two calibrations, the cache off)."""
+    from eha.effects import EFFECTS
+    from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
+    from eha.explain_null import healthy_record, healthy_statistics, simulated_null
+
+    monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))
+    t = np.arange(401) * 1e-3
+    com = 2e-3 * np.sin(2 * np.pi * 4 * t)
+    from eha.measured import from_arrays
+
+    data = from_arrays(t, com, com + np.random.default_rng(2).normal(0, 1e-6, t.size))
+    settings = LoopSettings(pop=12)
+    opts = {"max_gen": 20, "stall": 5}
+    names = covered_effects(list(EFFECTS))
+    null = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
+                          workers=1, fdi_options=opts)
+    assert set(null.statistics) == set(names) and null.records == 5
+    assert all(len(v) == 5 and all(x >= 0 for x in v) for v in null.statistics.values())
+    assert list((tmp_path / "cache" / "explain-null").glob("*.json"))
+    again = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
+                           workers=1, fdi_options=opts)
+    assert again.statistics == null.statistics and again.created_at == null.created_at
+    fresh = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
+                           workers=1, fdi_options=opts, use_cache=False)
+    assert fresh.statistics == null.statistics
+    healthy, _ = healthy_record(data, DEFAULT_FAULT_BOUNDS, 777)
+    shifts, _ = healthy_statistics(healthy, DEFAULT_FAULT_BOUNDS, names, settings,
+                                   fdi_options=opts)
+    thr = null.thresholds(0.05)
+    passed = [n for n in names if shifts[n] > thr[n]]
+    assert passed == [], (passed, {n: (shifts[n], thr[n]) for n in passed})
