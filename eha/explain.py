@@ -506,16 +506,19 @@ class LoopSettings:
         the reported RMSE stay those of the position.
     flow_gain_spread : float
         The valve flow gain GQ is fitted with the declared faults, within +- this fraction
-        of the base's value, in [0, 0.5] (0, the default: held at the base's). A healthy
-        actuator's flow gain is its own (a few per cent of manufacturing spread), and where
-        the valve saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves
-        a healthy 1 cm `sine` at 25x the noise and biases FDJ by tens of per cent. Fitted, it
-        also absorbs what reduces the flow alike (a weak torque motor): a GQ at the edge of
-        the spread (:func:`edge_of_spread`) is read as a flow loss beyond a healthy
-        actuator's and GQ goes back to the base's value, after the declared faults' fit
+        of the base's value, in [0, 0.5] (0: held at the base's). Default 0.04: the healthy
+        fleet's +-3 % (:data:`eha.detection.DISPERSION`, what the healthy null draws) and a
+        third more, so that a healthy actuator's flow gain is fitted inside the spread and
+        never at its edge. A healthy actuator's flow gain is its own, and where the valve
+        saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves a healthy
+        1 cm `sine` at 25x the noise, and viscous friction, leakage and clogging stand in for
+        it. Fitted, it also absorbs what reduces the flow alike (a weak torque motor, a leak):
+        the spread is therefore no wider than a healthy actuator's, and a GQ at its edge
+        (:func:`edge_of_spread`) is read as a flow loss beyond a healthy actuator's and GQ
+        goes back to the base's value, after the declared faults' fit
         (:meth:`ResidualLoop.baseline`) or, at the end, by running the loop again
-        (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a declared fault or
-        known (``fixed``).
+        (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a
+        declared fault or known (``fixed``).
     method, pop, seed
         Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
     """
@@ -531,7 +534,7 @@ class LoopSettings:
     noise_factor: float = 1.25
     joint: bool = True
     p12_weight: float = 1.0
-    flow_gain_spread: float = 0.1
+    flow_gain_spread: float = 0.04
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -646,7 +649,8 @@ class Choice:
 
 
 NOTHING_IMPROVED = ("no candidate improved the model (every refit left its effect within its "
-                    "healthy tolerance or fitted the pressure at the position's expense)")
+                    "healthy band on this command or fitted the pressure at the position's "
+                    "expense)")
 
 
 def choose(tried: list[Candidate], settings: LoopSettings,
@@ -807,7 +811,7 @@ def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
     actuator's spread leave. ``best`` is unspecific when its gain is below
     :data:`SPECIFIC_GAIN` and a candidate sharing none of its non-structural effects gains
     within :data:`RIVAL_MARGIN` of it — counting refits rejected because their effect stayed
-    within its healthy tolerance (they show a healthy-size change does as well). Structural
+    within its healthy band (they show a healthy-size change does as well). Structural
     candidates (only :data:`STRUCTURAL` members) are always specific.
 
     Returns
@@ -1340,7 +1344,7 @@ class ResidualLoop:
         contribution, :data:`SWAP_CANDIDATES` — takes its place in turn (its parameters from
         their probe values, everything refitted by pattern search); the best swap replaces it
         when it beats the model by the same rule (:func:`keeps_effect`, the swapped model against
-        the current one) and leaves its own healthy tolerance. Last, :meth:`merge` tries one
+        the current one) and leaves its own healthy band. Last, :meth:`merge` tries one
         effect in the place of each pair of added ones. When the model leaves the record
         unexplained (:meth:`unexplained`) the rivals of the swap and the merge are searched
         globally and the model in place is refitted from each winner's basin
@@ -1390,7 +1394,7 @@ class ResidualLoop:
         scratch, the better kept); effects that need structure the model lacks
         (:attr:`Effect.requires`) are not tried. With ``pairs`` each two of those rivals are
         also tried together (a one-for-two). Returns the replacing effects and their fit;
-        None when every refit leaves an effect within its healthy tolerance."""
+        None when every refit leaves an effect within its healthy band."""
         in_model = {st.effect for st in self.steps}
         others = [o for o in self.remaining()
                   if o.name not in in_model and o.name not in STRUCTURAL and o.params
@@ -1498,7 +1502,7 @@ class ResidualLoop:
         ``out``, the model in place starts from the rival's basin: the rival's fit with the
         rival off and the steps' effects back at their estimates, refitted locally (pattern
         search); taken when it lowers the score and leaves them outside their healthy
-        tolerance. A rival must win by its effect, not by the basin its search found for the
+        band. A rival must win by its effect, not by the basin its search found for the
         other parameters (an offset at its bound for a sensor bias on a 1 cm step: 1.8 against
         3.1 µm, all of it from the flapper, 2750 rad/s against 8130)."""
         start, bounds = ev.params, dict(free)
@@ -1571,7 +1575,7 @@ class ResidualLoop:
         valley. The polish runs from the loop's model and from it with the structure's
         parameters at their physical values (the flapper's probe); the better is kept, only
         when it lowers the whole record's objective and leaves every added effect outside its
-        healthy tolerance. A model without added effects keeps its fit (a
+        healthy band. A model without added effects keeps its fit (a
         record to which nothing was added: ``after`` is ``before``). After it the "held-out"
         RMSE of the final model is in-sample (reported as such in docs/explain.md)."""
         if not self.steps:
@@ -1594,7 +1598,7 @@ class ResidualLoop:
         for start in starts:
             trial = self.refit(start, free, "final estimates on the whole record",
                                method="lm", whole=True)
-            # an added effect polished back inside its healthy tolerance would be reported
+            # an added effect polished back inside its healthy band would be reported
             # without being one: such a polish is not taken
             if any(self.within_healthy_at(EFFECTS[st.effect], trial) for st in self.steps):
                 continue

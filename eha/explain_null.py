@@ -71,15 +71,16 @@ RESOLUTION = 1e-4
 
 
 #: Noise classes per decade: a record's noise estimate is rounded to the nearest class
-#: 10**(k/10) (steps of 26 %, a round 1 µm at a class's centre), which the healthy fleet is
-#: simulated with and the cache is keyed by: estimates of one sensor's noise scatter by a few
-#: per cent from record to record.
-NOISE_CLASSES_PER_DECADE = 10
+#: 10**(k/5) (steps of 58 %, a round 1 µm at a class's centre: 0.79-1.26 µm), which the
+#: healthy fleet is simulated with and the cache is keyed by. The estimates of one sensor's
+#: noise scatter from record to record: on the foreign set's 1 µm records, 0.89-1.09 µm
+#: (with 10 classes per decade two records of one command fell in two classes).
+NOISE_CLASSES_PER_DECADE = 5
 
 
 def noise_class(noise: float) -> float:
     """The noise level [the unit of ``noise``] a null is simulated with for a record whose
-    noise is estimated at ``noise``: the nearest class 10**(k/10) (0 stays 0)."""
+    noise is estimated at ``noise``: the nearest class 10**(k/5) (0 stays 0)."""
     if not noise > 0:
         return 0.0
     k = round(math.log10(noise) * NOISE_CLASSES_PER_DECADE)
@@ -328,7 +329,8 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
         "fit": {k: [float(v[0]), float(v[1])] for k, v in sorted(fit.items())},
         "effects": sorted(effects),
         "settings": {k: getattr(settings, k) for k in ("holdout", "p12_weight", "method",
-                                                          "pop", "seed", "penalty")},
+                                                          "pop", "seed", "penalty",
+                                                          "flow_gain_spread")},
         "actuators": actuators, "fleet_seed": seed,
         "declared": DECLARED_DRAW,
         "base": _changed(base), "fixed": sorted(fixed),

@@ -120,7 +120,7 @@ def test_settings_outside_their_range_are_refused_in_one_line(field, value):
 
 def test_a_small_gain_that_unrelated_effects_match_is_a_stand_in_and_not_added():
     # healthy chirp_1mm record (measured): a delay, a motor gain change and viscous friction
-    # each take ~21 % off the RMSE; the first two stay within their healthy tolerance
+    # each take ~21 % off the RMSE; the first two stay within their healthy band
     delay = cand("delay", 0.215)
     delay.score = -math.inf
     motor = cand("motor_gain", 0.208)

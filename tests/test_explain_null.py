@@ -118,8 +118,8 @@ def test_cache_key_follows_the_command_noise_and_settings():
     assert k != null_key(record(2 * com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
     assert k != null_key(record(com, 1e-5), DEFAULT_FAULT_BOUNDS, names, s, 20, 0)
     # noise estimates a few per cent apart share their class (one calibration per sensor)
-    assert noise_class(1.0e-6) == noise_class(1.1e-6) == noise_class(0.9e-6) == 1e-6
-    assert noise_class(1.2e-6) != noise_class(1.0e-6) and noise_class(0.0) == 0.0
+    assert noise_class(1.0e-6) == noise_class(1.2e-6) == noise_class(0.85e-6) == 1e-6
+    assert noise_class(1.3e-6) != noise_class(1.0e-6) and noise_class(0.0) == 0.0
     assert k != null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names,
                          LoopSettings(pop=12), 20, 0)
     assert k != null_key(record(com, 1e-6), DEFAULT_FAULT_BOUNDS, names, s, 21, 0)
@@ -232,3 +232,20 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     thr = null.thresholds(0.05)
     passed = [n for n in names if shifts[n] > thr[n]]
     assert passed == [], (passed, {n: (shifts[n], thr[n]) for n in passed})
+
+
+def test_default_flow_gain_spread_covers_the_healthy_fleet_without_reaching_its_edge():
+    """The loop fits GQ within the healthy fleet's spread (what the null draws) plus a
+    margin: a healthy actuator's GQ lies inside, away from the edge rule's band; a flow loss
+    beyond a healthy one's runs into the edge."""
+    from eha.detection import DISPERSION
+    from eha.explain import FLOW_GAIN_EDGE, LoopSettings, edge_of_spread
+
+    law, healthy, _ = DISPERSION["GQ"]
+    assert law == "uniform_rel"
+    spread = LoopSettings().flow_gain_spread
+    lo, hi = 0.2 * (1 - spread), 0.2 * (1 + spread)
+    assert edge_of_spread(0.2 * (1 - healthy), (lo, hi)) is None
+    assert edge_of_spread(0.2 * (1 + healthy), (lo, hi)) is None
+    assert spread * (1 - 2 * FLOW_GAIN_EDGE) > healthy
+    assert "lower bound" in edge_of_spread(lo, (lo, hi))

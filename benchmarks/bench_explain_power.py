@@ -1,0 +1,206 @@
+"""Detection power of the residual loop's decisions: the smallest size of each library effect
+that a record of a given command shows, at the stated false-positive level.
+
+For each command (``mixed``, ``chirp_1cm``, ``sine`` (1 cm, 5 Hz) and ``held_steps``, a
+sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noise:
+
+1. the healthy null of the command (:func:`eha.explain_null.simulated_null`, ``--actuators``
+   healthy HF actuators, cached like ``eha explain``'s), its threshold per effect at
+   ``--alpha`` and its predicted minimum detectable effect (``Null.detectable``: the size that
+   the local test is predicted to push past the threshold in 90 % of records);
+2. the check of that prediction: ``--records`` new HF records per effect (healthy scatter and
+   declared faults drawn as the null draws them, seeds ``100000 + 1000 * command index + k``,
+   disjoint from the null's) with the effect injected at its predicted detectable size, each
+   put through the loop's local test (:func:`eha.explain_null.healthy_statistics`); the
+   fraction whose shift passes the threshold is the measured power of the gate at that size.
+
+The gate is necessary for the loop to add an effect; the full loop also asks for a
+significant, specific gain, so the loop's own power can only be lower at a given size (the
+foreign validation set measures the loop end to end).
+
+    python benchmarks/bench_explain_power.py                       # 4 commands, 12 effects
+    python benchmarks/bench_explain_power.py --commands mixed --records 3
+    python benchmarks/bench_explain_power.py --json --plot docs/img/explain_power.png
+
+``--json`` writes ``benchmarks/results/bench_explain_power.json`` (one current file, with its
+provenance: commit, date, machine, cores, load).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMANDS = ("mixed", "chirp_1cm", "sine", "held_steps")
+#: held steps: (time [s], level [m]) of a digital controller's step sequence
+HELD_STEPS = ((0.0, 0.0), (0.05, 1e-3), (0.2, -1e-3), (0.35, 5e-4), (0.5, -5e-4),
+              (0.65, 2e-3), (0.8, 0.0))
+#: Direction in which an effect is injected (+1 up from off, -1 down): a supply-pressure
+#: drop and a weaker torque motor are the faults of interest.
+DIRECTION = {"supply_pressure": -1.0, "motor_gain": -1.0, "sensor_gain": 1.0}
+NOISE = 1e-6
+
+
+def command(name: str):
+    from eha.commands import array_command, make_command
+
+    if name != "held_steps":
+        return make_command(name)
+    t = np.arange(1001) * 1e-3
+    values = np.zeros_like(t)
+    for t0, level in HELD_STEPS:
+        values[t >= t0 - 1e-9] = level
+    return array_command(t, values, name="held_steps", hold="zoh")
+
+
+def template(name: str):
+    """A nominal HF record of the command (its samples, hold and noise are what the null
+    and the test records copy)."""
+    from eha.measured import from_arrays, synthetic_record
+
+    hold = "zoh" if name == "held_steps" else "auto"
+    df = synthetic_record(command(name), {}, t_end=1.0, noise=NOISE, seed=0,
+                          command_hold=hold)
+    return from_arrays(df.t, df.com, df.xu, source=name, command_hold=hold)
+
+
+def _one(args):
+    data, fit, effect, value, seed, settings = args
+    from eha.effects import EFFECTS
+    from eha.explain_null import healthy_record, healthy_statistics
+
+    (param,) = EFFECTS[effect].params
+    rec, _ = healthy_record(data, fit, seed, {param: value})
+    shifts, gains = healthy_statistics(rec, fit, [effect], settings)
+    return shifts[effect], gains[effect]
+
+
+def provenance() -> dict:
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                            capture_output=True, text=True).stdout.strip()
+    return {"commit": commit, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "machine": platform.node(), "cores": os.cpu_count(),
+            "load_average": list(os.getloadavg())}
+
+
+def plot(rows, path: Path) -> None:
+    from eha.effects import EFFECTS
+    from eha.figures import pyplot, save
+
+    plt = pyplot()
+    effects = sorted({r["effect"] for r in rows})
+    commands = [c for c in COMMANDS if any(r["command"] == c for r in rows)]
+    fig, ax = plt.subplots(figsize=(9, 0.45 * len(effects) + 1.8))
+    width = 0.8 / max(len(commands), 1)
+    for j, c in enumerate(commands):
+        y = [i + (j - (len(commands) - 1) / 2) * width for i in range(len(effects))]
+        x = []
+        for e in effects:
+            r = next((r for r in rows if r["effect"] == e and r["command"] == c), None)
+            (param,) = EFFECTS[e].params
+            x.append(r["detectable"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
+                     if r else np.nan)
+        ax.barh(y, x, width, label=c)
+    ax.set_xscale("log")
+    ax.axvline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_yticks(range(len(effects)), effects)
+    ax.set_xlabel("minimum detectable change / the effect's probe size (log)")
+    ax.grid(True, axis="x", alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title("Residual loop: smallest effect a 1-s record shows (alpha 0.05, 90 % power)",
+                 fontsize=10)
+    save(fig, path)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--commands", default=",".join(COMMANDS))
+    ap.add_argument("--effects", default="")
+    ap.add_argument("--actuators", type=int, default=12, help="healthy actuators of the null")
+    ap.add_argument("--records", type=int, default=5, help="records per effect and command")
+    ap.add_argument("--alpha", type=float, default=0.05)
+    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--json", nargs="?", const=str(ROOT / "benchmarks" / "results" /
+                                                     "bench_explain_power.json"))
+    ap.add_argument("--plot", default=None)
+    a = ap.parse_args(argv)
+    from eha.effects import EFFECTS
+    from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
+    from eha.explain_null import covered_effects, simulated_null
+    from eha.params import SPECS
+
+    names = covered_effects(a.effects.split(",") if a.effects else list(EFFECTS))
+    settings = LoopSettings(alpha=a.alpha)
+    fit = dict(DEFAULT_FAULT_BOUNDS)
+    rows, t_start = [], time.perf_counter()
+    commands = [c for c in a.commands.split(",") if c]
+    for ci, cname in enumerate(commands):
+        data = template(cname)
+        t0 = time.perf_counter()
+        null = simulated_null(data, fit, covered_effects(list(EFFECTS)), settings,
+                              actuators=a.actuators, workers=a.workers)
+        null_s = time.perf_counter() - t0
+        thr, det = null.thresholds(a.alpha), null.detectable(a.alpha)
+        jobs, where = [], []
+        for effect in names:
+            (param,) = EFFECTS[effect].params
+            off = EFFECTS[effect].off[param]
+            lo, hi = EFFECTS[effect].bounds[param]
+            value = float(np.clip(off + DIRECTION.get(effect, 1.0) * det[effect],
+                                  max(lo, SPECS[param].lo), min(hi, SPECS[param].hi)))
+            for k in range(a.records):
+                seed = 100000 + 1000 * COMMANDS.index(cname) + k
+                jobs.append((data, fit, effect, value, seed, settings))
+                where.append((effect, value))
+        with ProcessPoolExecutor(a.workers, mp_context=get_context("spawn")) as pool:
+            results = list(pool.map(_one, jobs))
+        for effect in names:
+            got = [r for (e, _), r in zip(where, results) if e == effect]
+            value = next(v for e, v in where if e == effect)
+            shifts = np.array([s for s, _ in got])
+            row = {"command": cname, "effect": effect, "param": EFFECTS[effect].params[0],
+                   "unit": null.units[effect], "threshold": thr[effect],
+                   "detectable": det[effect], "injected": value,
+                   "power": float(np.mean(shifts > thr[effect])), "records": len(got),
+                   "shift_median": float(np.median(shifts)),
+                   "gain_median": float(np.median([g for _, g in got])),
+                   "null_seconds": null_s, "null_actuators": null.records}
+            rows.append(row)
+            print(f"{cname:10s} {effect:17s} threshold {thr[effect]:9.3g} detectable "
+                  f"{det[effect]:9.3g} {null.units[effect]:12s} power "
+                  f"{row['power']:.0%} of {len(got)} (median shift {row['shift_median']:.3g})",
+                  flush=True)
+        print(f"{cname}: null {null_s:.0f} s ({null.records} actuators)", flush=True)
+    powers = [r["power"] for r in rows]
+    summary = {"cells": len(rows), "median_power": float(np.median(powers)) if rows else None,
+               "cells_at_90": int(sum(p >= 0.9 for p in powers)),
+               "seconds": time.perf_counter() - t_start}
+    print(f"{summary['cells_at_90']} of {len(rows)} cells reach 90 % power at the predicted "
+          f"size; median power {summary['median_power']:.0%}; {summary['seconds']:.0f} s")
+    if a.plot:
+        plot(rows, Path(a.plot))
+    if a.json:
+        out = {"benchmark": "bench_explain_power", "provenance": provenance(),
+               "settings": {"alpha": a.alpha, "actuators": a.actuators, "records": a.records,
+                            "noise_m": NOISE, "commands": commands},
+               "summary": summary, "rows": rows}
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.json).write_text(json.dumps(out, indent=1))
+        print(f"json: {a.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
