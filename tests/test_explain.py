@@ -80,13 +80,20 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     doc = json.loads(js.read_text())
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
     # and the verdict, its lead, the noise, the command's hold, the effects chosen but
-    # dismissed, whether the measured P12 was fitted and the intervals' notes (issue 11)
+    # dismissed, whether the measured P12 was fitted and the intervals' notes (issue 11); the
+    # healthy null the decisions rested on and what the command could not show (issue 24)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
                         "intervals", "level", "unexplained", "verdict", "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
-                        "p12_in_fit", "interval_notes", "flow_gain_released"}
+                        "p12_in_fit", "interval_notes", "flow_gain_released", "null",
+                        "undetectable"}
+    assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05
+    assert doc["null"]["source"].startswith("simulated healthy fleet (5 actuators")
+    added = {st["effect"] for st in doc["steps"]}
+    assert len(doc["undetectable"]) == len(set(doc["null"]["effects"]) - added)
+    assert all(0 < e["threshold"] < e["detectable"] for e in doc["null"]["effects"].values())
     assert doc["interval_notes"] == []          # explained: nothing to note
-    assert doc["flow_gain_released"] is None    # the flow gain was not fitted
+    assert doc["flow_gain_released"] is None    # the flow gain stayed inside its spread
     assert doc["p12_in_fit"] is True            # the record has P12
     assert all(set(d) == {"effect", "round", "loss", "p_value", "replaced_by"}
                for d in doc["dismissed"])
