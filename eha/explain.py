@@ -948,14 +948,14 @@ class ResidualLoop:
         """Is the effect's fitted parameter (``values``) within what healthy actuators reach
         on this record's command (the null's threshold at ``alpha``)? An effect the null does
         not cover (the structure, or no null) is within it when switched off: within
-        :data:`eha.explain_null.RESOLUTION` of its search range from off."""
-        from eha.explain_null import RESOLUTION
+        :data:`eha.explain_null.SWITCHED_OFF` of its search range from off."""
+        from eha.explain_null import SWITCHED_OFF
 
         threshold = (self.thresholds or {}).get(effect.name)
         if threshold is not None:
             return effect.shift(values) <= threshold
         off = effect.off
-        return all(abs(values[n] - off[n]) <= RESOLUTION * (hi - lo)
+        return all(abs(values[n] - off[n]) <= SWITCHED_OFF * (hi - lo)
                    for n, (lo, hi) in effect.bounds.items())
 
     def within_healthy_at(self, effect: Effect, params: LFParams) -> bool:

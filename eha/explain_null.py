@@ -68,6 +68,10 @@ DETECTION_POWER = 0.9
 #: otherwise give a zero threshold that any optimizer step crosses). It is the old
 #: "switched off" margin of the loop (0.1 % of the range).
 RESOLUTION = 1e-4
+#: Without a null (records made by the LF model itself) an effect is refused only when its fit
+#: switched it off: within this fraction of its search range from off (0.1 %, the loop's rule
+#: for effects without a tolerance before the null).
+SWITCHED_OFF = 1e-3
 
 
 #: Noise classes per decade: a record's noise estimate is rounded to the nearest class
