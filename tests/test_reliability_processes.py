@@ -163,16 +163,17 @@ CTRL_C_IN_COMMIT = textwrap.dedent('''
     from eha import runner, store
     from eha.cli import app
 
-    upsert = store.ResultStore.upsert
+    upsert = store.ResultStore._upsert
 
-    def interrupted_upsert(self, table, rows):
-        # Ctrl-C arrives inside the transaction of the final commit
-        if table == "metrics" and rows and not os.environ.get("EHA_TEST_FIRED"):
+    def interrupted_upsert(self, table, obj):
+        # Ctrl-C arrives inside the transaction of the final commit (every result-table
+        # write, per run or per chunk, goes through ResultStore._upsert)
+        if table == "metrics" and not os.environ.get("EHA_TEST_FIRED"):
             os.environ["EHA_TEST_FIRED"] = "1"
             os.kill(os.getpid(), signal.SIGINT)
-        return upsert(self, table, rows)
+        return upsert(self, table, obj)
 
-    store.ResultStore.upsert = interrupted_upsert
+    store.ResultStore._upsert = interrupted_upsert
     runner.BATCH_ROWS, runner.BATCH_SECONDS = 10**6, 1e9   # one commit, at the end
     app(prog_name="eha")
 ''')
