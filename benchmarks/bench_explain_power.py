@@ -83,7 +83,7 @@ def _one(args):
 
     (param,) = EFFECTS[effect].params
     rec, _ = healthy_record(data, fit, seed, {param: value})
-    shifts, gains = healthy_statistics(rec, fit, [effect], settings)
+    shifts, gains, _ = healthy_statistics(rec, fit, [effect], settings)
     return shifts[effect], gains[effect]
 
 

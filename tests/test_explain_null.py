@@ -229,6 +229,24 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     # a healthy record of another seed gets statistics of the same kind (the rate at which
     # such records pass a gate is a benchmark's to measure on many records, not this test's)
     healthy, _ = healthy_record(data, DEFAULT_FAULT_BOUNDS, 777)
-    shifts, _ = healthy_statistics(healthy, DEFAULT_FAULT_BOUNDS, names, settings,
+    shifts, _, _ = healthy_statistics(healthy, DEFAULT_FAULT_BOUNDS, names, settings,
                                    fdi_options=opts)
     assert set(shifts) == set(names) and all(math.isfinite(v) for v in shifts.values())
+
+
+def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
+    """The verdict's limit: the residual-to-noise ratio healthy records of the command exceed
+    with probability alpha (normal tail, spread RATIO_SPREAD), never above FLAG_RATIO; an older
+    null without ratios falls back to FLAG_RATIO (exact arithmetic, tolerance 1e-12)."""
+    from eha.explain_null import RATIO_SPREAD
+    from eha.intervals import FLAG_RATIO
+
+    null = _null({"leakage": [0.0, 1e-13, 2e-13]})
+    assert null.residual_limit(0.05) == FLAG_RATIO
+    null.residual_ratios = [1.0, 1.1, 1.2, 1.3]
+    expected, _ = tail_threshold(null.residual_ratios, 0.05, RATIO_SPREAD)
+    assert null.residual_limit(0.05) == pytest.approx(expected, rel=1e-12)
+    assert 1.3 < null.residual_limit(0.05) < null.residual_limit(0.01) < FLAG_RATIO
+    null.residual_ratios = [2.5, 3.5, 4.0]
+    assert null.residual_limit(0.05) == FLAG_RATIO
+    assert null.summary(0.05)["residual_limit"] == FLAG_RATIO
