@@ -41,9 +41,10 @@ the HF simulation (:func:`eha.measured.synthetic_record`). The loop's GA seed is
 
 One record takes 5-60 s (one core); 32 records about 15 min. Run one at a time on a shared
 machine (``nice -n 10``). To measure another copy of the package (e.g. the loop as committed
-while ``eha/explain.py`` is being rewritten) put it first on the path:
+while ``eha/explain/`` is being rewritten) put it first on the path:
 ``PYTHONPATH=/tmp/eha_before python benchmarks/bench_explain_fp.py ...``; the JSON records
-which ``eha/explain.py`` ran (path, sha256, whether it is the committed one).
+which loop ran (the package's path, the sha256 of its ``eha/explain/*.py``, whether they are
+the committed ones).
 """
 
 from __future__ import annotations
@@ -318,17 +319,27 @@ def provenance(argv: list[str]) -> dict:
 
     import eha.explain
 
-    # the loop that actually ran (PYTHONPATH may point at another copy of the package)
-    explain_py = Path(eha.explain.__file__).resolve()
+    # the loop that actually ran (PYTHONPATH may point at another copy of the package): the
+    # sha256 of its modules (name and text of each eha/explain/*.py, in name order)
+    loop_dir = Path(eha.explain.__file__).resolve().parent
+    names = sorted(p.name for p in loop_dir.glob("*.py"))
+
+    def loop_sha256(text_of) -> str:
+        digest = hashlib.sha256()
+        for name in names:
+            digest.update(name.encode() + b"\0" + text_of(name) + b"\0")
+        return digest.hexdigest()
+
+    ran = loop_sha256(lambda name: (loop_dir / name).read_bytes())
+    head = loop_sha256(lambda name: subprocess.run(
+        ["git", "show", f"HEAD:eha/explain/{name}"], cwd=root, capture_output=True).stdout)
     return {"argv": argv, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "commit": git("rev-parse", "HEAD"),
             "dirty": sorted(line[3:] for line in git("status", "--porcelain").splitlines()
                             if line[3:].startswith("eha/")),
-            "eha_package": str(explain_py.parent),
-            "explain_py_sha256": hashlib.sha256(explain_py.read_bytes()).hexdigest(),
-            "explain_py_is_head": hashlib.sha256(explain_py.read_bytes()).hexdigest() ==
-            hashlib.sha256(subprocess.run(["git", "show", "HEAD:eha/explain.py"], cwd=root,
-                                          capture_output=True).stdout).hexdigest(),
+            "eha_package": str(loop_dir.parent),
+            # (the keys keep their names from the single module eha/explain.py)
+            "explain_py_sha256": ran, "explain_py_is_head": ran == head,
             "python": platform.python_version(), "machine": platform.machine()}
 
 

@@ -37,7 +37,7 @@ dither of :func:`eha.measured.synthetic_record` and, on ``steps``, the step sequ
 
 A record takes 0.5-3 min (one core); all 24 about 30-50 min. Run one at a time on a shared
 machine (``nice -n 10``). ``PYTHONPATH=/other/copy python ...`` measures another copy of the
-package; the JSON records which ``eha/explain.py`` ran.
+package; the JSON records which loop (``eha/explain/``) ran.
 """
 
 from __future__ import annotations

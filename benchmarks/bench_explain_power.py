@@ -4,14 +4,14 @@ that a record of a given command shows, at the stated false-positive level.
 For each command (``mixed``, ``chirp_1cm``, ``sine`` (1 cm, 5 Hz) and ``held_steps``, a
 sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noise:
 
-1. the healthy null of the command (:func:`eha.explain_null.simulated_null`, ``--actuators``
+1. the healthy null of the command (:func:`eha.explain.null.simulated_null`, ``--actuators``
    healthy HF actuators, cached like ``eha explain``'s), its threshold per effect at
    ``--alpha`` and its predicted minimum detectable effect (``Null.detectable``: the size that
    the local test is predicted to push past the threshold in 90 % of records);
 2. the check of that prediction: ``--records`` new HF records per effect (healthy scatter and
    declared faults drawn as the null draws them, seeds ``100000 + 1000 * command index + k``,
    disjoint from the null's) with the effect injected at its predicted detectable size, each
-   put through the loop's local test (:func:`eha.explain_null.healthy_statistics`); the
+   put through the loop's local test (:func:`eha.explain.null.healthy_statistics`); the
    fraction whose shift passes the threshold is the measured power of the gate at that size.
 
 The gate is necessary for the loop to add an effect; the full loop also asks for a
@@ -79,7 +79,7 @@ def template(name: str):
 def _one(args):
     data, fit, effect, value, seed, settings = args
     from eha.effects import EFFECTS
-    from eha.explain_null import healthy_record, healthy_statistics
+    from eha.explain.null import healthy_record, healthy_statistics
 
     (param,) = EFFECTS[effect].params
     rec, _ = healthy_record(data, fit, seed, {param: value})
@@ -138,7 +138,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from eha.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.explain_null import covered_effects, simulated_null
+    from eha.explain.null import covered_effects, simulated_null
     from eha.params import SPECS
 
     names = covered_effects(a.effects.split(",") if a.effects else list(EFFECTS))

@@ -769,36 +769,36 @@ def explain(
         ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
         help="Optimizer of every fit (eha fdi)."),
     pop: int = typer.Option(
-        ..., "--pop", default_factory=signature_default("eha.explain", "explain", "pop"),
+        ..., "--pop", default_factory=signature_default("eha.explain.api", "explain", "pop"),
         help="GA population of every fit."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result)."),
     candidates: int = typer.Option(
         ..., "--candidates", default_factory=library_default(
-                                       "eha.explain", "DEFAULTS", lambda d: int(d["candidates"])),
+            "eha.explain.settings", "DEFAULTS", lambda d: int(d["candidates"])),
         help="Effects refitted per round, the best-ranked by "
                                         "signature (0 = all)."),
     max_steps: int = typer.Option(
         ..., "--max-steps", default_factory=library_default(
-                                      "eha.explain", "DEFAULTS", lambda d: int(d["max_steps"])),
+            "eha.explain.settings", "DEFAULTS", lambda d: int(d["max_steps"])),
         help="Most effects added."),
     min_gain: float = typer.Option(
         ..., "--min-gain", default_factory=library_default(
-                                       "eha.explain", "DEFAULTS", lambda d: d["min_gain"]),
+            "eha.explain.settings", "DEFAULTS", lambda d: d["min_gain"]),
         help="Smallest penalised held-out RMSE reduction that adds "
                                         "an effect."),
     p12_weight: float = typer.Option(
         ..., "--p12-weight", default_factory=library_default(
-            "eha.explain", "DEFAULTS", lambda d: d["p12_weight"]),
+            "eha.explain.settings", "DEFAULTS", lambda d: d["p12_weight"]),
         help="Weight of the record's measured P12 in every fit and score, each signal in its "
              "own noise (0 = position only; records without P12 use the position only)."),
     flow_gain_spread: float = typer.Option(
         ..., "--flow-gain-spread", default_factory=library_default(
-            "eha.explain", "DEFAULTS", lambda d: d["flow_gain_spread"]),
+            "eha.explain.settings", "DEFAULTS", lambda d: d["flow_gain_spread"]),
         help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal "
              "(the healthy actuator's own spread; 0 = held at nominal). E.g. 0.1."),
     alpha: float = typer.Option(
         ..., "--alpha", default_factory=library_default(
-            "eha.explain", "DEFAULTS", lambda d: d["alpha"]),
+            "eha.explain.settings", "DEFAULTS", lambda d: d["alpha"]),
         help="False-positive level per record: the chance that a healthy actuator driven by "
              "this command gets an effect added (thresholds from a healthy null)."),
     healthy: Optional[Path] = typer.Option(
@@ -806,7 +806,7 @@ def explain(
         "(commissioning tests, >= 5): the null instead of a simulated healthy fleet."),
     null_actuators: int = typer.Option(
         ..., "--null-actuators", default_factory=library_default(
-            "eha.explain", "DEFAULTS", lambda d: int(d["null_actuators"])),
+            "eha.explain.settings", "DEFAULTS", lambda d: int(d["null_actuators"])),
         help="Healthy actuators of the simulated null (cached per command, sampling, noise)."),
     command_hold: CommandHoldOption = COMMAND_HOLD,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
@@ -821,7 +821,7 @@ def explain(
     from eha.explain import ExplainError
     from eha.fdi import FDIError
     from eha.measured import MeasuredDataError
-    from eha.explain_io import explain_report
+    from eha.explain.outputs import explain_report
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")

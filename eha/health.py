@@ -332,9 +332,9 @@ def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
     The LF model starts where the record starts, as in ``eha explain``; the noise is estimated
     on the record's raw samples (before any resampling).
     """
-    from eha.explain import _initial_position, _recorded_start
+    from eha.explain.record import initial_position, recorded_start
 
-    base = _initial_position(data, _lf_base(base))
+    base = initial_position(data, _lf_base(base))
     return assess(data.xu, data.command, base=base, faults=faults, level=level, seed=seed,
                   noise=data.info.get("noise_m"), t_end=data.t_end,
-                  recorded_start=_recorded_start(data), pop=pop, on_progress=on_progress)
+                  recorded_start=recorded_start(data), pop=pop, on_progress=on_progress)

@@ -32,7 +32,7 @@ os.environ["COLUMNS"] = "200"
 
 @pytest.fixture(autouse=True, scope="session")
 def _explain_null_cache(tmp_path_factory):
-    """The residual loop's healthy nulls (eha.explain_null) are cached for the session in a
+    """The residual loop's healthy nulls (eha.explain.null) are cached for the session in a
     temporary folder: never in the user's cache, shared by the tests of one command."""
     old = os.environ.get("EHA_CACHE_DIR")
     os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))

@@ -458,7 +458,8 @@ def test_look_ahead_finds_the_pair_that_stands_out_together(tmp_path):
     aside as unspecific (on the HF bench record a clogging matched it): the look-ahead traces
     the residual of its fit and refits the effects that best explain it on top; hysteresis +
     hinge moment stands out (gain >= SPECIFIC_GAIN) and is chosen, both within 5 %."""
-    from eha.explain import SPECIFIC_GAIN, Candidate, Choice, ResidualLoop
+    from eha.explain import Candidate, Choice, ResidualLoop
+    from eha.explain.settings import SPECIFIC_GAIN
 
     data = load(_record(tmp_path, "bhh_lf", "chirp_1cm", 0.6,
                         {"sensor_bias": 1e-4, "His": 0.2, "Kaer": 1.5e5}, model="lf"))
@@ -580,7 +581,7 @@ def test_second_pass_replaces_the_first_only_by_the_rule_for_adding_an_effect():
     RMSE is lower by ``min_gain`` (10 %) after 2 % per extra parameter, else the first."""
     from types import SimpleNamespace
 
-    from eha.explain import better_pass
+    from eha.explain.decide import better_pass
 
     def result(rmse, *effects):
         return SimpleNamespace(after=SimpleNamespace(rmse_score=rmse),
@@ -605,7 +606,7 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
     its probe (the flapper candidate of the bench record load+leak+motor_gain@steps): finished
     by least squares (the default) the fit is within the noise and the flapper and load
     within 15 % and 2 %; the GA alone stops on the valley's side (2.4 µm, flapper 35 % off)."""
-    import eha.explain as ex
+    import eha.explain.fitting as fitting
     from eha.explain import ResidualLoop
 
     truth = {"orifice_law": 1.0, "SNF": 2513.0, "ZF": 0.6, "FRC": 2000.0, "Clk": 5e-12,
@@ -617,7 +618,7 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
     start = loop.base.replace(orifice_law=1.0, SNF=2513.0, ZF=0.6, FRC=2078.0, Clk=4.97e-12,
                               GM=0.00809)
     finished = loop.evaluate([loop.refit(start, free, "finished", warm_start=True)])[0]
-    monkeypatch.setattr(ex, "LEAST_SQUARES_FINISH", False)
+    monkeypatch.setattr(fitting, "LEAST_SQUARES_FINISH", False)
     ga_only = loop.evaluate([loop.refit(start, free, "GA alone", warm_start=True)])[0]
     assert finished.rmse_fit < 1.5 * NOISE < ga_only.rmse_fit
     assert finished.rmse_hold < ga_only.rmse_hold
@@ -723,7 +724,7 @@ def test_flow_gain_at_the_edge_of_its_spread_is_read_as_a_flow_loss():
     it is not."""
     from types import SimpleNamespace
 
-    from eha.explain import flow_gain_at_edge
+    from eha.explain.decide import flow_gain_at_edge
 
     def result(gq, fitted=True, bounds=(0.18, 0.22)):
         return SimpleNamespace(settings={"flow_gain_fitted": fitted},
@@ -748,7 +749,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
     nominal, is no longer fitted, and the motor gain is found within 1 %, the faults within
     2 %; the JSON says why. A final GQ still at the edge (the safety net; forced here) runs
     the loop again with the flow gain at nominal."""
-    import eha.explain as ex
+    import eha.explain.api as api
 
     data = load(_record(tmp_path, "weak_motor", "mixed", 0.6, {"GM": 0.008}, model="lf"))
     res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
@@ -763,14 +764,14 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
         assert res.faults_after[name] == pytest.approx(truth, rel=0.02)
 
     spreads = []
-    real_passes = ex._passes
+    real_passes = api._passes
 
     def passes(data, fit, effects, validate, base, settings, *rest):
         spreads.append(settings.flow_gain_spread)
         return real_passes(data, fit, effects, validate, base, settings, *rest)
 
-    monkeypatch.setattr(ex, "_passes", passes)
-    monkeypatch.setattr(ex, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
+    monkeypatch.setattr(api, "_passes", passes)
+    monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
     again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST_LF)
     assert spreads == [0.1, 0.0]
     assert again.settings["flow_gain_released"] == "GQ forced to its edge"

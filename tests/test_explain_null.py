@@ -1,4 +1,4 @@
-"""The residual loop's healthy null (eha.explain_null) and the shared threshold engine.
+"""The residual loop's healthy null (eha.explain.null) and the shared threshold engine.
 
 Pure parts (thresholds, detectable sizes, cache keys and files, the gate) on canned numbers;
 one slow round trip simulates a small healthy fleet on a short command and checks what it
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from eha.detection import DetectionError, tail_threshold
-from eha.explain_null import (Null, NullError, load_null, noise_class, null_key, records_null,
-                              covered_effects)
+from eha.explain.null import (Null, NullError, covered_effects, load_null, noise_class, null_key,
+                              records_null)
 
 
 def _null(stats: dict[str, list[float]], resolution: float = 0.0) -> Null:
@@ -204,7 +204,7 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     off)."""
     from eha.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.explain_null import healthy_record, healthy_statistics, simulated_null
+    from eha.explain.null import healthy_record, healthy_statistics, simulated_null
 
     monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))
     t = np.arange(401) * 1e-3
@@ -238,7 +238,7 @@ def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
     """The verdict's limit: the residual-to-noise ratio healthy records of the command exceed
     with probability alpha (normal tail, spread RATIO_SPREAD), never above FLAG_RATIO; an older
     null without ratios falls back to FLAG_RATIO (exact arithmetic, tolerance 1e-12)."""
-    from eha.explain_null import RATIO_SPREAD
+    from eha.explain.settings import RATIO_SPREAD
     from eha.intervals import FLAG_RATIO
 
     null = _null({"leakage": [0.0, 1e-13, 2e-13]})

@@ -1,15 +1,17 @@
-"""The residual loop's choice logic on canned evaluations (no simulation, no GA).
+"""The residual loop's decision rule (eha.explain.decide) on numbers and canned evaluations
+(no simulation, no GA).
 
-:func:`eha.explain.choose` decides from refitted candidates; its model evaluations (splitting a
-combination, refitting the kept members) are handed in as callables, here canned.
+:func:`~eha.explain.decide.choose` decides from refitted candidates; its model evaluations
+(splitting a combination, refitting the kept members) are handed in as callables, here canned.
 """
 
 import math
 
 import pytest
 
-from eha.explain import (Candidate, ExplainError, LoopSettings, choose, keeps_effect,
-                         significance, unspecific)
+from eha.explain.decide import choose, keeps_effect, significance, unspecific
+from eha.explain.results import Candidate
+from eha.explain.settings import ExplainError, LoopSettings
 
 SETTINGS = LoopSettings(min_gain=0.1, penalty=0.02, significance=0.01)
 
@@ -228,7 +230,7 @@ def test_a_steps_alternatives_leave_out_its_own_effect():
     """``--json`` steps list the round's candidates that scored within 0.05 of the chosen one;
     a step the final check swapped in keeps its round's list, minus entries with its own
     effect."""
-    from eha.explain import ExplainResult, Step
+    from eha.explain.results import ExplainResult, Step
 
     step = Step("delay", {"sensor_delay": 1e-3}, 1.0, 0.5, 1.0, 0.5, 1.0, 0.5, {}, {}, 0.5,
                 0.48, alternatives={"motor_gain": 0.47, "delay": 0.46,
@@ -240,7 +242,9 @@ def test_a_gain_bought_on_p12_with_a_worse_position_trades_the_position():
     """The canned evaluations of the healthy HF `sine` of seed 6003 (bench block 6): with the
     leak the position goes from 2.3 to 4.4 µm while the weighted P12 falls from 8 to 1 µm, so
     the score improves; the loop must not take that gain (POSITION_WORSENING = 1.2)."""
-    from eha.explain import POSITION_WORSENING, Evaluation, trades_position
+    from eha.explain.decide import trades_position
+    from eha.explain.results import Evaluation
+    from eha.explain.settings import POSITION_WORSENING
     from eha.params import LFParams
 
     def ev(fit, hold, p12):

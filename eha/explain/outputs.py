@@ -15,7 +15,7 @@ from eha.figures import save as _save
 def plot_explain_residuals(result, path: str | Path) -> Path:
     """Measured vs LF before/after, and the residual before/after the added effects (PNG).
 
-    ``result`` is an :class:`eha.explain.ExplainResult`; the held-out part is shaded.
+    ``result`` is an :class:`eha.explain.results.ExplainResult`; the held-out part is shaded.
     """
     plt = _pyplot()
     t = result.t
@@ -112,7 +112,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     Returns
     -------
     dict
-        ``result`` (:class:`eha.explain.ExplainResult`), ``paths`` (name -> Path),
+        ``result`` (:class:`eha.explain.results.ExplainResult`), ``paths`` (name -> Path),
         ``run_id``, ``db_error`` (None, or why the database could not be written).
     """
     import datetime
@@ -120,7 +120,9 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
 
     import pandas as pd
 
-    from eha.explain import ExplainError, augmented_base, explain
+    from eha.explain.api import explain
+    from eha.explain.record import augmented_base
+    from eha.explain.settings import ExplainError
     from eha.measured import load
     from eha.store import StoreError, save_explain
 

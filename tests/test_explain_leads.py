@@ -1,4 +1,4 @@
-"""Residual leads (eha.residual_leads): features, the STLSQ sparse regression, the report.
+"""Residual leads (eha.explain.leads): features, the STLSQ sparse regression, the report.
 
 The signals are analytic (no simulation), so the file runs in well under a second: a 2 s,
 1 kHz record of a two-sine command, a position that follows it with a 15 ms lag, its velocity
@@ -13,9 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from eha.residual_leads import (FEATURES, LEAD_SHARE, Lead, LeadReport, LeadsError,
-                                command_steps, feature_matrix, residual_leads,
-                                sparse_regression)
+from eha.explain.leads import (FEATURES, LEAD_SHARE, Lead, LeadReport, LeadsError,
+                               command_steps, feature_matrix, residual_leads, sparse_regression)
 
 N = 2001
 T = np.arange(N) * 1e-3

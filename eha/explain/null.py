@@ -1,11 +1,11 @@
 """The residual loop's null: how far each effect's fit goes on *healthy* actuators driven by
 the record's own command.
 
-An effect is added by the loop (:mod:`eha.explain`) only when the refit moves its parameter
-further from its off value than healthy actuators move it on the same command, sampled and
-noised like the record: a fixed tolerance would be the worst case over every command (a
-viscous friction of 1.2e4 N·s/m hides a real one on a chirp that a healthy jack never fits
-above a few hundred). The null is
+An effect is added by the loop (:mod:`eha.explain.loop`) only when the refit moves its
+parameter further from its off value than healthy actuators move it on the same command,
+sampled and noised like the record: a fixed tolerance would be the worst case over every
+command (a viscous friction of 1.2e4 N·s/m hides a real one on a chirp that a healthy jack
+never fits above a few hundred). The null is
 
 1. a **healthy fleet simulated** on the record's command (:func:`simulated_null`): HF
    actuators with the manufacturing scatter of ``eha health calibrate``
@@ -17,8 +17,8 @@ above a few hundred). The null is
 2. on each healthy record, the loop's own candidate test (:func:`healthy_statistics`): the
    declared faults and the model's known structure fitted (the state of the loop once it has
    added the structure), then each library effect refitted on top by the loop's local test
-   (:meth:`eha.explain.ResidualLoop.local_test`: least squares from the effect off and from
-   its probe, the better fit); the statistic is the parameter's distance from its off value
+   (:meth:`eha.explain.loop.ResidualLoop.local_test`: least squares from the effect off and
+   from its probe, the better fit); the statistic is the parameter's distance from its off value
    (:meth:`eha.effects.Effect.shift`);
 3. per effect, the threshold of the shared detection engine
    (:func:`eha.detection.tail_threshold`): a normal tail with probability ``alpha / m`` for
@@ -28,6 +28,7 @@ above a few hundred). The null is
 Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
 sampling, the noise, the declared faults, the loop's fit settings and the model version
 (:data:`eha.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
+The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
 """
 
 from __future__ import annotations
@@ -47,45 +48,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_POWER,
+                                  MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
+                                  RESOLUTION, STRUCTURAL)
+
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 2
-#: Healthy actuators of a simulated null.
-DEFAULT_ACTUATORS = 12
-#: Fewest healthy records a null needs (the tail threshold needs a spread).
-MIN_RECORDS = 5
-#: Declared faults of the simulated healthy actuators: name -> (law, a, b). A declared fault
-#: is fitted on every record, but its value shapes what the effects can stand in for (a large
-#: backlash hides a small offset), so the fleet spans the values a record may carry; a
-#: declared fault not listed here is drawn uniformly within its fit bounds.
-DECLARED_DRAW: dict[str, tuple[str, float, float]] = {
-    "BKL": ("uniform", 0.0, 5e-4),
-    "FDJ": ("loguniform", 100.0, 3000.0),
-}
-#: Power of the detectable sizes the null reports (:meth:`Null.detectable`).
-DETECTION_POWER = 0.9
-#: Resolution of a fitted effect parameter, as a fraction of its search range: the spread
-#: of the statistic is at least this (a null whose healthy fits all sit at the bound would
-#: otherwise give a zero threshold that any optimizer step crosses). It is the old
-#: "switched off" margin of the loop (0.1 % of the range).
-RESOLUTION = 1e-4
-#: Without a null (records made by the LF model itself) an effect is refused only when its fit
-#: switched it off: within this fraction of its search range from off (0.1 %, the loop's rule
-#: for effects without a tolerance before the null).
-SWITCHED_OFF = 1e-3
-
-
-#: What one record's residual-to-noise ratio scatters by that a dozen healthy records may
-#: under-sample: the noise estimate's own scatter (on the 1 µm records of an independent
-#: simulator, 0.89-1.09 µm; about 10 %).
-RATIO_SPREAD = 0.1
-
-
-#: Noise classes per decade: a record's noise estimate is rounded to the nearest class
-#: 10**(k/5) (steps of 58 %, a round 1 µm at a class's centre: 0.79-1.26 µm), which the
-#: healthy fleet is simulated with and the cache is keyed by. The estimates of one sensor's
-#: noise scatter from record to record: on the foreign set's 1 µm records, 0.89-1.09 µm
-#: (with 10 classes per decade two records of one command fell in two classes).
-NOISE_CLASSES_PER_DECADE = 5
 
 
 def noise_class(noise: float) -> float:
@@ -236,7 +204,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     The declared faults are fitted with the model's known structure at its physical values
     (the structure the loop adds first on a simulated record), then each effect of
     ``effects`` is refitted on top as a round of the loop refits it
-    (:meth:`eha.explain.ResidualLoop.try_candidate`, with no gate).
+    (:meth:`eha.explain.loop.ResidualLoop.try_candidate`, with no gate).
 
     Returns
     -------
@@ -247,7 +215,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         compares with the flag ratio).
     """
     from eha.effects import COMBINATIONS, EFFECTS, missing_requirements
-    from eha.explain import ResidualLoop, STRUCTURAL
+    from eha.explain.loop import ResidualLoop
 
     STRUCTURAL_ORDER = [name for combo in COMBINATIONS for name in combo]
 
@@ -403,7 +371,6 @@ def covered_effects(effects: Sequence[str]) -> list[str]:
     """The effects a null covers: those with exactly one fitted parameter that are not the
     model's known structure."""
     from eha.effects import EFFECTS
-    from eha.explain import STRUCTURAL
 
     return [n for n in effects if n not in STRUCTURAL and len(EFFECTS[n].params) == 1]
 
@@ -529,4 +496,4 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
 
 __all__ = ["Null", "NullError", "simulated_null", "records_null", "healthy_statistics",
            "healthy_record", "load_null", "cache_dir", "null_key", "covered_effects",
-           "DEFAULT_ACTUATORS", "DECLARED_DRAW", "DETECTION_POWER", "RESOLUTION"]
+           "noise_class", "NULL_FORMAT"]

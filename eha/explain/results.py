@@ -1,0 +1,279 @@
+"""What the residual loop reports: the evaluations, candidates, rounds, steps and dismissals of
+a run, and :class:`ExplainResult` with its JSON, verdict and steps table. RMSE in metres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from eha.effects import EFFECTS
+from eha.explain.leads import LeadReport
+from eha.params import LFParams
+
+
+@dataclass
+class Evaluation:
+    """An LF parameter set scored on the record."""
+
+    params: LFParams
+    xu: np.ndarray                  # LF output on the whole record [m]
+    rmse_fit: float                 # on the fitted part [m]
+    rmse_hold: float                # on the held-out part or the validation record [m]
+    rmse_all: float                 # whole record [m]
+    #: effective independent samples of the residual (fitted + held-out parts)
+    n_eff: float = math.nan
+    #: RMSE of the measured P12 on the fitted / held-out part, weighted into metres of
+    #: position (:func:`p12_objective_weight`); 0 when the record has no P12
+    p12_fit: float = 0.0
+    p12_hold: float = 0.0
+    #: the same on the whole record (the validation record aside)
+    p12_all: float = 0.0
+
+    @property
+    def rmse_whole(self) -> float:
+        """The objective of the final estimates (:meth:`ResidualLoop.estimate`) [m]: position
+        and weighted P12 on the whole record, ``hypot(rmse_all, p12_all)``."""
+        return math.hypot(self.rmse_all, self.p12_all)
+
+    @property
+    def rmse_score(self) -> float:
+        """What the loop scores and stops on [m]: the fitted and the held-out part weighted
+        equally, ``sqrt((rmse_fit**2 + rmse_hold**2) / 2)``, with the weighted P12 RMSE of
+        each part added in quadrature when the record has P12 (the fits' objective). The
+        held-out part alone can be a quiet stretch (the end of a step sequence) where every
+        candidate is at the noise level; the fitted part alone rewards over-fitting."""
+        return math.sqrt(0.5 * (self.rmse_fit ** 2 + self.rmse_hold ** 2 + self.p12_fit ** 2
+                                + self.p12_hold ** 2))
+
+
+@dataclass
+class Candidate:
+    """One effect tried in one round."""
+
+    effect: str
+    signature_corr: float           # Pearson correlation of the residual with the signature
+    explained: float                # fraction of the residual variance its linearised fit adds
+    refit: bool = False
+    params: dict[str, float] = field(default_factory=dict)
+    faults: dict[str, float] = field(default_factory=dict)
+    rmse_fit: float = math.nan
+    rmse_hold: float = math.nan
+    rmse_all: float = math.nan
+    gain: float = math.nan          # relative reduction of Evaluation.rmse_score
+    score: float = math.nan         # gain - penalty * added parameters
+    #: significance of the gain (:func:`significance`) on ``n_eff`` effective samples
+    p_value: float = math.nan
+    n_eff: float = math.nan
+    seconds: float = 0.0
+    #: per effect tested against the healthy null: its parameter's shift from off in the
+    #: local test (:meth:`ResidualLoop.local_test`)
+    shifts: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Step:
+    """An effect added to the model."""
+
+    effect: str
+    params: dict[str, float]
+    rmse_before: float              # whole record, before / after adding the effect [m]
+    rmse_after: float
+    rmse_fit_before: float
+    rmse_fit_after: float
+    rmse_hold_before: float
+    rmse_hold_after: float
+    faults_before: dict[str, float]
+    faults_after: dict[str, float]
+    gain: float
+    score: float
+    #: other candidates of the round scoring within ``ALTERNATIVE_MARGIN`` of the chosen one
+    #: (name -> score): the record does not tell them apart (e.g. load, offset, sensor bias)
+    alternatives: dict[str, float] = field(default_factory=dict)
+    #: the candidate accepted in this step's round (a combination adds several steps) and
+    #: its score, the one the alternatives compare with
+    chosen: str = ""
+    chosen_score: float = math.nan
+
+
+@dataclass
+class Dismissal:
+    """An effect chosen in a round but not added (:meth:`ResidualLoop.confirm`), or added and
+    removed by the final check (:meth:`ResidualLoop.prune`, ``round`` = the number of
+    rounds): left out and the rest refitted, the model lost too little; it is not tried again
+    in that run."""
+
+    effect: str
+    #: the round (0-based, as in ``rounds``)
+    round: int
+    #: relative RMSE reduction it brought over the refit without it (scored); for a swap,
+    #: minus the reduction its replacement brings over it; for a two-for-one merge, the
+    #: reduction the pair brought over its replacement (the same for both of the pair)
+    loss: float
+    #: significance of that reduction (:func:`significance`)
+    p_value: float
+    #: the effect that replaced it in the final check (a swap), else ""
+    replaced_by: str = ""
+
+
+@dataclass
+class Round:
+    """The trace of the residual at one stage and the candidates tried."""
+
+    residual_rmse: float
+    signals: dict[str, float]
+    candidates: list[Candidate]
+
+
+@dataclass
+class ExplainResult:
+    """Outcome of :func:`explain` (RMSE in metres)."""
+
+    source: str
+    fit_bounds: dict[str, tuple[float, float]]
+    faults_before: dict[str, float]
+    faults_after: dict[str, float]
+    before: Evaluation
+    after: Evaluation
+    steps: list[Step]
+    rounds: list[Round]
+    noise_rmse: float
+    stop_reason: str
+    holdout: str
+    t: np.ndarray
+    measured: np.ndarray
+    settings: dict[str, Any]
+    seconds: float
+    #: intervals of the final model's fitted parameters (faults and effect parameters)
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    level: float | None = None
+    #: the residual after the best library model is still well above the noise
+    unexplained: bool = False
+    interval_notes: tuple[str, ...] = ()
+    #: the final residual's relation to signal features (:mod:`eha.explain.leads`)
+    leads: LeadReport | None = None
+    #: effects chosen but not added: the rest of the model refitted explained as much
+    dismissed: list[Dismissal] = field(default_factory=list)
+    #: the healthy null the decisions rested on (:meth:`eha.explain.null.Null.summary`):
+    #: source, alpha, and per effect its threshold and detectable size; None without one
+    null: dict[str, Any] | None = None
+
+    def undetectable(self) -> list[str]:
+        """One line per testable effect not in the model: below which size this record's
+        command could not have shown it (the null's detectable size at ``alpha``), so that a
+        clean verdict says what it rules out."""
+        if not self.null:
+            return []
+        added = set(self.effects)
+        lines = []
+        for name, e in self.null["effects"].items():
+            if name in added or not math.isfinite(e["detectable"]):
+                continue
+            effect = EFFECTS[name]
+            (param,) = effect.params
+            lines.append(f"{name}: not detectable on this command below a change of "
+                         f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
+                         f"{effect.off[param]:.4g})")
+        return lines
+
+    @property
+    def verdict(self) -> str:
+        """One line: is the record explained by the library model, and if not, a lead.
+
+        ``"unexplained residual 12.3 µm (8.1× noise), correlated with position_cubed (61 % of
+        it)"`` when the residual after the best library model is still well above the noise
+        (the effects added may then stand in for physics the library lacks: tentative), else
+        ``"explained: residual 1.6 µm (1.6× noise)"``.
+        """
+        if self.unexplained and self.leads is not None:
+            text = self.leads.describe()
+            limit = (self.null or {}).get("residual_limit")
+            if limit is not None:
+                text += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
+            if self.steps:
+                text += ("; the effects added are tentative (they may stand in for physics "
+                         "the library lacks)")
+            return text
+        ratio = self.rmse_after / self.noise_rmse if self.noise_rmse > 0 else math.inf
+        return f"explained: residual {1e6 * self.rmse_after:.3g} µm ({ratio:.1f}× noise)"
+
+    @property
+    def rmse_before(self) -> float:
+        return self.before.rmse_all
+
+    @property
+    def rmse_after(self) -> float:
+        return self.after.rmse_all
+
+    @property
+    def unexplained_rmse(self) -> float:
+        """RMSE left above the noise level [m]: ``sqrt(max(rmse_after^2 - noise^2, 0))``."""
+        return math.sqrt(max(self.rmse_after ** 2 - self.noise_rmse ** 2, 0.0))
+
+    @property
+    def effects(self) -> list[str]:
+        return [s.effect for s in self.steps]
+
+    def final_params(self, step: Step) -> dict[str, float]:
+        """The parameters of a step's effect in the final model (later steps end with a joint
+        polish that refines earlier estimates; ``step.params`` holds them as first added)."""
+        return {p: getattr(self.after.params, p) for p in step.params}
+
+    def to_json(self) -> dict[str, Any]:
+        """The contract of ``eha explain --json`` (issue 5): RMSE over the whole record [m],
+        each step's parameters as estimated in the final model."""
+        return {
+            "rmse_before": self.rmse_before,
+            "rmse_after": self.rmse_after,
+            "faults_before": dict(self.faults_before),
+            "faults_after": dict(self.faults_after),
+            "intervals": {k: list(v) for k, v in self.intervals.items()},
+            "level": self.level, "unexplained": self.unexplained,
+            "interval_notes": list(self.interval_notes),
+            "verdict": self.verdict, "noise_rmse": self.noise_rmse,
+            "unexplained_rmse": self.unexplained_rmse,
+            "leads": self.leads.to_json() if self.leads is not None else None,
+            "command_hold": self.settings.get("command_hold"),
+            "p12_in_fit": bool(self.settings.get("p12_used", False)),
+            "flow_gain_released": self.settings.get("flow_gain_released"),
+            "steps": [{"effect": s.effect, "params": self.final_params(s),
+                       "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
+                       "tentative": self.unexplained,
+                       "alternatives": self.alternatives_of(s)}
+                      for s in self.steps],
+            "dismissed": [{"effect": d.effect, "round": d.round, "loss": d.loss,
+                           "p_value": d.p_value, "replaced_by": d.replaced_by}
+                          for d in self.dismissed],
+            "null": self.null,
+            "undetectable": self.undetectable(),
+        }
+
+    @staticmethod
+    def alternatives_of(step: Step) -> dict[str, float]:
+        """Candidates of the step's round that scored within :data:`ALTERNATIVE_MARGIN` of the
+        one chosen (name -> penalised score): explanations the record cannot tell from the
+        step's (a motor gain for a supply pressure on a chirp). Those that contain the step's
+        own effect are left out (a step put in by the final check's swap keeps its round's
+        list)."""
+        return {k: v for k, v in step.alternatives.items() if step.effect not in k.split("+")}
+
+    def steps_table(self) -> list[dict[str, Any]]:
+        """One row per added effect, for people (CSV / console)."""
+        return [{"step": i + 1, "effect": s.effect,
+                 "params": ", ".join(f"{k}={v:.4g}" for k, v in
+                                     self.final_params(s).items()) or "-",
+                 "rmse_fit_before_m": s.rmse_fit_before, "rmse_fit_after_m": s.rmse_fit_after,
+                 "rmse_holdout_before_m": s.rmse_hold_before,
+                 "rmse_holdout_after_m": s.rmse_hold_after,
+                 "rmse_before_m": s.rmse_before, "rmse_after_m": s.rmse_after,
+                 "faults_before": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_before.items()),
+                 "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
+                 "gain": s.gain, "score": s.score, "chosen": s.chosen,
+                 "chosen_score": s.chosen_score,
+                 "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in
+                                           self.alternatives_of(s).items())}
+                for i, s in enumerate(self.steps)]
+
