@@ -1,5 +1,6 @@
 """``eha explain``'s input and output: read the measured files, run the residual loop
-(:func:`eha.explain.explain`), write its tables, figures, JSON and database rows."""
+(:func:`eha.explain.explain`), write its tables, figures, JSON and database rows (all of them
+made by the result's serialisation, :class:`eha.explain.results.ExplainResult`)."""
 
 from __future__ import annotations
 
@@ -155,43 +156,19 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
              "residuals": out / "residuals.png", "trace": out / "trace.png",
              "details": out / "explain.json"}
     pd.DataFrame(result.steps_table()).to_csv(paths["steps"], index=False)
-    pd.DataFrame([{"round": i + 1, **{k: v for k, v in vars(c).items()
-                                      if not k.startswith("_")}}
-                  for i, rnd in enumerate(result.rounds) for c in rnd.candidates]
-                 ).to_csv(paths["candidates"], index=False)
+    pd.DataFrame(result.candidates_table()).to_csv(paths["candidates"], index=False)
     plot_explain_residuals(result, paths["residuals"])
     plot_explain_trace(result, paths["trace"])
-    details = {**result.to_json(), "run_id": run_id, "source": result.source,
-               "noise_rmse": result.noise_rmse, "unexplained_rmse": result.unexplained_rmse,
-               "stop_reason": result.stop_reason, "holdout": result.holdout,
-               "steps_table": result.steps_table(), "settings": result.settings,
-               "signals": [r.signals for r in result.rounds], "seconds": result.seconds}
-    paths["details"].write_text(json.dumps(details, indent=2, default=float))
+    paths["details"].write_text(json.dumps(result.details(run_id), indent=2, default=float))
     if json_path is not None:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
         Path(json_path).write_text(json.dumps(result.to_json(), indent=2))
         paths["json"] = Path(json_path)
-    run_row = {"run_id": run_id, "source": str(data), "created_at": datetime.datetime.now(),
-               "fit": {k: list(v) for k, v in result.fit_bounds.items()},
-               "holdout": result.holdout, "settings": result.settings,
-               "rmse_before": result.rmse_before, "rmse_after": result.rmse_after,
-               "noise_rmse": result.noise_rmse, "unexplained_rmse": result.unexplained_rmse,
-               "faults_before": result.faults_before, "faults_after": result.faults_after,
-               "effects": result.effects, "stop_reason": result.stop_reason,
-               "seconds": result.seconds, "unexplained": bool(result.unexplained),
-               "verdict": result.verdict,
-               "command_hold": result.settings.get("command_hold"),
-               "leads": result.leads.to_json() if result.leads is not None else None}
-    step_rows = [{"run_id": run_id, "step": i + 1, "effect": s.effect,
-                  "params": result.final_params(s),
-                  "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
-                  "rmse_fit_before": s.rmse_fit_before, "rmse_fit_after": s.rmse_fit_after,
-                  "rmse_hold_before": s.rmse_hold_before, "rmse_hold_after": s.rmse_hold_after,
-                  "faults_before": s.faults_before, "faults_after": s.faults_after,
-                  "gain": s.gain, "score": s.score} for i, s in enumerate(result.steps)]
     db_error = None
     try:
-        paths["database"] = save_explain(results, run_row, step_rows)
+        paths["database"] = save_explain(
+            results, result.run_row(run_id, str(data), datetime.datetime.now()),
+            result.step_rows(run_id))
     except StoreError as exc:
         db_error = str(exc)
     return {"result": result, "paths": paths, "run_id": run_id, "db_error": db_error}

@@ -1,5 +1,9 @@
 """What the residual loop reports: the evaluations, candidates, rounds, steps and dismissals of
-a run, and :class:`ExplainResult` with its JSON, verdict and steps table. RMSE in metres.
+a run, and :class:`ExplainResult` with its one serialisation, which every output is made of: the
+``--json`` contract (:meth:`ExplainResult.to_json`), the steps table of the CSV and the console
+(:meth:`~ExplainResult.steps_table`), the candidates' CSV, ``explain.json``
+(:meth:`~ExplainResult.details`) and the database rows (:meth:`~ExplainResult.run_row`,
+:meth:`~ExplainResult.step_rows`). RMSE in metres.
 """
 
 from __future__ import annotations
@@ -277,3 +281,41 @@ class ExplainResult:
                                            self.alternatives_of(s).items())}
                 for i, s in enumerate(self.steps)]
 
+    def candidates_table(self) -> list[dict[str, Any]]:
+        """One row per candidate of every round (``candidates.csv``)."""
+        return [{"round": i + 1, **{k: v for k, v in vars(c).items() if not k.startswith("_")}}
+                for i, rnd in enumerate(self.rounds) for c in rnd.candidates]
+
+    def details(self, run_id: str) -> dict[str, Any]:
+        """Everything of the run (``explain.json``): the ``--json`` contract and the steps
+        table, settings, signals of every round and the stop reason."""
+        return {**self.to_json(), "run_id": run_id, "source": self.source,
+                "noise_rmse": self.noise_rmse, "unexplained_rmse": self.unexplained_rmse,
+                "stop_reason": self.stop_reason, "holdout": self.holdout,
+                "steps_table": self.steps_table(), "settings": self.settings,
+                "signals": [r.signals for r in self.rounds], "seconds": self.seconds}
+
+    def run_row(self, run_id: str, source: str, created_at: Any) -> dict[str, Any]:
+        """The run's row of ``explain_runs`` (:func:`eha.store.save_explain`); ``source`` is
+        the record's path as given."""
+        return {"run_id": run_id, "source": source, "created_at": created_at,
+                "fit": {k: list(v) for k, v in self.fit_bounds.items()},
+                "holdout": self.holdout, "settings": self.settings,
+                "rmse_before": self.rmse_before, "rmse_after": self.rmse_after,
+                "noise_rmse": self.noise_rmse, "unexplained_rmse": self.unexplained_rmse,
+                "faults_before": self.faults_before, "faults_after": self.faults_after,
+                "effects": self.effects, "stop_reason": self.stop_reason,
+                "seconds": self.seconds, "unexplained": bool(self.unexplained),
+                "verdict": self.verdict,
+                "command_hold": self.settings.get("command_hold"),
+                "leads": self.leads.to_json() if self.leads is not None else None}
+
+    def step_rows(self, run_id: str) -> list[dict[str, Any]]:
+        """The steps' rows of ``explain_steps`` (:func:`eha.store.save_explain`)."""
+        return [{"run_id": run_id, "step": i + 1, "effect": s.effect,
+                 "params": self.final_params(s),
+                 "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
+                 "rmse_fit_before": s.rmse_fit_before, "rmse_fit_after": s.rmse_fit_after,
+                 "rmse_hold_before": s.rmse_hold_before, "rmse_hold_after": s.rmse_hold_after,
+                 "faults_before": s.faults_before, "faults_after": s.faults_after,
+                 "gain": s.gain, "score": s.score} for i, s in enumerate(self.steps)]
