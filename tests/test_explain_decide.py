@@ -259,3 +259,199 @@ def test_a_gain_bought_on_p12_with_a_worse_position_trades_the_position():
     assert not trades_position(current, ev(2.31 * 1.15, 2.14 * 1.15, 1.0))
     assert trades_position(current, ev(2.31 * 1.25, 2.14 * 1.25, 1.0))
     assert POSITION_WORSENING == 1.2
+
+
+# -- the decision rule's numbers at its thresholds --------------------------------------------
+
+def test_significance_is_the_f_tests_upper_tail_on_effective_samples():
+    """A hand case: 2 parameters lower the RMSE from 2 to 1 on 12 effective samples, so
+    F = ((4 - 1) / 2) / (1 / 10) = 15 on (2, 10) degrees of freedom."""
+    from scipy.stats import f
+
+    assert significance(2.0, 1.0, 2, 12.0) == pytest.approx(f.sf(15.0, 2, 10), rel=1e-12)
+    assert significance(2.0, 1.0, 2, 12.0) == pytest.approx(0.00098, abs=1e-5)
+    # a pure switch (0 parameters) is tested as one parameter
+    assert significance(2.0, 1.0, 0, 12.0) == significance(2.0, 1.0, 1, 12.0) \
+        == pytest.approx(f.sf(33.0, 1, 11), rel=1e-12)
+    # more parameters for the same reduction: less significant
+    assert significance(2.0, 1.0, 3, 12.0) > significance(2.0, 1.0, 2, 12.0)
+
+
+def test_significance_at_its_edges():
+    assert significance(2.0, 0.0, 1, 50.0) == 0.0          # a perfect fit of a residual
+    assert significance(0.0, 0.0, 1, 50.0) == 1.0
+    assert significance(2.0, 1.0, 1, 2.0) == 1.0           # one degree of freedom left: blind
+    assert significance(math.nan, 1.0, 1, 50.0) == 1.0
+    assert significance(2.0, math.inf, 1, 50.0) == 1.0
+    assert significance(2.0, 2.0, 1, 50.0) == 1.0          # no reduction
+
+
+def test_choose_admits_a_score_at_min_gain_and_refuses_one_below():
+    s = LoopSettings(min_gain=0.25, penalty=0.0, significance=0.01)
+
+    def scored(effect, score):
+        c = cand(effect, score)
+        c.score = score
+        return c
+
+    assert choose([scored("offset", 0.25)], s, no_split, never_refit).best.effect == "offset"
+    below = choose([scored("offset", 0.2499)], s, no_split, never_refit)
+    assert below.best is None and "offset" in below.stop and "25%" in below.stop
+
+
+def test_choose_needs_a_p_value_strictly_below_the_significance_level():
+    s = LoopSettings(significance=0.05)
+    assert choose([cand("offset", 0.6, p_value=0.0499)], s, no_split,
+                  never_refit).best is not None
+    at = choose([cand("offset", 0.6, p_value=0.05)], s, no_split, never_refit)
+    assert at.best is None and "not significant" in at.stop and "offset" in at.superseded
+
+
+def test_a_refused_candidate_is_never_chosen_nor_an_alternative():
+    """A refit refused (score -inf: its effect stayed within its healthy band, or it traded
+    the position for P12) is out of the choice however large its gain; a candidate that was
+    not refitted is ignored too."""
+    refused = cand("leakage", 0.95)
+    refused.score = -math.inf
+    unfitted = cand("delay", 0.9)
+    unfitted.refit = False
+    choice = choose([refused, unfitted, cand("offset", 0.93)], SETTINGS, no_split,
+                    never_refit)
+    assert choice.best.effect == "offset"
+    assert choice.alternatives == {}
+    alone = choose([refused, unfitted], SETTINGS, no_split, never_refit)
+    assert alone.best is None and alone.stop.startswith("no candidate improved the model")
+
+
+def test_a_qualifying_structure_is_chosen_before_a_combination_that_extends_it():
+    """A candidate made only of the known structure that clears min_gain and is significant
+    comes first, even against the structure plus an effect that scores higher; among several
+    qualifying structural candidates the best-scoring."""
+    extended = cand("orifice_law+flapper_dynamics+leakage", 0.95, params=3)
+    pair = cand("orifice_law+flapper_dynamics", 0.60, params=2)
+    law = cand("orifice_law", 0.40, params=0)
+    choice = choose([extended, law, pair], SETTINGS, no_split, never_refit)
+    assert choice.best is pair
+    assert choice.members == ["orifice_law", "flapper_dynamics"]
+
+
+def test_alternatives_are_the_qualifying_candidates_within_the_margin():
+    close = cand("offset", 0.47)                      # 0.03 below: an alternative
+    far = cand("sensor_bias", 0.40)                   # 0.10 below: not
+    chance = cand("delay", 0.49, p_value=0.5)         # within, but not significant
+    choice = choose([cand("external_load", 0.50), close, far, chance], SETTINGS, no_split,
+                    never_refit)
+    assert choice.best.effect == "external_load"
+    assert choice.alternatives == {"offset": close.score}
+
+
+def test_keeps_effect_charges_the_penalty_per_parameter_a_switch_as_one():
+    """Kept when ``loss - penalty * n >= CONFIRM_FRACTION * min_gain`` and the loss is
+    significant; the p-value returned is the F test of the model without the effect against
+    the model with it."""
+    from eha.explain.settings import CONFIRM_FRACTION
+
+    s = LoopSettings(min_gain=0.2, penalty=0.05)
+    assert CONFIRM_FRACTION * s.min_gain == pytest.approx(0.1)
+    # loss 0.17: one parameter (0.12 left) kept, two (0.07) not
+    keep1, loss, p = keeps_effect(8.3, 10.0, 1, 1e4, s)
+    assert keep1 and loss == pytest.approx(0.17) and p == significance(10.0, 8.3, 1, 1e4)
+    assert keeps_effect(8.3, 10.0, 0, 1e4, s)[0]
+    assert not keeps_effect(8.3, 10.0, 2, 1e4, s)[0]
+    # loss 0.13: free it would be kept, charged one parameter (0.08 left) it is not; a pure
+    # switch is charged as one
+    assert not keeps_effect(8.7, 10.0, 1, 1e4, s)[0]
+    assert not keeps_effect(8.7, 10.0, 0, 1e4, s)[0]
+    # the same loss on 10 effective samples is not significant
+    keep, _, p = keeps_effect(8.3, 10.0, 1, 10.0, s)
+    assert not keep and p >= s.significance
+    # nothing lost without it: never kept (the loss is negative when the refit without it
+    # found a better fit)
+    keep, loss, _ = keeps_effect(10.0, 9.0, 1, 1e4, s)
+    assert not keep and loss < 0
+
+
+def test_unspecific_below_the_specific_gain_lists_unrelated_rivals_within_the_margin():
+    from eha.explain.settings import RIVAL_MARGIN, SPECIFIC_GAIN
+
+    assert (SPECIFIC_GAIN, RIVAL_MARGIN) == (0.5, 0.05)
+    best = cand("viscous_friction", 0.30)
+    refused = cand("delay", 0.27)
+    refused.score = -math.inf          # a refused refit still shows what a healthy size does
+    rivals = [refused, cand("motor_gain", 0.24),                    # 0.06 below: no rival
+              cand("viscous_friction+leakage", 0.40),               # shares the effect
+              cand("orifice_law", 0.35, params=0),                  # the structure: no rival
+              cand("offset", math.nan)]                             # no gain: no rival
+    assert unspecific(best, rivals) == ["delay"]
+    # a rival made of structure and an unrelated effect is one
+    assert unspecific(best, [cand("orifice_law+flapper_dynamics+offset", 0.26)]) == [
+        "orifice_law+flapper_dynamics+offset"]
+    # at the specific gain, a best is specific whatever matches it
+    assert unspecific(cand("viscous_friction", 0.5), [cand("delay", 0.6)]) == []
+    assert unspecific(cand("viscous_friction", 0.49), [cand("delay", 0.6)]) == ["delay"]
+
+
+def test_trades_position_compares_the_position_only_by_the_given_factor():
+    from eha.explain.decide import trades_position
+    from eha.explain.results import Evaluation
+    from eha.params import LFParams
+
+    def ev(fit, hold, p12=0.0):
+        return Evaluation(LFParams(), None, fit, hold, fit, p12_fit=p12, p12_hold=p12)
+
+    current = ev(3.0, 4.0)                                   # hypot 5
+    assert not trades_position(current, ev(3.0, 4.0), factor=1.0)    # equal: not worse
+    assert trades_position(current, ev(3.0, 4.1), factor=1.0)
+    assert not trades_position(current, ev(4.8, 3.6), factor=1.2)    # hypot 6.0: at the factor
+    assert trades_position(current, ev(4.8, 3.7), factor=1.2)
+    # the P12 of either side plays no part
+    assert not trades_position(ev(3.0, 4.0, p12=0.0), ev(3.0, 4.0, p12=100.0), factor=1.0)
+
+
+def test_edge_of_spread_is_two_percent_of_the_width_from_a_bound():
+    from eha.explain.decide import edge_of_spread
+
+    assert edge_of_spread(0.200, (0.18, 0.22)) is None
+    assert edge_of_spread(0.1812, (0.18, 0.22)) is None              # 3 % of 0.04 inside
+    assert edge_of_spread(0.1805, (0.18, 0.22)) == \
+        "GQ 0.1805 at the lower bound of its healthy spread 0.18-0.22"
+    assert "upper bound" in edge_of_spread(0.2196, (0.18, 0.22))
+    assert "lower bound" in edge_of_spread(0.17, (0.18, 0.22))        # outside it too
+
+
+def test_split_combination_keeps_the_members_that_pay_in_the_order_they_help():
+    """A combination's fit with canned RMSE per member switched on: the orifice law takes 4,
+    the supply pressure 3, a leak 2 and a delay 0.01 off 10 (µm). The delay does not pay its
+    penalty (0.02 of the RMSE) and is dropped; the law (a switch) comes first, then the
+    member that lowers the RMSE most."""
+    from eha.effects import EFFECTS
+    from eha.explain.decide import split_combination
+    from eha.explain.results import Evaluation
+    from eha.params import LFParams
+
+    def evaluations(gains):
+        def run(params_list):
+            out = []
+            for p in params_list:
+                r = 10.0 - sum(g for name, g in gains.items() if EFFECTS[name].is_on(p))
+                out.append(Evaluation(p, None, r, r, r))
+            return out
+        return run
+
+    members = [EFFECTS[n] for n in ("delay", "leakage", "supply_pressure", "orifice_law")]
+    params = LFParams().replace(orifice_law=1.0, PSR=1.8e7, Clk=5e-12, sensor_delay=2e-3)
+    gains = {"orifice_law": 4.0, "supply_pressure": 3.0, "leakage": 2.0, "delay": 0.01}
+    run = evaluations(gains)
+    combined = run([params])[0]
+    kept = split_combination(members, combined, run, penalty=0.02)
+    assert [e.name for e in kept] == ["orifice_law", "supply_pressure", "leakage"]
+    # a law that does not pay on its own stays with the supply pressure that requires it
+    gains = {"orifice_law": 0.001, "supply_pressure": 3.0, "leakage": 2.0, "delay": 0.01}
+    run = evaluations(gains)
+    kept = split_combination(members, run([params])[0], run, penalty=0.02)
+    assert [e.name for e in kept] == ["orifice_law", "supply_pressure", "leakage"]
+    # none pays: the most useful one is kept
+    gains = {"orifice_law": 0.0, "supply_pressure": 0.0, "leakage": 0.1, "delay": 0.01}
+    run = evaluations(gains)
+    kept = split_combination(members, run([params])[0], run, penalty=0.02)
+    assert [e.name for e in kept] == ["leakage"]
