@@ -306,7 +306,7 @@ def load_calibration(path: str | Path) -> Calibration:
 def tail_threshold(values: Sequence[float], alpha: float, spread: float = 0.0
                    ) -> tuple[float, dict[str, float]]:
     """The value a healthy statistic exceeds with probability ``alpha``: the one hypothesis
-    test of ``eha health`` and of the residual loop (:mod:`eha.explain_null`).
+    test of ``eha health`` and of the residual loop (:mod:`eha.explain.null`).
 
     ``values`` are the statistic on healthy records. Its spread has two parts: the healthy
     records' dispersion, measured (``std``), and ``spread``, what one record's estimate

@@ -98,7 +98,7 @@ class Effect:
 
     def shift(self, values: Mapping[str, float]) -> float:
         """How far the fitted parameter in ``values`` is from its off value (its unit): the
-        statistic the residual loop tests against the healthy null (:mod:`eha.explain_null`).
+        statistic the residual loop tests against the healthy null (:mod:`eha.explain.null`).
         An effect of several parameters (the flapper dynamics) has none: nan."""
         if len(self.bounds) != 1:
             return math.nan

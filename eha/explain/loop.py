@@ -223,7 +223,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     def unexplained(self) -> bool:
         """Does the current model leave the record unexplained: its position residual above
         what faults and structure leave on healthy actuators of this command
-        (:meth:`eha.explain_null.Null.residual_limit`, at most
+        (:meth:`eha.explain.null.Null.residual_limit`, at most
         :data:`eha.intervals.FLAG_RATIO` times the noise; without a null, that ratio)?"""
         from eha.intervals import noise_reference
 

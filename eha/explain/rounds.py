@@ -87,7 +87,7 @@ class Rounds:
 
     def local_test(self, start: LFParams, free: Mapping[str, tuple[float, float]],
                    members: Sequence[Effect]) -> LFParams:
-        """The statistic of the healthy null (:mod:`eha.explain_null`): the candidate refitted
+        """The statistic of the healthy null (:mod:`eha.explain.null`): the candidate refitted
         by least squares from two starts, ``start`` (:meth:`candidate_start`: the effects off)
         and the same with the effects at their probes, keeping the better fit. The null runs
         it alike on each healthy record; how far it moves an effect's parameter from off is
