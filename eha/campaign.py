@@ -201,9 +201,10 @@ def _model_version() -> str:
 
 # --------------------------------------------------------------------------- loading
 def campaigns_dir() -> Path:
-    """The campaign files shipped in the package (``campaigns/`` links to them), so that a
-    non-editable install runs ``eha reproduce`` from any folder."""
-    return Path(__file__).resolve().parent / "campaigns"
+    """The campaign files shipped in the package (``eha/campaigns/data/``; ``campaigns/`` at
+    the repository root links to them), so that a non-editable install runs ``eha reproduce``
+    from any folder."""
+    return Path(__file__).resolve().parent / "campaigns" / "data"
 
 
 def load_campaign(path: str | Path) -> Campaign:
