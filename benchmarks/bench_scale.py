@@ -74,7 +74,8 @@ def trace_stats(results: Path) -> dict:
 def query_times(results: Path, fault: float) -> dict:
     """Seconds of the queries over every trace: in DuckDB (view built first) and end to end
     through the CLI."""
-    from eha.store import _create_traces_view, connect
+    from eha.campaigns.query import _create_traces_view
+    from eha.campaigns.store import connect
 
     out = {}
     con = connect(results, read_only=True)
@@ -102,7 +103,7 @@ def query_times(results: Path, fault: float) -> dict:
 def campaign_run(camp, ex, tmp: Path) -> dict:
     from eha.runner import run_campaign
 
-    from eha.store import query
+    from eha.campaigns.query import query
 
     # the bare loop just before and just after the campaign, averaged: the other users of a
     # shared machine change its load within minutes

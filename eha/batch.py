@@ -97,7 +97,7 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     import numpy as np
     import pyarrow as pa
 
-    from eha.chunks import write_chunk
+    from eha.campaigns.traces import write_chunk
     from eha.commands import make_command
     from eha.run_metrics import (PAIR_METRICS, RUN_METRICS, batch_metrics,
                                  batch_pair_metrics)

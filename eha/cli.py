@@ -357,7 +357,7 @@ def simulate(
         trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
     except _input_errors() as exc:
         fail(str(exc))
-    from eha.store import write_trace
+    from eha.campaigns.traces import write_trace
 
     write_trace(trace, out)
     if plot is not None:
@@ -459,7 +459,7 @@ app.add_typer(campaign_app, name="campaign")
 def _campaign_errors():
     from eha.campaign import CampaignError
     from eha.runner import CampaignChanged
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     return (CampaignError, CampaignChanged, StoreError, *_input_errors())
 
@@ -543,7 +543,7 @@ def campaign_run(
         s = run_campaign(camp, results, workers=workers, scheduler=scheduler, replace=replace,
                          progress=progress)
     except _campaign_errors() as exc:
-        from eha.store import StoreWriteError
+        from eha.campaigns.store import StoreWriteError
 
         _fail_lines(str(exc), 1 if isinstance(exc, StoreWriteError) else BAD_INPUT)
     except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
@@ -573,7 +573,8 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
     Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
     (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
     """
-    from eha.store import StoreError, query as run_query
+    from eha.campaigns.query import query as run_query
+    from eha.campaigns.store import StoreError
 
     if format not in ("table", "csv", "json"):
         fail(f"--format {format!r}: allowed table, csv, json")
@@ -607,7 +608,8 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
 
     Example: eha export metrics --csv results/metrics.csv
     """
-    from eha.store import StoreError, export_csv
+    from eha.campaigns.query import export_csv
+    from eha.campaigns.store import StoreError
 
     check_out_file(csv, "--csv", (".csv",))
     try:
@@ -627,7 +629,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
     Example: eha plot thesis-matrix --results results
     """
     from eha.plots import plot_campaign
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     try:
@@ -969,7 +971,7 @@ def report_thesis(results: ResultsOption = RESULTS,
     Example: eha report thesis --results results --out results/reports/thesis
     """
     from eha.thesis_report import thesis_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
     try:
@@ -999,7 +1001,7 @@ def report_health(results: ResultsOption = RESULTS,
     """
     from eha.detection import DetectionError
     from eha.monitoring import health_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     if not 0 < alpha < 1:
         fail(f"--alpha {alpha!r}: allowed range (0, 1)")
@@ -1029,7 +1031,7 @@ def report_html(results: ResultsOption = RESULTS,
     Example: eha report html --results results --out report.html
     """
     from eha.report_html import ReportError, build_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     out = out if out is not None else results / "reports" / "report.html"
     check_out_file(out, "--out", (".html", ".htm"))
@@ -1085,7 +1087,7 @@ def health_calibrate(
     from eha.campaign import CampaignError
     from eha.detection import DetectionError
     from eha.monitoring import calibrate_fleet
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_seed(seed)
     check_out_file(out, "--out", (".json",))

@@ -457,7 +457,7 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     camp = fleet_campaign(fl, out.resolve(), truth)
     if (out / "eha.duckdb").exists():
         # a record deleted since it was written is simulated again
-        from eha.store import ResultStore
+        from eha.campaigns.store import ResultStore
 
         with ResultStore(out) as db:
             if db.campaign(camp.name) is not None:

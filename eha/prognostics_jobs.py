@@ -169,7 +169,7 @@ def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
 
 def read_health_rows(results: Path, campaign: str) -> list[dict[str, Any]]:
     """The ``health_checks`` rows of a campaign, with their run status (JSON decoded)."""
-    from eha.store import connect
+    from eha.campaigns.store import connect
 
     con = connect(results)
     try:
@@ -405,7 +405,7 @@ def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, 
 
 def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list],
                        limits: Mapping[str, float]) -> None:
-    from eha.store import _frame, connect
+    from eha.campaigns.store import _frame, connect
 
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     rows = [{"run_id": run_id, "actuator": aid, "cycle": p.cycle, "rul": p.rul,

@@ -138,7 +138,7 @@ def _run_simulation(spec: Mapping[str, Any], run_key: str, campaign: str, trace_
     from eha.commands import make_command
     from eha.simulate import simulate
     from eha.simulate import Trace
-    from eha.store import write_trace
+    from eha.campaigns.traces import write_trace
 
     cmd = make_command(spec["command"]["name"], **spec["command"]["set"])
     t0 = time.perf_counter()
@@ -164,7 +164,7 @@ def _run_fdi(spec: Mapping[str, Any], run_key: str, campaign: str,
     the identified LF model."""
     from eha.fdi_cases import run_job
     from eha.simulate import Trace
-    from eha.store import write_trace
+    from eha.campaigns.traces import write_trace
 
     row, fitted = run_job(spec)
     write_trace(Trace(fitted.data, {**fitted.meta, "run_key": run_key, "campaign": campaign}),
@@ -178,7 +178,7 @@ def _run_health(spec: Mapping[str, Any], run_key: str, campaign: str,
     ``health_assessments`` row and the record (t, com, xu) as the trace."""
     from eha.detection import run_health_job
     from eha.simulate import Trace
-    from eha.store import write_trace
+    from eha.campaigns.traces import write_trace
 
     row, record = run_health_job(spec)
     write_trace(Trace(record.data, {**record.meta, "run_key": run_key, "campaign": campaign}),
@@ -494,7 +494,8 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     """
     from eha.campaign import Campaign, load_campaign
     from eha.simulate import MODEL_VERSION
-    from eha.store import ResultStore, clean_temp_files
+    from eha.campaigns.store import ResultStore
+    from eha.campaigns.traces import clean_temp_files
 
     t_start = time.perf_counter()
     camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
@@ -549,8 +550,8 @@ def _tasks(camp, todo: list, results: Path) -> list[dict]:
     planned on the whole campaign so that a resume writes the same files), other kinds one
     run per task."""
     from eha.batch import plan_chunks
-    from eha.chunks import chunk_name
-    from eha.store import trace_path
+    from eha.campaigns.traces import chunk_name
+    from eha.campaigns.traces import trace_path
 
     wanted = {j.run_key for j in todo}
     tasks: list[dict] = []
@@ -688,7 +689,7 @@ class _Pairs:
 def _finish_pairs(db, campaign: str) -> int:
     """HF-vs-LF metrics of every case whose HF and LF runs are both done but not yet paired
     (e.g. one of them ran in an earlier session): reads their traces; returns how many."""
-    from eha.store import read_trace
+    from eha.campaigns.traces import read_trace
 
     rows = []
     for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):

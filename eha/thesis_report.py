@@ -57,7 +57,7 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
         ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.report_html.ReportResult`).
     """
     from eha.runner import LocalPoolExecutor, run_campaign
-    from eha.store import read_trace
+    from eha.campaigns.traces import read_trace
 
     results = Path(results)
     summaries = []
@@ -325,7 +325,8 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
         No database, or no FDI result of that campaign in it.
     """
     from eha.fdi_cases import parse_fdi_campaign, rows_from_results
-    from eha.store import StoreError, query
+    from eha.campaigns.query import query
+    from eha.campaigns.store import StoreError
 
     frame = query(results, """
         SELECT f.* FROM fdi_results f JOIN runs r USING (run_key)
@@ -343,7 +344,7 @@ def thesis_report(results: str | Path = "results", out: str | Path | None = None
                   campaign: str = FDI_CAMPAIGN) -> dict[str, Path]:
     """``eha report thesis``: the FDI table, figure and summary of ``campaign`` from the
     database in ``results``, written to ``out`` (default ``results/reports/thesis``)."""
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     rows, camp = fdi_results(results, campaign)
     try:

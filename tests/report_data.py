@@ -20,7 +20,7 @@ import numpy as np
 
 from eha.campaign import campaigns_dir
 from eha.health import FAULTS
-from eha.store import replace_rows, save_explain
+from eha.campaigns.store import replace_rows, save_explain
 
 NOW = datetime(2026, 11, 1, 12, 0, 0)
 ACTUATORS = {"A1": 1300.0, "A2": 2100.0, "A3": None}        # true end of life (None: never)

@@ -20,7 +20,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from eha.runner import Executor, run_campaign
-from eha.store import query, read_trace
+from eha.campaigns.query import query
+from eha.campaigns.traces import read_trace
 
 CHUNKY = textwrap.dedent("""
     name = "chunky"
@@ -167,7 +168,8 @@ def test_results_folder_of_one_file_per_run_is_still_read(tmp_path):
     """A campaign run before chunk files: one file per run, written by write_trace (no
     run_key column, the key in the name), recorded with that file's size. It is read by the
     traces view, resumes as done, and a grown campaign adds chunk files beside it."""
-    from eha.store import ResultStore, write_trace
+    from eha.campaigns.store import ResultStore
+    from eha.campaigns.traces import write_trace
 
     small = CHUNKY.replace("seeds = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]",
                            "seeds = [0, 1]")          # 32 runs: one run per file

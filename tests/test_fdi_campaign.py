@@ -15,7 +15,8 @@ import pytest
 from eha.campaign import CampaignError, load_campaign
 from eha.thesis_report import thesis_report
 from eha.runner import run_campaign
-from eha.store import StoreError, query
+from eha.campaigns.query import query
+from eha.campaigns.store import StoreError
 
 CAMPAIGN = """
 name = "fdi-test"

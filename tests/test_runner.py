@@ -14,7 +14,8 @@ from eha.cli import app
 from eha.runner import (LocalPoolExecutor, execute_job, lag, pair_metrics, run_campaign,
                         settling_time, worker_info)
 from eha.simulate import simulate
-from eha.store import query, read_trace
+from eha.campaigns.query import query
+from eha.campaigns.traces import read_trace
 
 cli = CliRunner()
 
