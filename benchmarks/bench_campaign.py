@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(table_or_path, workers: int, tmp: Path):
-    from eha.campaign import build_campaign, load_campaign
+    from eha.campaigns.files import build_campaign, load_campaign
     from eha.runner import run_campaign
 
     camp = (load_campaign(table_or_path) if isinstance(table_or_path, Path)

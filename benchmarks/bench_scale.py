@@ -161,7 +161,7 @@ class NoopExecutor:
 
 
 def noop_throughput(n: int, tmp: Path) -> dict:
-    from eha.campaign import build_campaign
+    from eha.campaigns.files import build_campaign
     from eha.runner import run_campaign
 
     table = campaign_table(n, 1.0)
@@ -203,7 +203,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_scale.json"))
     args = ap.parse_args(argv)
     os.environ["NUMBA_NUM_THREADS"] = "1"   # Dask worker processes inherit it
-    from eha.campaign import build_campaign
+    from eha.campaigns.files import build_campaign
     from eha.runner import DaskExecutor, LocalPoolExecutor
 
     load_start = os.getloadavg()

@@ -457,7 +457,7 @@ app.add_typer(campaign_app, name="campaign")
 
 
 def _campaign_errors():
-    from eha.campaign import CampaignError
+    from eha.campaigns.files import CampaignError
     from eha.runner import CampaignChanged
     from eha.campaigns.store import StoreError
 
@@ -472,7 +472,7 @@ def _fail_lines(text: str, code: int = BAD_INPUT) -> None:
 
 
 def _load(file: Path):
-    from eha.campaign import CampaignError, load_campaign
+    from eha.campaigns.files import CampaignError, load_campaign
 
     try:
         return load_campaign(file)
@@ -498,7 +498,7 @@ def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
 
     Example: eha campaign plan campaigns/thesis-single-fault.toml --jobs
     """
-    from eha.campaign import plan
+    from eha.campaigns.files import plan
 
     camp = _load(file)
     info = plan(camp, workers)
@@ -1084,7 +1084,7 @@ def health_calibrate(
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """
-    from eha.campaign import CampaignError
+    from eha.campaigns.files import CampaignError
     from eha.detection import DetectionError
     from eha.monitoring import calibrate_fleet
     from eha.campaigns.store import StoreError

@@ -363,7 +363,7 @@ def record_seed(seed: int, actuator: str, k: int) -> int:
 # =========================================================================== runner jobs
 def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
     """The records as a campaign of ``fleet_record`` jobs (one per check)."""
-    from eha.campaign import Campaign, Job
+    from eha.campaigns.files import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
     jobs = []

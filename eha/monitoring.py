@@ -55,7 +55,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     Returns ``{"calibration": Calibration, "path": file, "summary": RunSummary,
     "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
     """
-    from eha.campaign import build_campaign, CampaignError
+    from eha.campaigns.files import build_campaign, CampaignError
     from eha.runner import run_campaign
     from eha.simulate import MODEL_VERSION
     from eha.campaigns.store import replace_rows

@@ -113,7 +113,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
     """One ``health`` job per manifest record (an :class:`eha.campaign.Campaign`);
     ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
     ``eha fdi --data`` uses)."""
-    from eha.campaign import Campaign, Job
+    from eha.campaigns.files import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
     from eha import fdi

@@ -492,7 +492,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     eha.store.StoreError
         The database is locked by another process.
     """
-    from eha.campaign import Campaign, load_campaign
+    from eha.campaigns.files import Campaign, load_campaign
     from eha.simulate import MODEL_VERSION
     from eha.campaigns.store import ResultStore
     from eha.campaigns.traces import clean_temp_files

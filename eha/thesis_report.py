@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from eha.campaign import campaigns_dir
+from eha.campaigns.files import campaigns_dir
 from eha.figures import pyplot as _pyplot
 from eha.figures import save as _save
 from eha.plots import campaign_report, campaign_runs, fault_order, fault_text, plot_campaign

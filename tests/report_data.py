@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eha.campaign import campaigns_dir
+from eha.campaigns.files import campaigns_dir
 from eha.health import FAULTS
 from eha.campaigns.store import replace_rows, save_explain
 

@@ -71,10 +71,11 @@ def copy(chunky, tmp_path):
 
 def test_run_keys_are_those_of_the_full_identity_hash():
     """Hashing the shared identity text once gives the keys of hashing every job whole."""
-    from eha.campaign import _expand_simulations, _hash, _model_version, load_campaign
+    from eha.campaigns.files import _hash, _model_version, load_campaign
+    from eha.campaigns.simulations import _expand_simulations
     import tomllib
 
-    from eha.campaign import campaigns_dir
+    from eha.campaigns.files import campaigns_dir
 
     path = campaigns_dir() / "thesis-matrix.toml"
     table = tomllib.loads(path.read_text())
@@ -243,7 +244,7 @@ def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
     """The same campaign on 2 single-threaded Dask worker processes and on the local pool of
     2: wall times within 15 % (best of two alternating rounds each, warm workers)."""
     distributed = pytest.importorskip("distributed")
-    from eha.campaign import build_campaign
+    from eha.campaigns.files import build_campaign
     from eha.runner import DaskExecutor, LocalPoolExecutor
 
     table = {"name": "race", "models": ["hf"], "commands": ["mixed"],

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from eha.campaign import CampaignError, load_campaign
+from eha.campaigns.files import CampaignError, load_campaign
 from eha.thesis_report import thesis_report
 from eha.runner import run_campaign
 from eha.campaigns.query import query
