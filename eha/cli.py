@@ -458,7 +458,7 @@ app.add_typer(campaign_app, name="campaign")
 
 def _campaign_errors():
     from eha.campaigns.files import CampaignError
-    from eha.runner import CampaignChanged
+    from eha.campaigns.runner import CampaignChanged
     from eha.campaigns.store import StoreError
 
     return (CampaignError, CampaignChanged, StoreError, *_input_errors())
@@ -530,7 +530,8 @@ def campaign_run(
 
     Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
     """
-    from eha.runner import check_scheduler, run_campaign
+    from eha.campaigns.executors import check_scheduler
+    from eha.campaigns.runner import run_campaign
 
     if scheduler is not None:
         try:

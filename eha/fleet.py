@@ -64,6 +64,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from eha.campaigns.jobs import register_job
+
 LAWS = ("linear", "exponential", "power")
 TOP_KEYS = ("name", "description", "seed", "actuators", "command", "t_end", "noise",
             "check_every", "first_check", "max_cycles", "format", "limits", "dispersion",
@@ -444,7 +446,7 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     bad file (nothing written) and the runner's errors (database locked, ...).
     """
     from eha.manifest import write_manifest
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
 
     fl = fleet if isinstance(fleet, Fleet) else load_fleet(fleet)
     out = Path(out)
@@ -472,6 +474,9 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     censored = sum(1 for a in truth["actuators"].values() if a["eol"] is None)
     return FleetResult(out, manifest, truth_path, len(truth["actuators"]), n_rec, censored,
                        summary)
+
+
+register_job("fleet_record", run_record_job)  # eha fleet simulate: one record
 
 
 __all__ = ["Fleet", "FleetError", "FaultSpec", "parse_fleet", "load_fleet", "draw_truth",

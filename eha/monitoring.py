@@ -56,7 +56,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
     """
     from eha.campaigns.files import build_campaign, CampaignError
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
     from eha.simulate import MODEL_VERSION
     from eha.campaigns.store import replace_rows
 

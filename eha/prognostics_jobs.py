@@ -3,7 +3,7 @@ runner, predict at every check, store, evaluate against a truth, plot.
 
 1. :func:`health_campaign` turns the manifest into runner jobs of kind ``"health"``, one per
    record (run key: the record's content hash, actuator, cycle, fitted faults and bounds,
-   seed, method). :func:`eha.runner.run_campaign` runs them on worker processes into
+   seed, method). :func:`eha.campaigns.runner.run_campaign` runs them on worker processes into
    ``RESULTS/eha.duckdb`` (table ``health_checks``); a second run of the same or a longer
    manifest only assesses the new records (resume; ``replace``: runs no longer listed are
    dropped).
@@ -26,6 +26,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from eha.campaigns.jobs import register_job
 from eha.prognostics import LAWS, PrognosticsError, histories_from_checks, predict_history
 from eha.prognostics import LIMIT_ERROR as PRED_LIMIT_ERROR
 
@@ -110,7 +111,7 @@ def run_id_of(manifest_path: Path) -> str:
 
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
                     method: str = HEALTH_METHOD, base_model: str | None = None):
-    """One ``health`` job per manifest record (an :class:`eha.campaign.Campaign`);
+    """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
     ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
     ``eha fdi --data`` uses)."""
     from eha.campaigns.files import Campaign, Job
@@ -291,7 +292,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Bad input (nothing written).
     """
     from eha.manifest import read_manifest
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
 
     t0 = time.perf_counter()
     manifest = read_manifest(manifest_path)
@@ -426,6 +427,9 @@ def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list]
         con.execute("COMMIT")
     finally:
         con.close()
+
+
+register_job("health", run_health_job)  # eha rul: one record's assessment
 
 
 __all__ = ["run_rul", "RulResult", "parse_limits", "load_truth", "health_campaign",

@@ -52,11 +52,12 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     Returns
     -------
     dict
-        ``summaries`` (one :class:`eha.runner.RunSummary` per campaign), ``nominal`` (rows:
+        ``summaries`` (one :class:`eha.campaigns.runner.RunSummary` per campaign), ``nominal`` (rows:
         command, RMSE of xu HF vs LF [m], as % of the command peak), ``plots``, ``reports``,
         ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.report_html.ReportResult`).
     """
-    from eha.runner import LocalPoolExecutor, run_campaign
+    from eha.campaigns.executors import LocalPoolExecutor
+    from eha.campaigns.runner import run_campaign
     from eha.campaigns.traces import read_trace
 
     results = Path(results)
@@ -133,7 +134,7 @@ def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None =
     ----------
     rows : sequence of dict
         FDI results (:class:`eha.fdi_cases.FDIRow` rows, or rows of the ``fdi_results`` table
-        through :func:`eha.store.fdi_rows`), any number of seeds per case.
+        through :func:`fdi_results`), any number of seeds per case.
     campaign : eha.fdi_cases.FDICampaign
         The cases: injected faults, bounds, population and the thesis' values.
 
@@ -321,7 +322,7 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
 
     Raises
     ------
-    eha.store.StoreError
+    eha.campaigns.store.StoreError
         No database, or no FDI result of that campaign in it.
     """
     from eha.fdi_cases import parse_fdi_campaign, rows_from_results

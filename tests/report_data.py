@@ -1,7 +1,7 @@
 """A results folder with something for every section of the HTML report, in milliseconds.
 
-A real DuckDB file written through the store's writers (:func:`eha.store.replace_rows`,
-:func:`eha.store.save_explain`) with rows shaped as the commands write them: a 3-actuator
+A real DuckDB file written through the store's writers (:func:`eha.campaigns.store.replace_rows`,
+:func:`eha.campaigns.store.save_explain`) with rows shaped as the commands write them: a 3-actuator
 ``eha rul`` run (with a ``truth.json`` beside its records), two health checks and a detection
 campaign, the thesis' FDI campaign (its real definition, three seeds per case, and its
 augmented twin), one residual-loop run and a simulation campaign with HF-vs-LF errors. The

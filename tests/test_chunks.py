@@ -19,7 +19,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from eha.runner import Executor, run_campaign
+from eha.campaigns.executors import Executor
+from eha.campaigns.runner import run_campaign
 from eha.campaigns.query import query
 from eha.campaigns.traces import read_trace
 
@@ -245,7 +246,7 @@ def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
     2: wall times within 15 % (best of two alternating rounds each, warm workers)."""
     distributed = pytest.importorskip("distributed")
     from eha.campaigns.files import build_campaign
-    from eha.runner import DaskExecutor, LocalPoolExecutor
+    from eha.campaigns.executors import DaskExecutor, LocalPoolExecutor
 
     table = {"name": "race", "models": ["hf"], "commands": ["mixed"],
              "seeds": list(range(160)), "t_end": 1.0,

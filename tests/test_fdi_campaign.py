@@ -14,7 +14,7 @@ import pytest
 
 from eha.campaigns.files import CampaignError, load_campaign
 from eha.thesis_report import thesis_report
-from eha.runner import run_campaign
+from eha.campaigns.runner import run_campaign
 from eha.campaigns.query import query
 from eha.campaigns.store import StoreError
 

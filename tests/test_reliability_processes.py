@@ -161,8 +161,7 @@ CTRL_C_IN_COMMIT = textwrap.dedent('''
     # a test run started in the background (nohup, `&` in a script) inherits SIGINT ignored,
     # and Python then installs no KeyboardInterrupt handler: restore it
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    from eha import runner
-    from eha.campaigns import store
+    from eha.campaigns import runner, store
     from eha.cli import app
 
     upsert = store.ResultStore._upsert

@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.runner import run_campaign
+from eha.campaigns.runner import run_campaign
 from eha.simulate import simulate
 from eha.campaigns.query import export_csv, query
 from eha.campaigns.schema import SCHEMA

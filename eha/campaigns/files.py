@@ -43,14 +43,16 @@ a different ``spec_hash``, which the runner detects.
 
 Other job kinds
 ---------------
-A job has a ``kind``; simulations are ``"simulate"``. Another kind (e.g. fault identification)
-plugs in through :data:`SECTION_KINDS`: a top-level TOML table (``[fdi]``) mapped to an
-``expand(section, campaign_table, problems) -> list[JobDraft]`` function that validates its
+A job has a ``kind``; simulations are ``"simulate"`` (their part of the file:
+:mod:`eha.campaigns.simulations`). Another kind (e.g. fault identification) plugs in through a
+top-level TOML table (``[fdi]``) whose expander its module registers
+(:func:`eha.campaigns.jobs.register_section`, found through the ``eha.campaign_sections``
+entry points): ``expand(section, campaign_table, problems) -> list[JobDraft]`` validates its
 section (appending one line per problem to ``problems``) and returns the job specs. A file
 with ``kind = "fdi"`` (and no ``models``/``commands``) has only the jobs of its ``[fdi]``
-section; a simulation file may also carry such a section (both kinds in one campaign). The runner
-maps the kind to its worker function (:data:`eha.runner.JOB_RUNNERS`) and the store has the
-kind's result table in its one schema (:data:`eha.store.SCHEMA`).
+section; a simulation file may also carry such a section (both kinds in one campaign). The
+kind's module registers its worker function too (:func:`eha.campaigns.jobs.register_job`), and
+the store has the kind's result table in its one schema (:data:`eha.campaigns.schema.SCHEMA`).
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ class JobDraft:
     Attributes
     ----------
     kind : str
-        Job kind (``"simulate"``; others register in :data:`SECTION_KINDS`).
+        Job kind (``"simulate"``; others: :func:`eha.campaigns.jobs.register_section`).
     spec : dict
         Compact, JSON-serialisable description the worker needs (stored in ``runs.spec``).
     identity : dict
@@ -220,8 +222,11 @@ def load_campaign(path: str | Path) -> Campaign:
 
 def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign:
     """Validate and expand a campaign given as a mapping (the parsed TOML)."""
+    from eha.campaigns import jobs as registry
+
+    sections = registry.section_names()
     problems: list[str] = []
-    allowed = TOP_KEYS + tuple(SECTION_KINDS)
+    allowed = TOP_KEYS + sections
     for key in table:
         if key not in allowed:
             problems.append(f"{key}: unknown key{_did_you_mean(key, allowed)}; allowed: "
@@ -238,11 +243,11 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         description = ""
 
     kind = table.get("kind", "simulate")
-    if kind != "simulate" and kind not in SECTION_KINDS:
+    if kind != "simulate" and kind not in sections:
         problems.append(f"kind: {kind!r} is not a campaign kind here; allowed: "
-                        f"{', '.join(['simulate', *SECTION_KINDS])}")
+                        f"{', '.join(['simulate', *sections])}")
     drafts: list[JobDraft] = []
-    others = [k for k in SECTION_KINDS if k in table]
+    others = [k for k in sections if k in table]
     if kind == "simulate" or "models" in table or "commands" in table:
         from eha.campaigns.simulations import _expand_simulations
 
@@ -252,7 +257,7 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         if not isinstance(section, Mapping):
             problems.append(f"{key}: must be a table ([{key}])")
             continue
-        drafts += SECTION_KINDS[key](section, table, problems)
+        drafts += registry.section(key)(section, table, problems)
 
     if not problems and not drafts:
         problems.append("campaign: expands to no jobs")
@@ -294,17 +299,22 @@ def _did_you_mean(key: str, allowed: tuple[str, ...] | list[str]) -> str:
 def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
     """Counts and an estimated wall time for running ``campaign`` on ``workers`` processes.
 
-    The estimate uses measured per-run costs on this project's reference machine (HF about
-    5 ms and LF about 3 ms per simulated second at DT = 1e-5 s, :data:`eha.batch.SIM_COST`,
-    plus about 0.5 ms per run for metrics, its share of a chunk file and the commit) and about
-    2 s to start the worker pool; it is a guide, not a promise.
+    The estimate uses measured per-run costs on this project's reference machine: a job kind's
+    own estimate where it registers one (simulations: HF about 5 ms and LF about 3 ms per
+    simulated second at DT = 1e-5 s, :data:`eha.batch.SIM_COST`, plus about 0.5 ms per run for
+    metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
+    and about 2 s to start the worker pool; it is a guide, not a promise.
     """
-    from eha.batch import estimated_run_s
+    from eha.campaigns.jobs import find_job_kind
 
     work = 0.0
+    estimate: dict[str, Callable | None] = {}  # kind -> its estimate, looked up once
     for j in campaign.jobs:
-        if j.kind == "simulate":
-            work += estimated_run_s(j.spec) + 5e-4
+        if j.kind not in estimate:
+            found = find_job_kind(j.kind)
+            estimate[j.kind] = found.estimate_s if found is not None else None
+        if estimate[j.kind] is not None:
+            work += estimate[j.kind](j.spec)
         else:
             work += float(j.columns.get("estimated_s", 1.0))
     workers = max(1, int(workers))
@@ -316,79 +326,5 @@ def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
             "workers": workers, "estimated_s": 2.0 + work / workers}
 
 
-#: Extra job kinds: top-level TOML table name -> expander (see the module docstring).
-SECTION_KINDS: dict[str, Callable[[Mapping[str, Any], Mapping[str, Any], list[str]],
-                                  list[JobDraft]]] = {}
-
-
-def _expand_fdi(section: Mapping[str, Any], table: Mapping[str, Any],
-                problems: list[str]) -> list[JobDraft]:
-    """``[fdi]``: one fault-identification job per case and seed (:func:`eha.fdi_cases.fdi_jobs`)."""
-    from eha.fdi import FDIError
-    from eha.fdi_cases import fdi_jobs
-
-    try:
-        return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
-    except FDIError as exc:
-        problems.extend(_all_fdi_problems(table, str(exc)))
-        return []
-
-
-def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> list[str]:
-    """Every problem of an ``[fdi]`` section, one line each.
-
-    :func:`eha.fdi_cases.parse_fdi_campaign` stops at its first problem. The part a message names
-    (``fdi.KEY`` or ``fdi.cases[i]``) is taken out of a copy of the section (a top-level key
-    falls back to its default, a case is dropped) and the copy validated again, until it
-    passes, a message names no part, or the same message comes back.
-    """
-    from eha.fdi import FDIError
-    from eha.fdi_cases import fdi_jobs
-
-    section = dict(table.get("fdi", {}))
-    cases = list(enumerate(section.get("cases", []) or []))
-    had_cases = bool(cases)
-    found = [first]
-    message = first
-    for _ in range(most):
-        case = re.search(r"fdi\.cases\[(\d+)\]", message)
-        key = re.search(r"fdi\.(\w+)", message)
-        if case and int(case.group(1)) < len(cases):
-            del cases[int(case.group(1))]
-        elif key and key.group(1) in section and key.group(1) != "cases":
-            del section[key.group(1)]
-        else:
-            break
-        section["cases"] = [c for _, c in cases]
-        try:
-            fdi_jobs({**table, "fdi": section}, source="fdi")
-            break
-        except FDIError as exc:
-            message = str(exc)
-        if had_cases and not cases and "no [[fdi.cases]]" in message:
-            break  # every case was taken out for its own problem: nothing more to learn
-        # report case indices as they are in the file, not in the shortened copy
-        shown = re.sub(r"fdi\.cases\[(\d+)\]",
-                       lambda m: f"fdi.cases[{cases[int(m.group(1))][0]}]"
-                       if int(m.group(1)) < len(cases) else m.group(0), message)
-        if shown in found:
-            break
-        found.append(shown)
-    return found
-
-
-SECTION_KINDS["fdi"] = _expand_fdi
-
-
-def _expand_health(section: Mapping[str, Any], table: Mapping[str, Any],
-                   problems: list[str]) -> list[JobDraft]:
-    """``[health]``: one health assessment per actuator (:func:`eha.detection.health_jobs`)."""
-    from eha.detection import health_jobs
-
-    return [JobDraft(**job) for job in health_jobs(section, problems)]
-
-
-SECTION_KINDS["health"] = _expand_health
-
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",
-           "plan", "campaigns_dir", "SECTION_KINDS", "MAX_JOBS"]
+           "plan", "campaigns_dir", "MAX_JOBS"]

@@ -32,7 +32,7 @@ SCHEMA: dict[str, str] = {
         CREATE TABLE IF NOT EXISTS runs (
             run_key     VARCHAR PRIMARY KEY,  -- hash of the resolved job spec + model version
             campaign    VARCHAR NOT NULL,
-            kind        VARCHAR NOT NULL,     -- 'simulate' (others: see eha.campaign)
+            kind        VARCHAR NOT NULL,     -- 'simulate' (others: eha.campaigns.jobs)
             status      VARCHAR NOT NULL,     -- 'pending', 'done', 'failed'
             model       VARCHAR,
             command     VARCHAR,

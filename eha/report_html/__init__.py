@@ -67,7 +67,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     ------
     ReportError
         ``results`` is not a folder, has no database, or the database holds no result.
-    eha.store.StoreError
+    eha.campaigns.store.StoreError
         The database cannot be read (locked by a running campaign, damaged).
     """
     from eha.report_html import data as D
