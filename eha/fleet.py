@@ -54,9 +54,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -388,29 +386,13 @@ def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
                     tuple(jobs))
 
 
-def write_table_atomic(frame, path: Path, fmt: str) -> None:
-    """Write a DataFrame as CSV or Parquet under a temporary name, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        if fmt == "csv":
-            frame.to_csv(tmp, index=False, float_format="%.9g")
-        else:
-            frame.to_parquet(tmp, index=False)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
                    trace_file: str) -> dict[str, Any]:
     """Worker of a ``fleet_record`` job: one HF record with sensor noise, written to
     ``spec["record"]``. No trace or result row (the record is the output)."""
     import time
 
+    from eha.campaigns.traces import write_table_file
     from eha.commands import make_command
     from eha.measured import synthetic_record
 
@@ -420,7 +402,7 @@ def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
                              noise=float(spec["noise"]), seed=int(spec["seed"]))
     if not np.all(np.isfinite(frame.to_numpy())):
         raise FloatingPointError("the HF run produced NaN/inf")
-    write_table_atomic(frame, Path(spec["record"]), spec["format"])
+    write_table_file(frame, Path(spec["record"]), spec["format"])
     return {"rows": {}, "sim_s": time.perf_counter() - t0}
 
 

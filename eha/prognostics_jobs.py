@@ -406,7 +406,7 @@ def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, 
 
 def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list],
                        limits: Mapping[str, float]) -> None:
-    from eha.campaigns.store import _frame, connect
+    from eha.campaigns.store import replace_rows
 
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     rows = [{"run_id": run_id, "actuator": aid, "cycle": p.cycle, "rul": p.rul,
@@ -415,19 +415,8 @@ def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list]
              "crossings": p.crossings, "law_weights": p.law_weights, "limits": dict(limits),
              "n_used": p.n_used, "seed": p.seed, "created_at": now}
             for aid, preds in preds_all.items() for p in preds]
-    con = connect(results)
-    try:
-        con.execute("BEGIN")
-        con.execute("DELETE FROM rul_predictions WHERE run_id = ?", [run_id])
-        if rows:
-            frame = _frame(rows)
-            con.register("_p", frame)
-            con.execute("INSERT INTO rul_predictions BY NAME SELECT * FROM _p")
-            con.unregister("_p")
-        con.execute("COMMIT")
-    finally:
-        con.close()
-
+    # one transaction: a re-run of the same manifest replaces its predictions
+    replace_rows(results, "rul_predictions", rows, {"run_id": run_id})
 
 register_job("health", run_health_job)  # eha rul: one record's assessment
 

@@ -277,6 +277,25 @@ def read_table_file(path: str | Path):
                        skipinitialspace=True)
 
 
+
+def write_table_file(frame, path: Path, fmt: str) -> None:
+    """Write a measured-data table (a DataFrame; ``fmt`` ``csv`` or ``parquet``) under a
+    temporary name in the same folder, then rename: the counterpart of
+    :func:`read_table_file`."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        if fmt == "csv":
+            frame.to_csv(tmp, index=False, float_format="%.9g")
+        else:
+            frame.to_parquet(tmp, index=False)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
 def _sniff_separator(path: Path) -> str:
     """Column separator of a text table: comma, semicolon, tab or whitespace (default comma)."""
     import csv
@@ -323,5 +342,5 @@ def clean_temp_files(folder: str | Path, keep: set[str] | None = None) -> int:
 
 
 __all__ = ["chunk_name", "chunk_table", "write_chunk", "write_table_atomic", "read_run",
-           "write_trace", "read_trace", "trace_intact", "read_table_file", "trace_path",
-           "clean_temp_files", "TEMP_SUFFIX", "ROW_GROUP_ROWS", "FILE_MODE"]
+           "write_trace", "read_trace", "trace_intact", "read_table_file", "write_table_file",
+           "trace_path", "clean_temp_files", "TEMP_SUFFIX", "ROW_GROUP_ROWS", "FILE_MODE"]
