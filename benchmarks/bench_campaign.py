@@ -6,7 +6,7 @@ Prints, median of ``--repeat`` runs, each into a fresh results folder with a war
   does (2.0x on an idle 2-core machine): the ceiling for any 2-worker speed-up right now;
 
 * ``thesis-matrix`` (60 runs of 1 s) with 1 and 2 local spawn workers: the end-to-end wall time
-  of :func:`eha.runner.run_campaign` (validation, database, starting the pool, the jobs, the
+  of :func:`eha.campaigns.runner.run_campaign` (validation, database, starting the pool, the jobs, the
   HF-vs-LF metrics), the pool start-up and the job phase, and the 2-worker speed-ups.
   Targets: matrix <= 10 s on 2 workers; speed-up >= 1.7x.
 * the same matrix at ``t_end = --long`` seconds (the same 60 runs, 10x longer each), where the
@@ -32,8 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(table_or_path, workers: int, tmp: Path):
-    from eha.campaign import build_campaign, load_campaign
-    from eha.runner import run_campaign
+    from eha.campaigns.files import build_campaign, load_campaign
+    from eha.campaigns.runner import run_campaign
 
     camp = (load_campaign(table_or_path) if isinstance(table_or_path, Path)
             else build_campaign(table_or_path))

@@ -5,7 +5,7 @@ For each size (``--runs``) and run length (``--t-end``), on one set of warm work
 
 * **ideal**: the same simulations as a bare loop of ``simulate()`` on those workers (the
   simulate seconds measured in the workers, summed, divided by the workers);
-* **campaign wall**: :func:`eha.runner.run_campaign` on the same warm workers into a fresh
+* **campaign wall**: :func:`eha.campaigns.runner.run_campaign` on the same warm workers into a fresh
   results folder (validation, database, tasks, chunk files, metrics, commits, HF-vs-LF);
 * **efficiency** = ideal / campaign wall, both measured in this run (the bare loop just
   before and just after the campaign, averaged: a shared machine's load drifts; the load
@@ -74,7 +74,8 @@ def trace_stats(results: Path) -> dict:
 def query_times(results: Path, fault: float) -> dict:
     """Seconds of the queries over every trace: in DuckDB (view built first) and end to end
     through the CLI."""
-    from eha.store import _create_traces_view, connect
+    from eha.campaigns.query import _create_traces_view
+    from eha.campaigns.store import connect
 
     out = {}
     con = connect(results, read_only=True)
@@ -100,9 +101,9 @@ def query_times(results: Path, fault: float) -> dict:
 
 
 def campaign_run(camp, ex, tmp: Path) -> dict:
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
 
-    from eha.store import query
+    from eha.campaigns.query import query
 
     # the bare loop just before and just after the campaign, averaged: the other users of a
     # shared machine change its load within minutes
@@ -160,8 +161,8 @@ class NoopExecutor:
 
 
 def noop_throughput(n: int, tmp: Path) -> dict:
-    from eha.campaign import build_campaign
-    from eha.runner import run_campaign
+    from eha.campaigns.files import build_campaign
+    from eha.campaigns.runner import run_campaign
 
     table = campaign_table(n, 1.0)
     t0 = time.perf_counter()
@@ -202,8 +203,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_scale.json"))
     args = ap.parse_args(argv)
     os.environ["NUMBA_NUM_THREADS"] = "1"   # Dask worker processes inherit it
-    from eha.campaign import build_campaign
-    from eha.runner import DaskExecutor, LocalPoolExecutor
+    from eha.campaigns.files import build_campaign
+    from eha.campaigns.executors import DaskExecutor, LocalPoolExecutor
 
     load_start = os.getloadavg()
     sizes = [int(x) for x in args.runs.split(",")]

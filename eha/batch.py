@@ -1,4 +1,5 @@
-"""Batched simulation tasks: a chunk of runs per task, one chunk file per task (issue 25).
+"""The campaign runner's ``simulate`` job kind: a chunk of runs per task, one chunk file per
+task (issue 25).
 
 A 1-s HF run simulates in about 5 ms; sent one per task, its bookkeeping (a task round trip, a
 Parquet file, per-run metrics, a row-by-row commit) cost more than the run. The runner therefore
@@ -6,13 +7,19 @@ groups a campaign's simulations into *chunks* (:func:`plan_chunks`): consecutive
 campaign, whole HF/LF cases kept together, sized to about :data:`TASK_SECONDS` of work. A worker
 runs a chunk (:func:`run_chunk`): it simulates each run, computes the metrics of all of them at
 once (:func:`eha.run_metrics.batch_metrics`) and the HF-vs-LF metrics of the cases inside the
-chunk, writes one chunk file (:mod:`eha.chunks`) and returns Arrow tables that the parent
-inserts in bulk.
+chunk, writes one chunk file (:mod:`eha.campaigns.traces`) and returns Arrow tables that the
+parent inserts in bulk.
 
 The chunks depend only on the campaign (its jobs and their estimated cost), never on the
 workers or on what is already done: after a crash the runs left of a chunk are re-run into the
 file named after exactly those runs, and an uninterrupted campaign and a resumed one end with
 the same files and the same rows.
+
+The kind registers itself with the runner (:func:`eha.campaigns.jobs.register_job`, found
+through the ``eha.jobs`` entry point ``simulate``): its chunks, a one-run job
+(:func:`run_simulation_job`), the plan's estimate, the HF-vs-LF pairs of a case split across
+tasks (:class:`Pairs`, :func:`finish_pairs`) and the worker warm-up (:func:`warm_up`, entry
+point ``eha.worker_warm_up``).
 """
 
 from __future__ import annotations
@@ -21,7 +28,10 @@ import os
 import socket
 import time
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, Mapping, Sequence
+
+from eha.campaigns.jobs import register_job
 
 #: Target work per task [s]: well above the ~1 ms a task round trip costs on the local pool
 #: or Dask, well below a campaign's wall time (the last tasks run alone).
@@ -36,7 +46,8 @@ SIM_COST = {"hf": 5e-3, "lf": 3e-3}
 
 
 def estimated_run_s(spec: Mapping[str, Any]) -> float:
-    """Estimated simulation time [s] of one ``simulate`` job (spec of :mod:`eha.campaign`)."""
+    """Estimated simulation time [s] of one ``simulate`` job (spec of
+    :mod:`eha.campaigns.simulations`)."""
     dt = spec["params"].get("DT", 1e-5)
     return SIM_COST[spec["model"]] * spec["t_end"] * (1e-5 / dt)
 
@@ -97,7 +108,7 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     import numpy as np
     import pyarrow as pa
 
-    from eha.chunks import write_chunk
+    from eha.campaigns.traces import write_chunk
     from eha.commands import make_command
     from eha.run_metrics import (PAIR_METRICS, RUN_METRICS, batch_metrics,
                                  batch_pair_metrics)
@@ -227,5 +238,156 @@ def _runs_schema():
                       ("trace_rows", pa.int64())])
 
 
+# =========================================================================== the runner's kind
+def run_simulation_job(spec: Mapping[str, Any], run_key: str, campaign: str, trace_file: str,
+                       want_signals: bool = False) -> dict[str, Any]:
+    """One ``simulate`` job on its own (the runner sends them by chunk, :func:`run_chunk`):
+    its ``metrics`` row and its trace file."""
+    import numpy as np
+
+    from eha.campaigns.traces import write_trace
+    from eha.commands import make_command
+    from eha.run_metrics import trace_metrics
+    from eha.simulate import Trace, simulate
+
+    cmd = make_command(spec["command"]["name"], **spec["command"]["set"])
+    t0 = time.perf_counter()
+    trace = simulate(spec["model"], cmd, spec["params"], t_end=spec["t_end"], seed=spec["seed"])
+    sim_s = time.perf_counter() - t0
+    if not np.all(np.isfinite(trace.data)):
+        raise FloatingPointError("the simulation produced NaN/inf (unstable parameter set)")
+    metrics = trace_metrics(trace)
+    trace = Trace(trace.data, {**trace.meta, "run_key": run_key, "campaign": campaign})
+    write_trace(trace, trace_file, columns=spec["signals"])
+    out = {"rows": {"metrics": metrics}, "sim_s": sim_s, "trace_rows": len(trace)}
+    if want_signals:  # the parent pairs HF and LF of a case without reading the files back
+        out["signals"] = {"xu": trace.xu.copy(), "p12": trace["p12"].copy()}
+    return out
+
+
+def warm_up() -> None:
+    """Run a tiny HF and LF chunk end to end in this worker (not recorded anywhere): imports
+    happen once per worker instead of inside the first task, numba loads and links the cached
+    kernels (``cache=True``: nothing is recompiled per task), and pyarrow's Parquet writer is
+    initialised."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="eha-warm-") as tmp:
+        runs = [{"run_key": f"{i:016x}", "case_key": "warm", "model": model,
+                 "spec": {"model": model, "command": {"name": "step_1mm", "set": {}},
+                          "params": {}, "seed": 0, "t_end": 2e-3}}
+                for i, model in enumerate(("hf", "lf"))]
+        run_chunk({"campaign": "warm-up", "trace_file": str(Path(tmp) / "w.parquet"),
+                   "trace_path": "w.parquet", "signals": ["t", "com", "xu"], "runs": runs})
+
+
+def worker_info() -> dict[str, Any]:
+    """Diagnostics of the calling worker: ``worker`` (host:pid), ``numba_threads`` and the
+    numba cache statistics of the kernels (``cache_misses`` stays 0 when nothing recompiles)."""
+    import numba
+
+    from eha.models.hf import run_hf
+    from eha.models.lf import run_lf
+
+    misses = sum(sum(k.stats.cache_misses.values()) for k in (run_hf, run_lf))
+    hits = sum(sum(k.stats.cache_hits.values()) for k in (run_hf, run_lf))
+    return {"worker": f"{socket.gethostname()}:{os.getpid()}",
+            "numba_threads": numba.config.NUMBA_NUM_THREADS,
+            "cache_hits": hits, "cache_misses": misses}
+
+
+class Pairs:
+    """HF-vs-LF metrics of the cases split across tasks, as results arrive.
+
+    A case whose HF and LF runs are in one chunk is paired by its worker. One split across
+    two tasks of this session is paired here from the signals the workers send back for those
+    runs only; one whose other run was done in an earlier session is paired at the end
+    (:func:`finish_pairs`).
+    """
+
+    def __init__(self, payloads: list[dict]):
+        where: dict[str, dict[str, tuple[int, dict]]] = {}
+        for i, p in enumerate(payloads):
+            for run in (p["runs"] if p["kind"] == "chunk" else [p]):
+                if (p.get("job_kind", p["kind"]) == "simulate" and run.get("case_key")
+                        and run.get("model")):
+                    where.setdefault(run["case_key"], {})[run["model"]] = (i, run)
+        self.case: dict[str, tuple[str, str]] = {}
+        for case, models in where.items():
+            if "hf" in models and "lf" in models and models["hf"][0] != models["lf"][0]:
+                for model in ("hf", "lf"):
+                    run = models[model][1]
+                    run["want_signals"] = True
+                    self.case[run["run_key"]] = (case, model)
+        self.waiting: dict[str, dict[str, tuple[str, dict]]] = {}
+        self.rows: list[dict] = []
+
+    def add(self, result: dict) -> None:
+        if "runs" in result:
+            signals = result.pop("signals", {})
+        else:
+            one = result.pop("signals", None)
+            signals = {result["run_key"]: one} if one is not None and \
+                result["status"] == "done" else {}
+        for key, sig in signals.items():
+            if key in self.case:
+                self._add(key, sig)
+
+    def _add(self, run_key: str, signals: dict) -> None:
+        from eha.run_metrics import pair_metrics
+
+        case, model = self.case[run_key]
+        mine = self.waiting.setdefault(case, {})
+        mine[model] = (run_key, signals)
+        if "hf" in mine and "lf" in mine:
+            (hf_key, hf), (lf_key, lf) = mine.pop("hf"), mine.pop("lf")
+            del self.waiting[case]
+            if len(hf["xu"]) == len(lf["xu"]):
+                m = pair_metrics(hf, lf)
+                self.rows += [{"run_key": hf_key, **m}, {"run_key": lf_key, **m}]
+
+    def take(self) -> dict[str, list[dict]]:
+        """The ``metrics`` rows paired since the last call."""
+        rows, self.rows = self.rows, []
+        return {"metrics": rows}
+
+
+def finish_pairs(db, campaign: str) -> int:
+    """HF-vs-LF metrics of every case whose HF and LF runs are both done but not yet paired
+    (e.g. one of them ran in an earlier session): reads their traces; returns how many.
+    ``db``: the runner's :class:`eha.campaigns.store.ResultStore`."""
+    from eha.campaigns.traces import read_trace
+    from eha.run_metrics import pair_metrics
+
+    rows = []
+    for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):
+        try:
+            hf = read_trace(db.results / hf_path, hf_key)
+            lf = read_trace(db.results / lf_path, lf_key)
+        except Exception:  # vanished or damaged (ArrowInvalid): not paired now; the resume
+            continue       # re-runs a damaged trace (eha.campaigns.traces.trace_intact)
+        if len(hf) != len(lf):
+            continue
+        m = pair_metrics(hf, lf)
+        rows += [{"run_key": hf_key, **m}, {"run_key": lf_key, **m}]
+    if rows:
+        db.record([], {"metrics": rows})  # one transaction
+    return len(rows) // 2
+
+
+def _chunk_fields(runs: Sequence[Any]) -> dict[str, Any]:
+    return {"signals": runs[0].spec["signals"]}
+
+
+def _estimate_s(spec: Mapping[str, Any]) -> float:
+    # plus about 0.5 ms per run for metrics, its share of a chunk file and the commit
+    return estimated_run_s(spec) + 5e-4
+
+
+SIMULATE = register_job("simulate", run_simulation_job, plan_chunks=plan_chunks,
+                        run_chunk=run_chunk, chunk_fields=_chunk_fields, estimate_s=_estimate_s,
+                        collect=Pairs, finish=finish_pairs)
+
+
 __all__ = ["plan_chunks", "chunk_size", "run_chunk", "estimated_run_s", "TASK_SECONDS",
-           "MIN_TASKS"]
+           "MIN_TASKS", "run_simulation_job", "warm_up", "worker_info", "Pairs", "finish_pairs"]

@@ -357,7 +357,7 @@ def simulate(
         trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
     except _input_errors() as exc:
         fail(str(exc))
-    from eha.store import write_trace
+    from eha.campaigns.traces import write_trace
 
     write_trace(trace, out)
     if plot is not None:
@@ -457,9 +457,9 @@ app.add_typer(campaign_app, name="campaign")
 
 
 def _campaign_errors():
-    from eha.campaign import CampaignError
-    from eha.runner import CampaignChanged
-    from eha.store import StoreError
+    from eha.campaigns.files import CampaignError
+    from eha.campaigns.runner import CampaignChanged
+    from eha.campaigns.store import StoreError
 
     return (CampaignError, CampaignChanged, StoreError, *_input_errors())
 
@@ -472,7 +472,7 @@ def _fail_lines(text: str, code: int = BAD_INPUT) -> None:
 
 
 def _load(file: Path):
-    from eha.campaign import CampaignError, load_campaign
+    from eha.campaigns.files import CampaignError, load_campaign
 
     try:
         return load_campaign(file)
@@ -498,7 +498,7 @@ def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
 
     Example: eha campaign plan campaigns/thesis-single-fault.toml --jobs
     """
-    from eha.campaign import plan
+    from eha.campaigns.files import plan
 
     camp = _load(file)
     info = plan(camp, workers)
@@ -530,7 +530,8 @@ def campaign_run(
 
     Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
     """
-    from eha.runner import check_scheduler, run_campaign
+    from eha.campaigns.executors import check_scheduler
+    from eha.campaigns.runner import run_campaign
 
     if scheduler is not None:
         try:
@@ -543,7 +544,7 @@ def campaign_run(
         s = run_campaign(camp, results, workers=workers, scheduler=scheduler, replace=replace,
                          progress=progress)
     except _campaign_errors() as exc:
-        from eha.store import StoreWriteError
+        from eha.campaigns.store import StoreWriteError
 
         _fail_lines(str(exc), 1 if isinstance(exc, StoreWriteError) else BAD_INPUT)
     except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
@@ -573,7 +574,8 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
     Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
     (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
     """
-    from eha.store import StoreError, query as run_query
+    from eha.campaigns.query import query as run_query
+    from eha.campaigns.store import StoreError
 
     if format not in ("table", "csv", "json"):
         fail(f"--format {format!r}: allowed table, csv, json")
@@ -607,7 +609,8 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
 
     Example: eha export metrics --csv results/metrics.csv
     """
-    from eha.store import StoreError, export_csv
+    from eha.campaigns.query import export_csv
+    from eha.campaigns.store import StoreError
 
     check_out_file(csv, "--csv", (".csv",))
     try:
@@ -627,7 +630,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
     Example: eha plot thesis-matrix --results results
     """
     from eha.plots import plot_campaign
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     try:
@@ -969,7 +972,7 @@ def report_thesis(results: ResultsOption = RESULTS,
     Example: eha report thesis --results results --out results/reports/thesis
     """
     from eha.thesis_report import thesis_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
     try:
@@ -999,7 +1002,7 @@ def report_health(results: ResultsOption = RESULTS,
     """
     from eha.detection import DetectionError
     from eha.monitoring import health_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     if not 0 < alpha < 1:
         fail(f"--alpha {alpha!r}: allowed range (0, 1)")
@@ -1029,7 +1032,7 @@ def report_html(results: ResultsOption = RESULTS,
     Example: eha report html --results results --out report.html
     """
     from eha.report_html import ReportError, build_report
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     out = out if out is not None else results / "reports" / "report.html"
     check_out_file(out, "--out", (".html", ".htm"))
@@ -1082,10 +1085,10 @@ def health_calibrate(
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """
-    from eha.campaign import CampaignError
+    from eha.campaigns.files import CampaignError
     from eha.detection import DetectionError
     from eha.monitoring import calibrate_fleet
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     check_seed(seed)
     check_out_file(out, "--out", (".json",))

@@ -35,6 +35,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from eha.campaigns.jobs import register_job, register_section
 from eha.health import CORE_FAULTS, EXTRA_FAULTS, FAULTS
 
 #: Manufacturing dispersion of a healthy actuator: name -> (law, a, b).
@@ -217,6 +218,32 @@ def run_health_job(spec: Mapping[str, Any]):
     data[:, O_T], data[:, O_COM], data[:, O_XU] = rec.t, rec.com, rec.xu
     return row, Trace(data, {"model": "hf+noise", "command": spec["command"],
                              "params": dict(spec["hf"]), "seed": int(spec["seed"])})
+
+
+def run_health_assessment_job(spec: Mapping[str, Any], run_key: str, campaign: str,
+                              trace_file: str) -> dict[str, Any]:
+    """Worker of a ``health_assessment`` job (:func:`run_health_job`): a
+    ``health_assessments`` row and the record (t, com, xu) as the trace."""
+    from eha.campaigns.traces import write_trace
+    from eha.simulate import Trace
+
+    row, record = run_health_job(spec)
+    write_trace(Trace(record.data, {**record.meta, "run_key": run_key, "campaign": campaign}),
+                trace_file, columns=["t", "com", "xu"])
+    return {"rows": {"health_assessments": row}, "sim_s": row["seconds"]}
+
+
+def expand_health_section(section: Mapping[str, Any], table: Mapping[str, Any],
+                          problems: list[str]) -> list:
+    """``[health]`` of a campaign file: one health assessment per actuator
+    (:func:`health_jobs`), as :class:`eha.campaigns.files.JobDraft`."""
+    from eha.campaigns.files import JobDraft
+
+    return [JobDraft(**job) for job in health_jobs(section, problems)]
+
+
+register_job("health_assessment", run_health_assessment_job)
+register_section("health", expand_health_section)
 
 
 # --------------------------------------------------------------------------------------------

@@ -3,16 +3,19 @@
 The identification itself is :mod:`eha.fdi`; this module holds what the thesis reproduction
 adds around it: FDI campaign files (``[fdi]`` sections, :class:`FDICampaign`), running a case
 (:func:`run_case`) into the one result type :class:`FDIRow`, and the runner's job functions
-(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table).
+(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), which it registers
+with the campaign runner (job kind and campaign section ``fdi``).
 """
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from eha.campaigns.jobs import register_job, register_section
 from eha.commands import as_command
 from eha.fdi import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, METHODS,
                      OBJECTIVES, FDIError, FitResult, check_bounds, hf_reference, identify,
@@ -215,7 +218,7 @@ class FDIRow:
                    flagged=bool(res.flagged), noise_rmse=res.noise_rmse)
 
     def to_record(self) -> dict[str, Any]:
-        """The ``fdi_results`` columns (eha.store.SCHEMA)."""
+        """The ``fdi_results`` columns (eha.campaigns.schema.SCHEMA)."""
         est, truth, err = self.estimates, self.truth, self.errors_pct
         return {"case_id": int(self.case), "command": self.command, "seed": int(self.seed),
                 "method": self.method, "objective_name": self.objective_name,
@@ -298,7 +301,8 @@ def run_campaign(campaign: FDICampaign, seeds: Sequence[int] | None = None,
 
 
 # --------------------------------------------------------------------------------------------
-# campaign-runner jobs (kind "fdi"; eha.campaign expands, eha.runner executes, eha.store keeps)
+# campaign-runner jobs (kind "fdi", section [fdi]; registered with eha.campaigns.jobs, which
+# expands, runs and keeps them)
 
 
 def fdi_jobs(table: Mapping[str, Any], source: str = "campaign") -> list[dict[str, Any]]:
@@ -348,3 +352,73 @@ def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
 def rows_from_results(frame) -> list[FDIRow]:
     """``fdi_results`` table rows (a DataFrame, JSON as text) back as :class:`FDIRow`."""
     return [FDIRow.from_record(rec) for rec in frame.to_dict("records")]
+
+
+def run_fdi_job(spec: Mapping[str, Any], run_key: str, campaign: str,
+                trace_file: str) -> dict[str, Any]:
+    """Worker of an ``fdi`` job (:func:`run_job`): an ``fdi_results`` row and the trace of the
+    identified LF model."""
+    from eha.campaigns.traces import write_trace
+
+    row, fitted = run_job(spec)
+    write_trace(Trace(fitted.data, {**fitted.meta, "run_key": run_key, "campaign": campaign}),
+                trace_file)
+    return {"rows": {"fdi_results": row}, "sim_s": row["seconds"], "trace_rows": len(fitted)}
+
+
+def expand_fdi_section(section: Mapping[str, Any], table: Mapping[str, Any],
+                       problems: list[str]) -> list:
+    """``[fdi]`` of a campaign file: one fault-identification job per case and seed
+    (:func:`fdi_jobs`), as :class:`eha.campaigns.files.JobDraft`; every problem of the section
+    is appended to ``problems``, one line each."""
+    from eha.campaigns.files import JobDraft
+
+    try:
+        return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
+    except FDIError as exc:
+        problems.extend(_all_fdi_problems(table, str(exc)))
+        return []
+
+
+def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> list[str]:
+    """Every problem of an ``[fdi]`` section, one line each.
+
+    :func:`parse_fdi_campaign` stops at its first problem. The part a message names
+    (``fdi.KEY`` or ``fdi.cases[i]``) is taken out of a copy of the section (a top-level key
+    falls back to its default, a case is dropped) and the copy validated again, until it
+    passes, a message names no part, or the same message comes back.
+    """
+    section = dict(table.get("fdi", {}))
+    cases = list(enumerate(section.get("cases", []) or []))
+    had_cases = bool(cases)
+    found = [first]
+    message = first
+    for _ in range(most):
+        case = re.search(r"fdi\.cases\[(\d+)\]", message)
+        key = re.search(r"fdi\.(\w+)", message)
+        if case and int(case.group(1)) < len(cases):
+            del cases[int(case.group(1))]
+        elif key and key.group(1) in section and key.group(1) != "cases":
+            del section[key.group(1)]
+        else:
+            break
+        section["cases"] = [c for _, c in cases]
+        try:
+            fdi_jobs({**table, "fdi": section}, source="fdi")
+            break
+        except FDIError as exc:
+            message = str(exc)
+        if had_cases and not cases and "no [[fdi.cases]]" in message:
+            break  # every case was taken out for its own problem: nothing more to learn
+        # report case indices as they are in the file, not in the shortened copy
+        shown = re.sub(r"fdi\.cases\[(\d+)\]",
+                       lambda m: f"fdi.cases[{cases[int(m.group(1))][0]}]"
+                       if int(m.group(1)) < len(cases) else m.group(0), message)
+        if shown in found:
+            break
+        found.append(shown)
+    return found
+
+
+register_job("fdi", run_fdi_job)
+register_section("fdi", expand_fdi_section)

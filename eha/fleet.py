@@ -54,15 +54,15 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+
+from eha.campaigns.jobs import register_job
 
 LAWS = ("linear", "exponential", "power")
 TOP_KEYS = ("name", "description", "seed", "actuators", "command", "t_end", "noise",
@@ -363,7 +363,7 @@ def record_seed(seed: int, actuator: str, k: int) -> int:
 # =========================================================================== runner jobs
 def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
     """The records as a campaign of ``fleet_record`` jobs (one per check)."""
-    from eha.campaign import Campaign, Job
+    from eha.campaigns.files import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
     jobs = []
@@ -386,29 +386,13 @@ def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
                     tuple(jobs))
 
 
-def write_table_atomic(frame, path: Path, fmt: str) -> None:
-    """Write a DataFrame as CSV or Parquet under a temporary name, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        if fmt == "csv":
-            frame.to_csv(tmp, index=False, float_format="%.9g")
-        else:
-            frame.to_parquet(tmp, index=False)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
                    trace_file: str) -> dict[str, Any]:
     """Worker of a ``fleet_record`` job: one HF record with sensor noise, written to
     ``spec["record"]``. No trace or result row (the record is the output)."""
     import time
 
+    from eha.campaigns.traces import write_table_file
     from eha.commands import make_command
     from eha.measured import synthetic_record
 
@@ -418,7 +402,7 @@ def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
                              noise=float(spec["noise"]), seed=int(spec["seed"]))
     if not np.all(np.isfinite(frame.to_numpy())):
         raise FloatingPointError("the HF run produced NaN/inf")
-    write_table_atomic(frame, Path(spec["record"]), spec["format"])
+    write_table_file(frame, Path(spec["record"]), spec["format"])
     return {"rows": {}, "sim_s": time.perf_counter() - t0}
 
 
@@ -444,7 +428,7 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     bad file (nothing written) and the runner's errors (database locked, ...).
     """
     from eha.manifest import write_manifest
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
 
     fl = fleet if isinstance(fleet, Fleet) else load_fleet(fleet)
     out = Path(out)
@@ -457,7 +441,7 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     camp = fleet_campaign(fl, out.resolve(), truth)
     if (out / "eha.duckdb").exists():
         # a record deleted since it was written is simulated again
-        from eha.store import ResultStore
+        from eha.campaigns.store import ResultStore
 
         with ResultStore(out) as db:
             if db.campaign(camp.name) is not None:
@@ -472,6 +456,9 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     censored = sum(1 for a in truth["actuators"].values() if a["eol"] is None)
     return FleetResult(out, manifest, truth_path, len(truth["actuators"]), n_rec, censored,
                        summary)
+
+
+register_job("fleet_record", run_record_job)  # eha fleet simulate: one record
 
 
 __all__ = ["Fleet", "FleetError", "FaultSpec", "parse_fleet", "load_fleet", "draw_truth",

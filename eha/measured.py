@@ -395,7 +395,7 @@ def load(path: str | Path, command_hold: str = "auto") -> MeasuredData:
     MeasuredDataError
         File missing or unreadable, unsupported type, or any validation problem.
     """
-    from eha.store import read_table_file
+    from eha.campaigns.traces import read_table_file
 
     path = Path(path)
     source = str(path)

@@ -24,7 +24,7 @@ RECORD_SECONDS = (0.2, 10.0)
 
 
 def _assessments(results: str | Path, campaign: str):
-    from eha.store import query
+    from eha.campaigns.query import query
 
     frame = query(results, "SELECT h.* FROM health_assessments h JOIN runs r USING (run_key) "
                            "WHERE r.campaign = ? AND r.status = 'done' ORDER BY h.seed",
@@ -55,10 +55,10 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     Returns ``{"calibration": Calibration, "path": file, "summary": RunSummary,
     "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
     """
-    from eha.campaign import build_campaign, CampaignError
-    from eha.runner import run_campaign
+    from eha.campaigns.files import build_campaign, CampaignError
+    from eha.campaigns.runner import run_campaign
     from eha.simulate import MODEL_VERSION
-    from eha.store import replace_rows
+    from eha.campaigns.store import replace_rows
 
     if not 0 < alpha < 1:
         raise DetectionError(f"--alpha {alpha!r}: allowed range (0, 1)")
@@ -193,7 +193,7 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         tmp.replace(p)
         out.paths["json"] = p
     if results is not None:
-        from eha.store import StoreError, replace_rows
+        from eha.campaigns.store import StoreError, replace_rows
 
         now = datetime.now(timezone.utc).replace(tzinfo=None)
         rows = [{"check_id": check_id, "record": str(record), "created_at": now,

@@ -78,7 +78,7 @@ def fault_text(faults: dict) -> str:
 
 def campaign_runs(results: str | Path, campaign: str):
     """Done simulation runs of a campaign joined with their metrics (pandas DataFrame)."""
-    from eha.store import query
+    from eha.campaigns.query import query
 
     frame = query(results, """
         SELECT r.*, m.* EXCLUDE (run_key) FROM runs r LEFT JOIN metrics m USING (run_key)
@@ -135,12 +135,12 @@ def plot_campaign(results: str | Path = "results", campaign: str = "thesis-matri
     list of Path
         The PNGs written under ``out`` (default ``DIR/plots/<campaign>/``).
     """
-    from eha.store import read_trace
+    from eha.campaigns.traces import read_trace
 
     results = Path(results)
     runs = campaign_runs(results, campaign)
     if runs.empty:
-        from eha.store import StoreError
+        from eha.campaigns.store import StoreError
 
         raise StoreError(f"plot: campaign {campaign!r} has no finished runs in "
                          f"{results / 'eha.duckdb'}")

@@ -3,7 +3,7 @@ runner, predict at every check, store, evaluate against a truth, plot.
 
 1. :func:`health_campaign` turns the manifest into runner jobs of kind ``"health"``, one per
    record (run key: the record's content hash, actuator, cycle, fitted faults and bounds,
-   seed, method). :func:`eha.runner.run_campaign` runs them on worker processes into
+   seed, method). :func:`eha.campaigns.runner.run_campaign` runs them on worker processes into
    ``RESULTS/eha.duckdb`` (table ``health_checks``); a second run of the same or a longer
    manifest only assesses the new records (resume; ``replace``: runs no longer listed are
    dropped).
@@ -26,6 +26,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from eha.campaigns.jobs import register_job
 from eha.prognostics import LAWS, PrognosticsError, histories_from_checks, predict_history
 from eha.prognostics import LIMIT_ERROR as PRED_LIMIT_ERROR
 
@@ -110,10 +111,10 @@ def run_id_of(manifest_path: Path) -> str:
 
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
                     method: str = HEALTH_METHOD, base_model: str | None = None):
-    """One ``health`` job per manifest record (an :class:`eha.campaign.Campaign`);
+    """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
     ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
     ``eha fdi --data`` uses)."""
-    from eha.campaign import Campaign, Job
+    from eha.campaigns.files import Campaign, Job
     from eha.simulate import MODEL_VERSION
 
     from eha import fdi
@@ -169,7 +170,7 @@ def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
 
 def read_health_rows(results: Path, campaign: str) -> list[dict[str, Any]]:
     """The ``health_checks`` rows of a campaign, with their run status (JSON decoded)."""
-    from eha.store import connect
+    from eha.campaigns.store import connect
 
     con = connect(results)
     try:
@@ -291,7 +292,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Bad input (nothing written).
     """
     from eha.manifest import read_manifest
-    from eha.runner import run_campaign
+    from eha.campaigns.runner import run_campaign
 
     t0 = time.perf_counter()
     manifest = read_manifest(manifest_path)
@@ -405,7 +406,7 @@ def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, 
 
 def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list],
                        limits: Mapping[str, float]) -> None:
-    from eha.store import _frame, connect
+    from eha.campaigns.store import replace_rows
 
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     rows = [{"run_id": run_id, "actuator": aid, "cycle": p.cycle, "rul": p.rul,
@@ -414,18 +415,10 @@ def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list]
              "crossings": p.crossings, "law_weights": p.law_weights, "limits": dict(limits),
              "n_used": p.n_used, "seed": p.seed, "created_at": now}
             for aid, preds in preds_all.items() for p in preds]
-    con = connect(results)
-    try:
-        con.execute("BEGIN")
-        con.execute("DELETE FROM rul_predictions WHERE run_id = ?", [run_id])
-        if rows:
-            frame = _frame(rows)
-            con.register("_p", frame)
-            con.execute("INSERT INTO rul_predictions BY NAME SELECT * FROM _p")
-            con.unregister("_p")
-        con.execute("COMMIT")
-    finally:
-        con.close()
+    # one transaction: a re-run of the same manifest replaces its predictions
+    replace_rows(results, "rul_predictions", rows, {"run_id": run_id})
+
+register_job("health", run_health_job)  # eha rul: one record's assessment
 
 
 __all__ = ["run_rul", "RulResult", "parse_limits", "load_truth", "health_campaign",

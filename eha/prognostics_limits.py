@@ -8,7 +8,7 @@ e.g. ``"lag(mixed) > 0.02"`` (the tracking lag on the mixed command exceeds 20 m
 ``"spool_saturation(chirp_1cm) > 0"`` (the spool reaches its end stop on chirp_1cm). The
 command is a preset or kind of ``eha commands`` (kind parameters as in
 ``chirp(A0=0.005,f1=2)``). Metrics (SI units) are those of the campaign ``metrics`` table
-(:func:`eha.runner.trace_metrics`):
+(:func:`eha.run_metrics.trace_metrics`):
 
 ``lag`` [s], ``rmse_xu_com`` [m], ``max_err_xu_com`` [m], ``final_err_xu_com`` [m],
 ``settling_time`` [s], ``xs_abs_max`` [m], ``p12_abs_max`` [Pa], ``cor_abs_max`` [mA],
@@ -98,7 +98,7 @@ def metric_of(req: Requirement, fault: str, value: float, base: Mapping[str, flo
     """The requirement's metric on an HF run with ``fault = value``."""
     from eha.commands import make_command
     from eha.params import resolve
-    from eha.runner import trace_metrics
+    from eha.run_metrics import trace_metrics
     from eha.simulate import simulate
 
     params = {**base, fault: value}

@@ -55,7 +55,7 @@ def _lag(t: np.ndarray, xu: np.ndarray, com: np.ndarray, max_lag: float) -> np.n
     if n < 3:
         return np.full(runs, np.nan)
     # numba is imported here, not with this module: a spawn worker sets its thread count
-    # before numba first loads (eha.runner)
+    # before numba first loads (eha.campaigns.executors)
     from eha.models.metrics import lag_errors
 
     dt = float(t[1] - t[0])

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from eha.campaign import campaigns_dir
+from eha.campaigns.files import campaigns_dir
 from eha.figures import pyplot as _pyplot
 from eha.figures import save as _save
 from eha.plots import campaign_report, campaign_runs, fault_order, fault_text, plot_campaign
@@ -52,12 +52,13 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     Returns
     -------
     dict
-        ``summaries`` (one :class:`eha.runner.RunSummary` per campaign), ``nominal`` (rows:
+        ``summaries`` (one :class:`eha.campaigns.runner.RunSummary` per campaign), ``nominal`` (rows:
         command, RMSE of xu HF vs LF [m], as % of the command peak), ``plots``, ``reports``,
         ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.report_html.ReportResult`).
     """
-    from eha.runner import LocalPoolExecutor, run_campaign
-    from eha.store import read_trace
+    from eha.campaigns.executors import LocalPoolExecutor
+    from eha.campaigns.runner import run_campaign
+    from eha.campaigns.traces import read_trace
 
     results = Path(results)
     summaries = []
@@ -133,7 +134,7 @@ def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None =
     ----------
     rows : sequence of dict
         FDI results (:class:`eha.fdi_cases.FDIRow` rows, or rows of the ``fdi_results`` table
-        through :func:`eha.store.fdi_rows`), any number of seeds per case.
+        through :func:`fdi_results`), any number of seeds per case.
     campaign : eha.fdi_cases.FDICampaign
         The cases: injected faults, bounds, population and the thesis' values.
 
@@ -321,11 +322,12 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
 
     Raises
     ------
-    eha.store.StoreError
+    eha.campaigns.store.StoreError
         No database, or no FDI result of that campaign in it.
     """
     from eha.fdi_cases import parse_fdi_campaign, rows_from_results
-    from eha.store import StoreError, query
+    from eha.campaigns.query import query
+    from eha.campaigns.store import StoreError
 
     frame = query(results, """
         SELECT f.* FROM fdi_results f JOIN runs r USING (run_key)
@@ -343,7 +345,7 @@ def thesis_report(results: str | Path = "results", out: str | Path | None = None
                   campaign: str = FDI_CAMPAIGN) -> dict[str, Path]:
     """``eha report thesis``: the FDI table, figure and summary of ``campaign`` from the
     database in ``results``, written to ``out`` (default ``results/reports/thesis``)."""
-    from eha.store import StoreError
+    from eha.campaigns.store import StoreError
 
     rows, camp = fdi_results(results, campaign)
     try:

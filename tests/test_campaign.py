@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 import eha.simulate
-from eha.campaign import CampaignError, build_campaign, load_campaign, plan
+from eha.campaigns.files import CampaignError, build_campaign, load_campaign, plan
 from eha.cli import app
 
 CAMPAIGNS = Path(__file__).resolve().parents[1] / "campaigns"

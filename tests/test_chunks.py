@@ -19,8 +19,10 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from eha.runner import Executor, run_campaign
-from eha.store import query, read_trace
+from eha.campaigns.executors import Executor
+from eha.campaigns.runner import run_campaign
+from eha.campaigns.query import query
+from eha.campaigns.traces import read_trace
 
 CHUNKY = textwrap.dedent("""
     name = "chunky"
@@ -70,10 +72,11 @@ def copy(chunky, tmp_path):
 
 def test_run_keys_are_those_of_the_full_identity_hash():
     """Hashing the shared identity text once gives the keys of hashing every job whole."""
-    from eha.campaign import _expand_simulations, _hash, _model_version, load_campaign
+    from eha.campaigns.files import _hash, _model_version, load_campaign
+    from eha.campaigns.simulations import _expand_simulations
     import tomllib
 
-    from eha.campaign import campaigns_dir
+    from eha.campaigns.files import campaigns_dir
 
     path = campaigns_dir() / "thesis-matrix.toml"
     table = tomllib.loads(path.read_text())
@@ -167,7 +170,8 @@ def test_results_folder_of_one_file_per_run_is_still_read(tmp_path):
     """A campaign run before chunk files: one file per run, written by write_trace (no
     run_key column, the key in the name), recorded with that file's size. It is read by the
     traces view, resumes as done, and a grown campaign adds chunk files beside it."""
-    from eha.store import ResultStore, write_trace
+    from eha.campaigns.store import ResultStore
+    from eha.campaigns.traces import write_trace
 
     small = CHUNKY.replace("seeds = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15]",
                            "seeds = [0, 1]")          # 32 runs: one run per file
@@ -241,8 +245,8 @@ def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
     """The same campaign on 2 single-threaded Dask worker processes and on the local pool of
     2: wall times within 15 % (best of two alternating rounds each, warm workers)."""
     distributed = pytest.importorskip("distributed")
-    from eha.campaign import build_campaign
-    from eha.runner import DaskExecutor, LocalPoolExecutor
+    from eha.campaigns.files import build_campaign
+    from eha.campaigns.executors import DaskExecutor, LocalPoolExecutor
 
     table = {"name": "race", "models": ["hf"], "commands": ["mixed"],
              "seeds": list(range(160)), "t_end": 1.0,

@@ -7,7 +7,7 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.store import read_trace
+from eha.campaigns.traces import read_trace
 
 runner = CliRunner()
 

@@ -213,7 +213,7 @@ def test_kernels_equal_a_fully_interpreted_run(tmp_path):
 # ---------------------------------------------------------------- traces
 
 def test_trace_has_spec_columns_and_1khz_samples(tmp_path):
-    from eha.store import read_trace, write_trace
+    from eha.campaigns.traces import read_trace, write_trace
 
     tr = simulate("lf", "ramp", {"BKL": 1e-4}, t_end=1.0, seed=5)
     assert len(tr) == 1001

@@ -12,10 +12,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from eha.campaign import CampaignError, load_campaign
+from eha.campaigns.files import CampaignError, load_campaign
 from eha.thesis_report import thesis_report
-from eha.runner import run_campaign
-from eha.store import StoreError, query
+from eha.campaigns.runner import run_campaign
+from eha.campaigns.query import query
+from eha.campaigns.store import StoreError
 
 CAMPAIGN = """
 name = "fdi-test"

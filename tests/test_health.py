@@ -168,7 +168,7 @@ def test_calibrate_then_check_end_to_end(tmp_path):
     """A healthy fleet of 6 through the runner (2 workers, DuckDB), a calibration file, then a
     check of a record with a demagnetised motor: GM is declared degraded and isolated, the JSON
     and the DuckDB rows carry every fault's interval."""
-    from eha.store import query
+    from eha.campaigns.query import query
 
     res = tmp_path / "res"
     cal = tmp_path / "cal.json"

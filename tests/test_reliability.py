@@ -274,7 +274,7 @@ def test_validation_of_a_long_run_allocates_no_step_grid(tmp_path):
         commands = ["ramp"]
         t_end = 3600
     ''')
-    code = (f"import resource; from eha.campaign import load_campaign; "
+    code = (f"import resource; from eha.campaigns.files import load_campaign; "
             f"c = load_campaign({str(camp)!r}); "
             f"print(len(c.jobs), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

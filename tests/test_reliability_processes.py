@@ -15,7 +15,8 @@ import time
 import pytest
 
 from conftest import error_line, files_under, run_eha, write_campaign
-from eha.store import query, trace_intact, write_trace
+from eha.campaigns.query import query
+from eha.campaigns.traces import trace_intact, write_trace
 
 POSIX = os.name == "posix"
 MINI = '''
@@ -160,7 +161,7 @@ CTRL_C_IN_COMMIT = textwrap.dedent('''
     # a test run started in the background (nohup, `&` in a script) inherits SIGINT ignored,
     # and Python then installs no KeyboardInterrupt handler: restore it
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    from eha import runner, store
+    from eha.campaigns import runner, store
     from eha.cli import app
 
     upsert = store.ResultStore._upsert
@@ -286,7 +287,7 @@ def test_trace_intact_checks_size_rows_and_footer(tmp_path):
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 def test_query_reports_a_failed_output_write(tmp_path):
-    from eha.store import ResultStore
+    from eha.campaigns.store import ResultStore
 
     results = tmp_path / "results"
     ResultStore(results).close()   # an empty database: the header row alone must fail
@@ -345,7 +346,7 @@ def test_query_takes_parameters_instead_of_quoted_sql(tmp_path):
     """Values travel as parameters: a name with a quote is data, not SQL."""
     from datetime import datetime
 
-    from eha.store import ResultStore
+    from eha.campaigns.store import ResultStore
 
     results = tmp_path / "results"
     with ResultStore(results) as db:

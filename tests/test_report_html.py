@@ -21,7 +21,8 @@ import report_data
 from browser import check_page
 from conftest import error_line, invoke_eha
 from eha.report_html import ReportError, build_report
-from eha.store import query, replace_rows
+from eha.campaigns.query import query
+from eha.campaigns.store import replace_rows
 
 
 class _Tables(HTMLParser):
@@ -235,7 +236,7 @@ def test_missing_or_empty_results_folder_is_one_line_and_exit_2(tmp_path):
         assert "results" in error_line(res, 2)
         assert not (tmp_path / "r.html").exists()
     (tmp_path / "db").mkdir()
-    from eha.store import connect
+    from eha.campaigns.store import connect
 
     connect(tmp_path / "db").close()                          # a database with no result
     res = invoke_eha("report", "html", "--results", tmp_path / "db")

@@ -11,10 +11,14 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.runner import (LocalPoolExecutor, execute_job, lag, pair_metrics, run_campaign,
-                        settling_time, worker_info)
+from eha.batch import worker_info
+from eha.campaigns.executors import LocalPoolExecutor
+from eha.campaigns.jobs import execute_job
+from eha.campaigns.runner import run_campaign
+from eha.run_metrics import lag, pair_metrics, settling_time
 from eha.simulate import simulate
-from eha.store import query, read_trace
+from eha.campaigns.query import query
+from eha.campaigns.traces import read_trace
 
 cli = CliRunner()
 

@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from eha.store import StoreError, query
+from eha.campaigns.query import query
+from eha.campaigns.store import StoreError
 
 CAMPAIGN = textwrap.dedent("""
     name = "killme"

@@ -12,10 +12,12 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.runner import run_campaign
+from eha.campaigns.runner import run_campaign
 from eha.simulate import simulate
-from eha.store import (SCHEMA, ResultStore, StoreError, clean_temp_files, export_csv, query,
-                       read_trace, write_trace)
+from eha.campaigns.query import export_csv, query
+from eha.campaigns.schema import SCHEMA
+from eha.campaigns.store import ResultStore, StoreError
+from eha.campaigns.traces import clean_temp_files, read_trace, write_trace
 
 cli = CliRunner()
 

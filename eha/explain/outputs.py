@@ -125,7 +125,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.explain.record import augmented_base
     from eha.explain.settings import ExplainError
     from eha.measured import load
-    from eha.store import StoreError, save_explain
+    from eha.campaigns.store import StoreError, save_explain
 
     record = load(data, command_hold=command_hold)
     check = load(validate, command_hold=command_hold) if validate is not None else None

@@ -67,7 +67,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     ------
     ReportError
         ``results`` is not a folder, has no database, or the database holds no result.
-    eha.store.StoreError
+    eha.campaigns.store.StoreError
         The database cannot be read (locked by a running campaign, damaged).
     """
     from eha.report_html import data as D
@@ -75,7 +75,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     from eha.report_html.figures import shared_template
     from eha.report_html.page import Page, esc
     from eha.simulate import MODEL_VERSION
-    from eha.store import connect, db_path
+    from eha.campaigns.store import connect, db_path
 
     t0 = time.perf_counter()
     results, out = Path(results), Path(out)
@@ -119,14 +119,14 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    from eha.store import _FILE_MODE
+    from eha.campaigns.traces import FILE_MODE
 
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
-        os.chmod(tmp, _FILE_MODE)
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

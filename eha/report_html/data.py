@@ -1,6 +1,6 @@
 """What the HTML report shows, read from a results folder (``eha report html``).
 
-One read-only connection to ``DIR/eha.duckdb`` (:func:`eha.store.connect`); each reader returns
+One read-only connection to ``DIR/eha.duckdb`` (:func:`eha.campaigns.store.connect`); each reader returns
 plain tables (pandas DataFrames, dicts) for one section, or None when the folder holds nothing
 for it, so that the section is left out. Nothing here draws or writes.
 

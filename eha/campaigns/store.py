@@ -1,0 +1,407 @@
+"""The result database ``DIR/eha.duckdb``: connections, the campaign parent's writer.
+
+Campaign results live in ``DIR/eha.duckdb`` (DuckDB). The campaign's parent process is its only
+writer (:class:`ResultStore`); queries go through a read-only connection
+(:func:`eha.campaigns.query.query`) that also sees every Parquet trace as the view ``traces``.
+The SQL schema is declared once, in :data:`eha.campaigns.schema.SCHEMA`; :func:`connect`
+creates it on a writable connection. Other writers (a check, a calibration, a residual-loop run)
+replace their rows in one transaction (:func:`replace_rows`, :func:`save_explain`).
+
+Layout of a results directory::
+
+    DIR/eha.duckdb                          campaigns, runs, metrics (+ other result tables)
+    DIR/traces/<campaign>/chunk-<hash>.parquet  the runs of one task (column run_key)
+    DIR/traces/<campaign>/<run_key>.parquet     a task of one run, or an older campaign
+
+Trace files are :mod:`eha.campaigns.traces`'.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+# No simulation code at import time (eha.simulate loads numba): `eha query` starts fast.
+from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
+from eha.campaigns.traces import DEEP_VERIFY_MAX, trace_intact
+
+_LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
+
+
+class StoreError(RuntimeError):
+    """The result database cannot be used (locked, missing, bad query); one-line message."""
+
+
+class StoreWriteError(StoreError):
+    """The result database could not be written (disk full, I/O error): a failure of the
+    machine, not of the input (the CLI exits 1, not 2); committed results are kept."""
+
+
+def db_path(results: str | Path) -> Path:
+    """``DIR/eha.duckdb``."""
+    return Path(results) / DB_NAME
+
+
+def connect(results: str | Path, read_only: bool = False):
+    """Open ``DIR/eha.duckdb``; the schema is created on a writable connection.
+
+    Raises
+    ------
+    StoreError
+        The database is held by another process, or (read-only) does not exist.
+    """
+    import duckdb
+
+    path = db_path(results)
+    if read_only and not path.exists():
+        raise StoreError(f"{path}: no result database yet; run a campaign first "
+                         "(eha campaign run FILE)")
+    try:
+        if not read_only:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        con = duckdb.connect(str(path), read_only=read_only)
+    except OSError as exc:
+        raise StoreError(f"{path.parent}: cannot create the results folder "
+                         f"({exc.strerror})") from None
+    except duckdb.Error as exc:
+        match = _LOCK_RE.search(str(exc))
+        if match:
+            raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
+                             f"{Path(match.group(1)).name}), probably a running campaign; "
+                             "wait for it to finish or use another --results folder") from None
+        raise StoreError(f"{path}: {str(exc).splitlines()[0]}") from None
+    if not read_only:
+        try:
+            for ddl in SCHEMA.values():
+                con.execute(ddl)
+            for table, column, sql_type in ADDED_COLUMNS:
+                con.execute(f"ALTER TABLE {table} ADD COLUMN IF NOT EXISTS {column} {sql_type}")
+        except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
+            con.close()
+            raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
+                             "move it away and run the campaign again") from None
+    return con
+
+
+def _arrow(rows: Sequence[Mapping[str, Any]]):
+    """Arrow table of ``rows`` (dicts with the same keys), JSON columns as text: the campaign
+    path's bulk inserts without pandas (importing it alone took 1.4 s of a campaign's start)."""
+    import pyarrow as pa
+
+    names = list(rows[0])
+    cols = {}
+    for n in names:
+        values = [r[n] for r in rows]
+        if any(isinstance(v, (dict, list)) for v in values):
+            values = [json.dumps(v, sort_keys=True) if v is not None else None
+                      for v in values]
+        cols[n] = values
+    return pa.Table.from_pydict(cols)
+
+
+def _frame(rows: Sequence[Mapping[str, Any]]):
+    import pandas as pd
+
+    frame = pd.DataFrame(list(rows))
+    for col in frame.columns:  # JSON columns travel as text (only object columns can hold them)
+        if frame[col].dtype == object and \
+                frame[col].map(lambda v: isinstance(v, (dict, list))).any():
+            frame[col] = frame[col].map(lambda v: json.dumps(v, sort_keys=True))
+    return frame
+
+
+def _concat(tables: Sequence[Any]) -> list:
+    """Arrow tables of one schema as a list of at most one table (empty ones left out)."""
+    import pyarrow as pa
+
+    tables = [t for t in tables if t.num_rows]
+    return [pa.concat_tables(tables)] if tables else []
+
+
+def _columns(obj) -> list[str]:
+    """Column names of a pandas frame or an Arrow table."""
+    return list(obj.column_names if hasattr(obj, "column_names") else obj.columns)
+
+
+class ResultStore:
+    """The campaign parent's read-write connection to ``DIR/eha.duckdb`` (the only writer).
+
+    Use as a context manager; the database stays locked against other processes while open.
+    """
+
+    def __init__(self, results: str | Path):
+        self.results = Path(results).resolve()
+        self.con = connect(self.results)
+
+    def __enter__(self) -> "ResultStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.con is not None:
+            con, self.con = self.con, None
+            try:
+                con.execute("CHECKPOINT")
+            except Exception as exc:
+                # e.g. a full disk: the committed rows are in the write-ahead log, which the
+                # next connection replays; say so in one line instead of a traceback
+                import duckdb
+
+                con.close()
+                if isinstance(exc, duckdb.Error):
+                    raise StoreWriteError(f"{db_path(self.results)}: could not checkpoint "
+                                     f"({str(exc).splitlines()[0]}); the committed results "
+                                     "are kept in its .wal file; free some space and run the "
+                                     "same command again") from None
+                raise
+            con.close()
+
+    # ---- campaigns
+    def campaign(self, name: str) -> dict | None:
+        """The ``campaigns`` row of ``name`` (dict) or None."""
+        cur = self.con.execute("SELECT * FROM campaigns WHERE name = ?", [name])
+        rows = cur.fetchall()
+        return dict(zip([d[0] for d in cur.description], rows[0])) if rows else None
+
+    def register_campaign(self, row: Mapping[str, Any]) -> None:
+        """Insert or update a ``campaigns`` row (keeps ``created_at`` of an existing one)."""
+        self.con.register("_c", _arrow([row]))
+        try:
+            self.con.execute("""
+                INSERT INTO campaigns BY NAME SELECT * FROM _c
+                ON CONFLICT (name) DO UPDATE SET description = excluded.description,
+                    source = excluded.source, spec_hash = excluded.spec_hash,
+                    model_version = excluded.model_version, n_runs = excluded.n_runs,
+                    definition = excluded.definition, updated_at = excluded.updated_at""")
+        finally:
+            self.con.unregister("_c")
+
+    def discard_runs(self, campaign: str, keep: set[str] | frozenset[str] = frozenset()) -> int:
+        """Remove the runs of ``campaign`` whose key is not in ``keep``: their result rows,
+        ``runs`` rows and trace files; returns how many.
+
+        A kept run whose chunk file also holds discarded runs goes back to ``pending`` and its
+        file is removed (the file would keep the discarded runs' rows in the ``traces`` view);
+        the runner re-runs it. Rows go first, in one transaction; a file left by an
+        interruption after it is removed by the next run (:func:`clean_temp_files`).
+        """
+        rows = self.con.execute("SELECT run_key, trace_path FROM runs WHERE campaign = ?",
+                                [campaign]).fetchall()
+        gone = [k for k, _ in rows if k not in keep]
+        files = {p for k, p in rows if k not in keep and p is not None}
+        reset = [k for k, p in rows if k in keep and p in files]
+        if gone:
+            self.con.register("_gone", _frame([{"run_key": k} for k in gone]))
+            self.con.register("_reset", _frame([{"run_key": k} for k in reset or ["-"]]))
+            self.con.execute("BEGIN")
+            try:
+                for table in RESULT_TABLES + ("runs",):
+                    self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
+                                     "(SELECT run_key FROM _gone)")
+                self.con.execute("UPDATE runs SET status = 'pending', trace_path = NULL "
+                                 "WHERE run_key IN (SELECT run_key FROM _reset)")
+                self.con.execute("COMMIT")
+            except BaseException:
+                self.con.execute("ROLLBACK")
+                raise
+            finally:
+                self.con.unregister("_gone")
+                self.con.unregister("_reset")
+        for path in files:
+            (self.results / path).unlink(missing_ok=True)
+        return len(gone)
+
+    # ---- runs
+    def run_keys(self, campaign: str, status: str | None = None) -> dict[str, str]:
+        """``run_key -> status`` of a campaign's recorded runs (optionally one status only)."""
+        sql = "SELECT run_key, status FROM runs WHERE campaign = ?"
+        args: list[Any] = [campaign]
+        if status is not None:
+            sql += " AND status = ?"
+            args.append(status)
+        return dict(self.con.execute(sql, args).fetchall())
+
+    def done_with_trace(self, campaign: str) -> set[str]:
+        """Run keys recorded as done whose trace file is intact; the runs of a damaged or
+        missing file are re-run (see :meth:`verify_traces`)."""
+        return self.verify_traces(campaign)[0]
+
+    def verify_traces(self, campaign: str) -> tuple[set[str], set[str]]:
+        """``(run keys, trace paths)`` of the done runs of ``campaign`` whose trace file is
+        intact, and those files (relative to the results folder).
+
+        A file is checked once for all the runs it holds (:func:`trace_intact`): its size is
+        the one recorded at commit and its footer holds the sum of the rows recorded for its
+        runs (footers read up to :data:`DEEP_VERIFY_MAX` files).
+        """
+        rows = self.con.execute("""
+            SELECT trace_path, list(run_key), max(trace_bytes), min(trace_bytes),
+                   CASE WHEN count(trace_rows) = count(*) THEN sum(trace_rows) END
+            FROM runs WHERE campaign = ? AND status = 'done' GROUP BY trace_path""",
+                                [campaign]).fetchall()
+        deep = len(rows) <= DEEP_VERIFY_MAX
+        done: set[str] = set()
+        files: set[str] = set()
+        for path, keys, size, size_lo, n in rows:
+            if path is None or (size == size_lo and
+                                trace_intact(self.results / path, size,
+                                             None if n is None else int(n), deep=deep)):
+                done.update(keys)
+                files.add(path)
+        files.discard(None)
+        return done, files
+
+    def add_pending(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Insert ``pending`` runs; runs already recorded are left as they are."""
+        if not rows:
+            return
+        self.con.register("_p", _arrow(rows))
+        try:
+            self.con.execute("INSERT OR IGNORE INTO runs BY NAME SELECT * FROM _p")
+        finally:
+            self.con.unregister("_p")
+
+    def record(self, results: Sequence[Mapping[str, Any]],
+               extra: Mapping[str, Sequence[Mapping[str, Any]]] | None = None,
+               batches: Sequence[Any] = ()) -> None:
+        """Store finished runs in one transaction, as bulk updates and inserts.
+
+        Each result has ``run_key``, ``status`` and the other ``runs`` columns to update
+        (``error``, ``worker``, timings, ``trace_path``), and ``rows``: result-table name ->
+        one row (dict of columns) for that run. ``extra``: result-table name -> rows upserted
+        after them (e.g. the HF-vs-LF columns of runs recorded now or before). ``batches``:
+        results of whole chunks as Arrow tables, ``{"runs": table, "parts": [(TABLE, table),
+        ...]}`` (``runs`` has ``run_key`` and the columns to update; each part is upserted).
+        """
+        if not results and not extra and not batches:
+            return
+        run_cols = {"status", "error", "worker", "started_at", "finished_at", "sim_s",
+                    "elapsed_s", "trace_path", "trace_bytes", "trace_rows"}
+        updates = [{"run_key": r["run_key"], **{k: r.get(k) for k in run_cols}} for r in results]
+        per_table: dict[str, list] = {}
+        for r in results:
+            for table, row in (r.get("rows") or {}).items():
+                per_table.setdefault(table, []).append({"run_key": r["run_key"], **row})
+        parts: list[tuple[str, Any]] = [(t, _frame(rows)) for t, rows in per_table.items()]
+        runs = [_frame(updates)] if updates else []
+        # one statement per table for all the chunks of this commit (a statement costs
+        # milliseconds whatever its rows)
+        runs += _concat([b["runs"] for b in batches])
+        same: dict[tuple, list] = {}
+        for b in batches:
+            for t, v in b.get("parts", ()):
+                same.setdefault((t, tuple(v.column_names)), []).append(v)
+        parts += [(t, v) for (t, _), vs in same.items() for v in _concat(vs)]
+        parts += [(t, _frame(rows)) for t, rows in (extra or {}).items() if rows]
+        for table, _ in parts:
+            if table not in RESULT_TABLES:
+                raise StoreError(f"result table {table!r} is not in the schema "
+                                 f"({', '.join(RESULT_TABLES)})")
+        self.con.execute("BEGIN")
+        try:
+            for obj in runs:
+                self.con.register("_u", obj)
+                cols = [c for c in _columns(obj) if c != "run_key"]
+                sets = ", ".join(f"{c} = _u.{c}" for c in sorted(cols))
+                self.con.execute(f"UPDATE runs SET {sets} FROM _u "
+                                 "WHERE runs.run_key = _u.run_key")
+                self.con.unregister("_u")
+            for table, obj in parts:
+                self._upsert(table, obj)
+            self.con.execute("COMMIT")
+        except BaseException:
+            self.con.execute("ROLLBACK")
+            raise
+
+    def upsert(self, table: str, rows: Sequence[Mapping[str, Any]]) -> None:
+        """Insert or replace rows of a result table (by ``run_key``); columns by name."""
+        if table not in RESULT_TABLES:
+            raise StoreError(f"{table!r} is not a result table ({', '.join(RESULT_TABLES)})")
+        if rows:
+            self._upsert(table, _frame(rows))
+
+    def _upsert(self, table: str, obj) -> None:
+        """Upsert a pandas frame or Arrow table (one bulk statement)."""
+        self.con.register("_r", obj)
+        try:
+            cols = [c for c in _columns(obj) if c != "run_key"]
+            sets = ", ".join(f"{c} = excluded.{c}" for c in cols)
+            self.con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r ON CONFLICT "
+                             f"(run_key) DO UPDATE SET {sets}")
+        finally:
+            self.con.unregister("_r")
+
+    def hf_lf_pairs(self, campaign: str) -> list[tuple[str, str, str, str]]:
+        """``(hf_key, hf_trace, lf_key, lf_trace)`` of done HF/LF runs of the same case whose
+        HF-vs-LF metrics are still missing (trace paths relative to the results folder)."""
+        return self.con.execute("""
+            SELECT h.run_key, h.trace_path, l.run_key, l.trace_path
+            FROM runs h JOIN runs l ON h.case_key = l.case_key AND h.campaign = l.campaign
+            JOIN metrics mh ON mh.run_key = h.run_key
+            JOIN metrics ml ON ml.run_key = l.run_key
+            WHERE h.campaign = ? AND h.kind = 'simulate' AND l.kind = 'simulate'
+              AND h.model = 'hf' AND l.model = 'lf'
+              AND h.status = 'done' AND l.status = 'done'
+              AND (mh.rmse_xu_hf_lf IS NULL OR ml.rmse_xu_hf_lf IS NULL)
+            ORDER BY h.run_key""", [campaign]).fetchall()
+
+    def status_counts(self, campaign: str) -> dict[str, int]:
+        return dict(self.con.execute("SELECT status, count(*) FROM runs WHERE campaign = ? "
+                                     "GROUP BY status", [campaign]).fetchall())
+
+
+
+def save_explain(results: str | Path, run: Mapping[str, Any],
+                 steps: Sequence[Mapping[str, Any]]) -> Path:
+    """Store one residual-loop run (``explain_runs``) and its steps (``explain_steps``).
+
+    One transaction; a run with the same ``run_id`` is replaced. Returns the database path.
+    """
+    return _replace(results, [("explain_runs", [run], {"run_id": run["run_id"]}),
+                              ("explain_steps", steps, {"run_id": run["run_id"]})])
+
+
+def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, Any]],
+                 key: Mapping[str, Any]) -> Path:
+    """Replace the rows of ``table`` matching ``key`` (column -> value) by ``rows``, in one
+    transaction (a re-run of the same check or calibration overwrites its rows, never
+    duplicates them). Returns the database path.
+
+    Raises
+    ------
+    StoreError
+        Unknown table, or the database is locked or cannot be written.
+    """
+    return _replace(results, [(table, rows, key)])
+
+
+def _replace(results: str | Path,
+             parts: Sequence[tuple[str, Sequence[Mapping[str, Any]], Mapping[str, Any]]]
+             ) -> Path:
+    """In ONE transaction, for each ``(table, rows, key)``: delete the rows matching ``key``,
+    insert ``rows``."""
+    for table, _, _ in parts:
+        if table not in SCHEMA:
+            raise StoreError(f"{table!r} is not a table of the schema")
+    con = connect(results)
+    try:
+        con.execute("BEGIN")
+        try:
+            for table, rows, key in parts:
+                where = " AND ".join(f"{c} = ?" for c in key)
+                con.execute(f"DELETE FROM {table} WHERE {where}", list(key.values()))
+                if rows:
+                    con.register("_r", _frame(rows))
+                    con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r")
+                    con.unregister("_r")
+            con.execute("COMMIT")
+        except BaseException:
+            con.execute("ROLLBACK")
+            raise
+    finally:
+        con.close()
+    return db_path(results)

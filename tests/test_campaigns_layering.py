@@ -1,0 +1,81 @@
+"""eha.campaigns is the infrastructure below the domain: it imports no domain module, and job
+kinds reach the runner through the registry (entry points), one module at a time."""
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
+INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files")
+#: Job kinds and campaign sections the domain registers (what the runner once imported itself).
+KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
+SECTIONS = {"fdi", "health"}
+
+
+def _fresh(code: str) -> dict:
+    """Run ``code`` in a new interpreter; it prints one JSON value."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
+    loaded = _fresh("import json, sys\n"
+                    + "".join(f"import eha.campaigns.{m}\n" for m in INFRA)
+                    + "print(json.dumps(sorted(sys.modules)))")
+    eha = [m for m in loaded if m == "eha" or m.startswith("eha.")]
+    # eha.models: the output columns of a trace (constants; the package imports no kernels)
+    foreign = [m for m in eha if m not in ("eha", "eha.campaigns", "eha.models")
+               and not m.startswith("eha.campaigns.")]
+    assert foreign == [], foreign
+    assert "numba" not in loaded and "eha.simulate" not in loaded
+
+
+@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
+def test_infrastructure_modules_name_no_domain_module(module):
+    """No import of a module outside eha.campaigns, not even inside a function, but the
+    trace columns (eha.models.OUTPUTS, constants): the runner and its workers reach a job
+    kind's module through the registry only."""
+    tree = ast.parse((PACKAGE / f"{module}.py").read_text(encoding="utf-8"))
+    named = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
+    named += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    domain = [m for m in named if m.split(".")[0] == "eha"
+              and not (m in ("eha.campaigns", "eha.models") or m.startswith("eha.campaigns."))]
+    assert domain == [], f"eha/campaigns/{module}.py imports {domain}"
+
+
+def test_job_kinds_and_sections_register_through_the_entry_points():
+    from eha.campaigns import jobs
+
+    assert KINDS <= set(jobs._entry_points(jobs.JOB_GROUP))
+    assert SECTIONS <= set(jobs.section_names())
+    for kind in KINDS:
+        assert jobs.job_kind(kind).name == kind
+    for name in SECTIONS:
+        assert callable(jobs.section(name))
+    assert jobs.job_kind("simulate").run_chunk is not None
+    assert all(callable(f) for f in jobs.warm_ups())
+
+
+def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
+    loaded = _fresh("import json, sys\n"
+                    "from eha.campaigns.jobs import job_kind\n"
+                    "job_kind('fleet_record')\n"
+                    "print(json.dumps(sorted(sys.modules)))")
+    assert "eha.fleet" in loaded
+    assert not {"eha.fdi_cases", "eha.detection", "eha.prognostics_jobs", "eha.batch"} & \
+        set(loaded)
+
+
+def test_an_unregistered_kind_fails_its_job_with_one_line(tmp_path):
+    from eha.campaigns.jobs import execute_job
+
+    res = execute_job({"kind": "no-such-kind", "spec": {}, "run_key": "0" * 16,
+                       "campaign": "x", "trace_file": str(tmp_path / "x.parquet"),
+                       "trace_path": "traces/x/x.parquet"})
+    assert res["status"] == "failed" and res["rows"] == {}
+    assert res["error"].startswith("UnknownJobKind: 'no-such-kind' is not registered")
