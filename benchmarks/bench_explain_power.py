@@ -113,14 +113,19 @@ def plot(rows, path: Path) -> None:
             x.append(r["detectable"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
                      if r else np.nan)
         ax.barh(y, x, width, label=c)
+        for yi, xi, e in zip(y, x, effects):
+            r = next((r for r in rows if r["effect"] == e and r["command"] == c), None)
+            if r and np.isfinite(xi):   # the gate's measured power at that size
+                ax.text(xi * 1.05, yi, f"{r['power']:.0%}", va="center", fontsize=6)
     ax.set_xscale("log")
     ax.axvline(1.0, color="k", lw=0.8, ls="--")
     ax.set_yticks(range(len(effects)), effects)
     ax.set_xlabel("minimum detectable change / the effect's probe size (log)")
     ax.grid(True, axis="x", alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")
-    ax.set_title("Residual loop: smallest effect a 1-s record shows (alpha 0.05, 90 % power)",
-                 fontsize=10)
+    ax.set_title("Residual loop: predicted smallest effect a 1-s record shows (alpha 0.05, "
+                 "90 % power);\nlabels: the gate's measured power at that size", fontsize=10)
+    fig.tight_layout()
     save(fig, path)
 
 
