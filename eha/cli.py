@@ -941,7 +941,8 @@ def explain(
     console.print(f"verdict: {escape(res.verdict)}", highlight=False)
     if res.null:
         console.print(f"decisions at alpha {res.null['alpha']:g} against {res.null['source']}"
-                      f" on this command; what this record could not have shown:",
+                      f" on this command; what this record could not have shown (the null's "
+                      f"prediction, a lower bound: measured power in docs/explain.md):",
                       highlight=False)
         for line in res.undetectable():
             console.print(f"  {escape(line)}", highlight=False)
