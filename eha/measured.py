@@ -39,6 +39,7 @@ import numpy as np
 
 from eha.commands import Command, array_command
 from eha.simulate import OUTPUT_DT
+from eha.errors import InputError
 
 #: Required columns, then optional ones.
 REQUIRED = ("t", "com", "xu")
@@ -81,13 +82,13 @@ PHYSICAL_RANGES: dict[str, tuple[float, float, str]] = {
 FILE_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
 
 
-class MeasuredDataError(ValueError):
-    """A measured record that cannot be used; ``problems`` holds one line per problem."""
+class MeasuredDataError(InputError):
+    """A measured record that cannot be used; ``problems`` holds one line per problem (the
+    command line prints each as ``SOURCE: problem``)."""
 
     def __init__(self, source: str, problems: list[str]):
-        self.source = source
-        self.problems = list(problems)
-        super().__init__(f"{source}: " + "; ".join(self.problems))
+        super().__init__(problems, source=source,
+                         message=f"{source}: " + "; ".join(problems))
 
 
 @dataclass(frozen=True)

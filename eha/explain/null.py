@@ -51,6 +51,7 @@ import numpy as np
 from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_POWER,
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
+from eha.errors import InputError
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 2
@@ -65,7 +66,7 @@ def noise_class(noise: float) -> float:
     return float(10.0 ** (k / NOISE_CLASSES_PER_DECADE))
 
 
-class NullError(ValueError):
+class NullError(InputError):
     """Bad null input (``--healthy`` folder, too few records); one-line message."""
 
 

@@ -15,9 +15,10 @@ from typing import Any, Iterable, Mapping, Sequence
 from eha.effects import COMBINATIONS
 from eha.fdi import DEFAULT_METHOD
 from eha.params import ParameterError, parse_name_value
+from eha.errors import InputError
 
 
-class ExplainError(ValueError):
+class ExplainError(InputError):
     """Bad input to the residual loop (one line)."""
 
 
