@@ -463,11 +463,12 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
                  on_progress: Callable[[str], None] | None = None) -> Null:
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
-    Not cached (the files are the user's)."""
-    from eha.measured import FILE_TYPES, MeasuredDataError, load
+    Not cached (the files are the user's). A :class:`eha.measured.RecordFile` folder reads
+    its records with its columns and units."""
+    from eha.measured import FILE_TYPES, MeasuredDataError, load, same_format
     from eha.simulate import MODEL_VERSION
 
-    folder = Path(folder)
+    spec, folder = folder, Path(folder)
     if not folder.is_dir():
         raise NullError(f"--healthy {folder}: not a folder")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in FILE_TYPES)
@@ -477,7 +478,7 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
     records = []
     for path in files:
         try:
-            records.append(load(path, command_hold))
+            records.append(load(same_format(spec, path), command_hold))
         except MeasuredDataError as exc:
             raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
     names = covered_effects(effects)
