@@ -28,69 +28,71 @@ def _setting(name: str, cast=float):
     return library_default("eha.explain.settings", "DEFAULTS", lambda d: cast(d[name]))
 
 
-def explain(
-    data: Path = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu "
-                                "(SI; aliases in docs/explain.md, or see --columns, --units), "
-                                "optional p12, xs."),
-    fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
-        help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated."),
-    effects: Optional[str] = typer.Option(None, "--effects", help="Candidate effects, "
-                                          "comma-separated names of docs/model.md's effect "
-                                          "table (default: all 14)."),
-    holdout: Optional[float] = typer.Option(None, "--holdout", help="Fraction of the record "
-                                            "held out at its end for scoring (default 0.3)."),
-    validate: Optional[Path] = typer.Option(None, "--validate", help="Second record used as "
-                                            "held-out data instead of --holdout."),
-    prior: Optional[Path] = typer.Option(None, "--prior", help="--json of an earlier run: its "
-                                         "effects start switched on (e.g. from nominal data)."),
-    known: List[str] = typer.Option([], "--set", help="Known LF parameter held fixed, "
-                                    "NAME=VALUE, repeatable (a test condition, e.g. a test "
-                                    "load FRC=4000)."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write rmse_before/after, "
-                                            "faults_before/after and the steps as JSON."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default "
-                                       "RESULTS/explain/<file stem>)."),
-    results: ResultsOption = RESULTS,
-    method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
-        help="Optimizer of every fit (eha fdi)."),
-    pop: int = typer.Option(
-        ..., "--pop", default_factory=signature_default("eha.explain.api", "explain", "pop"),
-        help="GA population of every fit."),
-    seed: int = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result)."),
-    candidates: int = typer.Option(
-        ..., "--candidates", default_factory=_setting("candidates", int),
-        help="Effects refitted per round, the best-ranked by signature (0 = all)."),
-    max_steps: int = typer.Option(
-        ..., "--max-steps", default_factory=_setting("max_steps", int),
-        help="Most effects added."),
-    min_gain: float = typer.Option(
-        ..., "--min-gain", default_factory=_setting("min_gain"),
-        help="Smallest penalised held-out RMSE reduction that adds an effect."),
-    p12_weight: float = typer.Option(
-        ..., "--p12-weight", default_factory=_setting("p12_weight"),
-        help="Weight of the record's measured P12 in every fit and score, each signal in its "
-             "own noise (0 = position only; records without P12 use the position only)."),
-    flow_gain_spread: float = typer.Option(
-        ..., "--flow-gain-spread", default_factory=_setting("flow_gain_spread"),
-        help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal "
-             "(the healthy actuator's own spread; 0 = held at nominal). E.g. 0.1."),
-    alpha: float = typer.Option(
-        ..., "--alpha", default_factory=_setting("alpha"),
-        help="False-positive level per record: the chance that a healthy actuator driven by "
-             "this command gets an effect added (thresholds from a healthy null)."),
-    healthy: Optional[Path] = typer.Option(
-        None, "--healthy", help="Folder of healthy records of your own actuators "
-        "(commissioning tests, >= 5): the null instead of a simulated healthy fleet."),
-    null_actuators: int = typer.Option(
-        ..., "--null-actuators", default_factory=_setting("null_actuators", int),
-        help="Healthy actuators of the simulated null (cached per command, sampling, noise)."),
-    command_hold: CommandHoldOption = COMMAND_HOLD,
-    columns: ColumnsOption = None,
-    units: UnitsOption = None,
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
-):
+# ---- the options, at module level so that the command stays short
+DATA = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu (SI; aliases "
+                      "in docs/explain.md, or see --columns, --units), optional p12, xs.")
+FIT = typer.Option(..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+                                                                 ",".join),
+                   help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated.")
+EFFECTS = typer.Option(None, "--effects", help="Candidate effects, comma-separated names of "
+                       "docs/model.md's effect table (default: all 14).")
+HOLDOUT = typer.Option(None, "--holdout", help="Fraction of the record held out at its end "
+                       "for scoring (default 0.3).")
+VALIDATE = typer.Option(None, "--validate", help="Second record used as held-out data "
+                        "instead of --holdout.")
+PRIOR = typer.Option(None, "--prior", help="--json of an earlier run: its effects start "
+                     "switched on (e.g. from nominal data).")
+KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALUE, repeatable "
+                     "(a test condition, e.g. a test load FRC=4000).")
+JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
+                        "and the steps as JSON.")
+OUT = typer.Option(None, "--out", help="Output folder (default RESULTS/explain/<file stem>).")
+METHOD = typer.Option(..., "--method", default_factory=library_default("eha.fdi",
+                                                                       "DEFAULT_METHOD"),
+                      help="Optimizer of every fit (eha fdi).")
+POP = typer.Option(..., "--pop", default_factory=signature_default("eha.explain.api",
+                                                                   "explain", "pop"),
+                   help="GA population of every fit.")
+SEED = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result).")
+CANDIDATES = typer.Option(..., "--candidates", default_factory=_setting("candidates", int),
+                          help="Effects refitted per round, the best-ranked by signature "
+                          "(0 = all).")
+MAX_STEPS = typer.Option(..., "--max-steps", default_factory=_setting("max_steps", int),
+                         help="Most effects added.")
+MIN_GAIN = typer.Option(..., "--min-gain", default_factory=_setting("min_gain"),
+                        help="Smallest penalised held-out RMSE reduction that adds an effect.")
+P12_WEIGHT = typer.Option(
+    ..., "--p12-weight", default_factory=_setting("p12_weight"),
+    help="Weight of the record's measured P12 in every fit and score, each signal in its own "
+         "noise (0 = position only; records without P12 use the position only).")
+FLOW_GAIN_SPREAD = typer.Option(
+    ..., "--flow-gain-spread", default_factory=_setting("flow_gain_spread"),
+    help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal (the "
+         "healthy actuator's own spread; 0 = held at nominal). E.g. 0.1.")
+ALPHA = typer.Option(
+    ..., "--alpha", default_factory=_setting("alpha"),
+    help="False-positive level per record: the chance that a healthy actuator driven by this "
+         "command gets an effect added (thresholds from a healthy null).")
+HEALTHY = typer.Option(None, "--healthy", help="Folder of healthy records of your own actuators "
+                       "(commissioning tests, >= 5): the null instead of a simulated healthy "
+                       "fleet.")
+NULL_ACTUATORS = typer.Option(
+    ..., "--null-actuators", default_factory=_setting("null_actuators", int),
+    help="Healthy actuators of the simulated null (cached per command, sampling, noise).")
+PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress display.")
+
+
+def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
+            holdout: Optional[float] = HOLDOUT, validate: Optional[Path] = VALIDATE,
+            prior: Optional[Path] = PRIOR, known: List[str] = KNOWN,
+            json_out: Optional[Path] = JSON_OUT, out: Optional[Path] = OUT,
+            results: ResultsOption = RESULTS, method: str = METHOD, pop: int = POP,
+            seed: int = SEED, candidates: int = CANDIDATES, max_steps: int = MAX_STEPS,
+            min_gain: float = MIN_GAIN, p12_weight: float = P12_WEIGHT,
+            flow_gain_spread: float = FLOW_GAIN_SPREAD, alpha: float = ALPHA,
+            healthy: Optional[Path] = HEALTHY, null_actuators: int = NULL_ACTUATORS,
+            command_hold: CommandHoldOption = COMMAND_HOLD, columns: ColumnsOption = None,
+            units: UnitsOption = None, progress: bool = PROGRESS):
     """Trace a measured record's residual to missing LF effects, add them, report the error.
 
     --columns and --units apply to the record, to --validate and to the --healthy records.

@@ -20,45 +20,47 @@ from eha.cli.options import (COMMAND_HOLD, PLOT_SUFFIXES, ColumnsOption, Command
                              write_json)
 
 
-def fdi(
-    command: Optional[str] = typer.Option(None, "--command",
-                                          help="Command of the HF reference (`eha commands`)."),
-    set_: List[str] = typer.Option([], "--set", help="Fault injected in the HF reference, "
-                                   "NAME=VALUE (repeatable)."),
-    data: Optional[Path] = typer.Option(None, "--data", help="Measured record instead of an "
-                                        "HF reference: CSV/Parquet with t, com, xu (SI, or "
-                                        "see --columns, --units)."),
-    fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
-        help="LF parameters to identify."),
-    bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
-                                     "(default BKL=0:1.25e-3, FDJ=200:4000, else the range)."),
-    base: List[str] = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE "
-                                   "(e.g. orifice_law=1)."),
-    method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
-        help="ga (the thesis), ga+ps (GA + pattern-search polish), ps (pattern search from "
-             "the --base / nominal values) or lm (least squares from them)."),
-    pop: int = typer.Option(
-        ..., "--pop", default_factory=signature_default("eha.fdi", "identify_source", "pop"),
-        help="GA population."),
-    seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
-    objective: str = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' "
-                                  "mean absolute error)."),
-    t_end: float = typer.Option(1.0, "--t-end",
-                                help="Simulated time of the HF reference, in seconds."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="PNG: reference vs identified LF."),
-    level: float = typer.Option(
-        ..., "--level", default_factory=library_default("eha.fdi", "DEFAULT_LEVEL"),
-        help="Nominal coverage of the parameter intervals, in (0, 1)."),
-    base_model: Optional[str] = typer.Option(
-        None, "--base-model", help="LF model: plain (the thesis') or calibrated (by eha "
-        "explain). Default: plain against an HF reference, calibrated on --data."),
-    command_hold: CommandHoldOption = COMMAND_HOLD,
-    columns: ColumnsOption = None,
-    units: UnitsOption = None,
-):
+# ---- the options, at module level so that the command stays short
+COMMAND = typer.Option(None, "--command", help="Command of the HF reference (`eha commands`).")
+FAULTS = typer.Option([], "--set", help="Fault injected in the HF reference, NAME=VALUE "
+                      "(repeatable).")
+DATA = typer.Option(None, "--data", help="Measured record instead of an HF reference: "
+                    "CSV/Parquet with t, com, xu (SI, or see --columns, --units).")
+FIT = typer.Option(..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+                                                                 ",".join),
+                   help="LF parameters to identify.")
+BOUNDS = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI (default BKL=0:1.25e-3, "
+                      "FDJ=200:4000, else the range).")
+BASE = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE (e.g. "
+                    "orifice_law=1).")
+METHOD = typer.Option(
+    ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+    help="ga (the thesis), ga+ps (GA + pattern-search polish), ps (pattern search from the "
+         "--base / nominal values) or lm (least squares from them).")
+POP = typer.Option(..., "--pop", default_factory=signature_default("eha.fdi", "identify_source",
+                                                                   "pop"),
+                   help="GA population.")
+SEED = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed).")
+OBJECTIVE = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' mean "
+                         "absolute error).")
+T_END = typer.Option(1.0, "--t-end", help="Simulated time of the HF reference, in seconds.")
+JSON_OUT = typer.Option(None, "--json", help="Write the result as JSON.")
+PLOT = typer.Option(None, "--plot", help="PNG: reference vs identified LF.")
+LEVEL = typer.Option(..., "--level", default_factory=library_default("eha.fdi",
+                                                                     "DEFAULT_LEVEL"),
+                     help="Nominal coverage of the parameter intervals, in (0, 1).")
+BASE_MODEL = typer.Option(None, "--base-model", help="LF model: plain (the thesis') or "
+                          "calibrated (by eha explain). Default: plain against an HF "
+                          "reference, calibrated on --data.")
+
+
+def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
+        data: Optional[Path] = DATA, fit: str = FIT, bounds: List[str] = BOUNDS,
+        base: List[str] = BASE, method: str = METHOD, pop: int = POP, seed: int = SEED,
+        objective: str = OBJECTIVE, t_end: float = T_END, json_out: Optional[Path] = JSON_OUT,
+        plot: Optional[Path] = PLOT, level: float = LEVEL,
+        base_model: Optional[str] = BASE_MODEL, command_hold: CommandHoldOption = COMMAND_HOLD,
+        columns: ColumnsOption = None, units: UnitsOption = None):
     """Identify LF fault parameters, each with an interval, from an HF reference or a
     measured record.
 

@@ -43,9 +43,6 @@ ColumnsOption = Annotated[Optional[str], typer.Option(
 UnitsOption = Annotated[Optional[str], typer.Option(
     "--units", help="Unit of the record's position and command columns (com, xu, xs) whose "
     "header declares none: m, mm or um (default m).")]
-SeedOption = Annotated[int, typer.Option("--seed", help="Optimizer seed.")]
-ProgressOption = Annotated[bool, typer.Option("--progress/--no-progress",
-                                              help="Progress display.")]
 
 
 def record_file(path: Path, columns: Optional[str], units: Optional[str]):
