@@ -88,14 +88,14 @@ def campaign_run(
         check_scheduler(scheduler)
     check_out_dir(results, "--results")
     camp = _load(file)
-    try:
-        with resumable("finished runs are saved, re-run the same command to resume"):
+    with resumable("finished runs are saved, re-run the same command to resume"):
+        try:
             s = run_campaign(camp, results, workers=workers, scheduler=scheduler,
                              replace=replace, progress=progress)
-    except EhaError:
-        raise
-    except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
-        fail(str(exc), 1)
+        except (EhaError, typer.Exit):  # typer.Exit is a RuntimeError too
+            raise
+        except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
+            fail(str(exc), 1)
     if s.changed:
         console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
                       "it no longer has, kept the shared ones")
