@@ -1,3 +1,3 @@
-from eha.cli import app
+from eha.cli import main
 
-app(prog_name="eha")
+main()

@@ -13,9 +13,10 @@ from typing import Any, Mapping
 
 import numpy as np
 from numba import njit
+from eha.errors import InputError
 
 
-class CommandError(ValueError):
+class CommandError(InputError):
     """Unknown command, unknown command parameter or bad value (message is one line)."""
 
 

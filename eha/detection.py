@@ -37,6 +37,7 @@ import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
 from eha.health import CORE_FAULTS, EXTRA_FAULTS, FAULTS
+from eha.errors import InputError
 
 #: Manufacturing dispersion of a healthy actuator: name -> (law, a, b).
 #: ``uniform_rel``: nominal x U(1 - a, 1 + a); ``normal``: N(a, b) (clipped at 10 %);
@@ -55,7 +56,7 @@ DEFAULT_ALPHA = 0.01
 CALIBRATION_FORMAT = 1
 
 
-class DetectionError(ValueError):
+class DetectionError(InputError):
     """Bad detection input (calibration file, fleet section); one-line message."""
 
 

@@ -50,6 +50,7 @@ from eha.commands import Command, as_command
 from eha.params import (LF, SPECS, LFParams, ParameterError, check_value, parse_name_value,
                         resolve)
 from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
+from eha.errors import InputError
 
 #: Identification methods (see the module docstring).
 METHODS = ("ga", "ga+ps", "ps", "lm")
@@ -111,7 +112,7 @@ METHOD_DEFAULTS: dict[str, dict[str, float]] = {
 }
 
 
-class FDIError(ValueError):
+class FDIError(InputError):
     """Bad identification input (bounds, method, reference); the message is one line."""
 
 

@@ -63,6 +63,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from eha.campaigns.jobs import register_job
+from eha.errors import InputError
 
 LAWS = ("linear", "exponential", "power")
 TOP_KEYS = ("name", "description", "seed", "actuators", "command", "t_end", "noise",
@@ -73,12 +74,11 @@ FORMATS = ("csv", "parquet")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,80}$")
 
 
-class FleetError(ValueError):
+class FleetError(InputError):
     """A fleet file that cannot run; ``problems`` holds one line per problem."""
 
     def __init__(self, problems: list[str]):
-        self.problems = list(problems)
-        super().__init__("\n".join(self.problems))
+        super().__init__(problems, message="\n".join(problems))
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ import numpy as np
 from eha.commands import Command
 from eha.fdi import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult, identify
 from eha.params import LFParams, resolve
+from eha.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -88,7 +89,7 @@ EXTRA_FAULTS = ("GM", "Kintas", "Clk", "Ofs", "FSS")
 HYPOTHESIS_SEARCH: dict[str, Any] = {"warm_start": True, "max_gen": 12, "stall": 4}
 
 
-class HealthError(ValueError):
+class HealthError(InputError):
     """Bad health-assessment input; the message is one line."""
 
 

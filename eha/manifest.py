@@ -28,6 +28,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from eha.errors import InputError
 
 #: Required manifest columns.
 COLUMNS = ("actuator", "cycle", "record")
@@ -35,13 +36,12 @@ COLUMNS = ("actuator", "cycle", "record")
 RECORD_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
 
 
-class ManifestError(ValueError):
+class ManifestError(InputError):
     """A manifest that cannot be used; ``problems`` holds one line per problem."""
 
     def __init__(self, source: str, problems: list[str]):
-        self.source = str(source)
-        self.problems = list(problems)
-        super().__init__("\n".join(f"{self.source}: {p}" for p in self.problems))
+        super().__init__(problems, source=source,
+                         message="\n".join(f"{source}: {p}" for p in problems))
 
 
 @dataclass(frozen=True)

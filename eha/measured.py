@@ -3,8 +3,15 @@
 A measured record is a CSV (or TSV/TXT) or Parquet table with at least the columns ``t`` [s],
 ``com`` [m] and ``xu`` [m], optionally ``p12`` [Pa] and ``xs`` [m]; SI units. Column names are
 matched case-insensitively, through the aliases of :data:`ALIASES`; a trailing unit in
-brackets (``"t [ms]"``, ``"xu (mm)"``) is honoured: values are converted to SI with
-:data:`UNITS`, and a unit not listed there is refused.
+brackets (``"t [ms]"``, ``"xu (mm)"``) or after an underscore (``"time_ms"``,
+``"position_mm"``) is honoured: values are converted to SI with :data:`UNITS`, and a bracketed
+unit not listed there is refused.
+
+Records as users have them (:class:`RecordFile`, ``--columns`` and ``--units`` of the
+commands that read a record): ``columns`` names the header of any signal
+(``"t=time_s,com=command_mm,xu=position_mm"``), whatever its name; the signals not named are
+matched through the aliases. ``units`` (:data:`LENGTH_UNITS`: m, mm, um) is the unit of the
+position and command columns (com, xu, xs) whose header declares none.
 
 Validation (:func:`validate`) reports every problem at once, one line each:
 
@@ -30,15 +37,17 @@ instant). ``command_hold="auto"`` (the default) decides from the command itself
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from eha.commands import Command, array_command
 from eha.simulate import OUTPUT_DT
+from eha.errors import InputError
 
 #: Required columns, then optional ones.
 REQUIRED = ("t", "com", "xu")
@@ -79,15 +88,21 @@ PHYSICAL_RANGES: dict[str, tuple[float, float, str]] = {
     "xs": (-1e-2, 1e-2, "m"),
 }
 FILE_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
+#: Signals a record may carry, the names of ``--columns SIGNAL=HEADER``.
+SIGNALS = REQUIRED + OPTIONAL
+#: ``--units``: the unit of the length columns (:data:`LENGTH_SIGNALS`) whose header declares
+#: none -> factor to SI.
+LENGTH_UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3, "um": 1e-6}
+LENGTH_SIGNALS = ("com", "xu", "xs")
 
 
-class MeasuredDataError(ValueError):
-    """A measured record that cannot be used; ``problems`` holds one line per problem."""
+class MeasuredDataError(InputError):
+    """A measured record that cannot be used; ``problems`` holds one line per problem (the
+    command line prints each as ``SOURCE: problem``)."""
 
     def __init__(self, source: str, problems: list[str]):
-        self.source = source
-        self.problems = list(problems)
-        super().__init__(f"{source}: " + "; ".join(self.problems))
+        super().__init__(problems, source=source,
+                         message=f"{source}: " + "; ".join(problems))
 
 
 @dataclass(frozen=True)
@@ -140,15 +155,31 @@ def header_unit(header: str) -> str | None:
     return match.group(1) if match else None
 
 
-def unit_scales(mapping: dict[str, str]) -> tuple[dict[str, float], list[str]]:
-    """Factor to SI of each mapped column from its header's unit; ``(scales, problems)``."""
+def suffix_unit(header: str, name: str) -> str | None:
+    """A unit of column ``name`` (:data:`UNITS`) after the header's last underscore
+    (``"position_mm"`` -> ``"mm"``), or None (``"x_ref"``: not a unit)."""
+    match = re.search(r"_([^\W_\d]+)\s*$", str(header))
+    if match and match.group(1).lower() in UNITS.get(name, {}):
+        return match.group(1)
+    return None
+
+
+def unit_scales(mapping: dict[str, str], units: str | None = None
+                ) -> tuple[dict[str, float], list[str]]:
+    """Factor to SI of each mapped column from its header's unit (in brackets, or after an
+    underscore), else, for a length column, from ``units`` (:data:`LENGTH_UNITS`);
+    ``(scales, problems)``."""
     scales: dict[str, float] = {}
     problems: list[str] = []
     for name, header in mapping.items():
         unit = header_unit(header)
-        if unit is None:
-            continue
         allowed = UNITS.get(name, {})
+        if unit is None:
+            unit = suffix_unit(header, name)
+        if unit is None:
+            if units is not None and name in LENGTH_SIGNALS:
+                scales[name] = LENGTH_UNITS[units]
+            continue
         factor = allowed.get(unit.lower())
         if factor is None:
             problems.append(f"column {name}: unit {unit!r} in header {header!r} is not "
@@ -158,18 +189,121 @@ def unit_scales(mapping: dict[str, str]) -> tuple[dict[str, float], list[str]]:
     return scales, problems
 
 
+def parse_columns(spec: str | Mapping[str, str] | None) -> tuple[dict[str, str], list[str]]:
+    """``--columns``: ``"com=command_mm,xu=position_mm"`` (or a mapping) -> signal -> header,
+    and one problem line per bad item (unknown signal, no header, a signal or a header given
+    twice)."""
+    if spec is None:
+        return {}, []
+    items = (list(spec.items()) if isinstance(spec, Mapping) else
+             [tuple(part.partition("=")[::2]) if "=" in part else (part, "")
+              for part in (p.strip() for p in str(spec).split(",")) if part])
+    columns: dict[str, str] = {}
+    problems: list[str] = []
+    for signal, header in items:
+        signal, header = str(signal).strip(), str(header).strip()
+        item = f"--columns {signal}={header}"
+        if signal.lower() not in SIGNALS:
+            problems.append(f"{item}: unknown signal {signal!r}; allowed: "
+                            f"{', '.join(SIGNALS)} (SIGNAL=HEADER, e.g. com=command_mm)")
+        elif not header:
+            problems.append(f"{item}: no header; give SIGNAL=HEADER, e.g. com=command_mm")
+        elif signal.lower() in columns:
+            problems.append(f"{item}: {signal} given twice; name each signal once")
+        elif header.lower() in (h.lower() for h in columns.values()):
+            problems.append(f"{item}: header {header!r} given for two signals")
+        else:
+            columns[signal.lower()] = header
+    return columns, problems
+
+
+@dataclass(frozen=True)
+class RecordFile:
+    """A measured record file as its user has it: the path, the header of any signal
+    (``columns``, signal -> header, e.g. ``{"com": "command_mm"}``) and the unit of length
+    columns whose header declares none (``units``, :data:`LENGTH_UNITS`).
+
+    Path-like: the library's functions that take a record path (``eha.fdi.identify_source``,
+    ``eha.monitoring.check_record``, ``eha.explain.outputs.explain_report``) take one too, and
+    :func:`load` reads it with its columns and units.
+
+    Raises
+    ------
+    MeasuredDataError
+        An unknown signal, a malformed item of ``columns`` or a ``units`` not allowed, one
+        line each naming the option (``--columns``, ``--units``).
+    """
+
+    path: Path
+    columns: Mapping[str, str] | str | None = None
+    units: str | None = None
+
+    def __post_init__(self):
+        columns, problems = parse_columns(self.columns)
+        units = None if self.units is None else str(self.units).strip().lower()
+        if units is not None and units not in LENGTH_UNITS:
+            problems.append(f"--units {self.units!r}: allowed {', '.join(LENGTH_UNITS)} "
+                            f"(the unit of com, xu and xs columns whose header has none)")
+        if problems:
+            raise MeasuredDataError(str(self.path), problems)
+        object.__setattr__(self, "path", Path(self.path))
+        object.__setattr__(self, "columns", columns)
+        object.__setattr__(self, "units", units)
+
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def at(self, path: str | Path) -> "RecordFile":
+        """Another file of the same format (a folder of records)."""
+        return RecordFile(Path(path), dict(self.columns), self.units)
+
+
+def same_format(record: Any, path: str | Path) -> "RecordFile | Path":
+    """``path`` read as ``record`` is (its columns and units), when ``record`` is a
+    :class:`RecordFile`; else ``path`` as it is."""
+    return record.at(path) if isinstance(record, RecordFile) else Path(path)
+
+
 def _canonical(header: str) -> str:
     name = re.sub(r"\s*[\[(].*?[\])]\s*$", "", str(header)).strip().lower()
     return re.sub(r"[\s\-]+", "_", name)
 
 
-def match_columns(headers: list[str]) -> tuple[dict[str, str], list[str]]:
-    """Map canonical names to the file's headers; returns ``(mapping, problems)``."""
+def _find_header(headers: list[str], given: str) -> str | None:
+    """The file's header named ``given``: the same text, else the same but for case and
+    surrounding spaces."""
+    if given in headers:
+        return given
+    folded = [h for h in headers if h.strip().lower() == given.strip().lower()]
+    return folded[0] if len(folded) == 1 else None
+
+
+def match_columns(headers: list[str], columns: Mapping[str, str] | None = None
+                  ) -> tuple[dict[str, str], list[str]]:
+    """Map canonical names to the file's headers; returns ``(mapping, problems)``.
+
+    ``columns`` (signal -> header, ``--columns``) names headers explicitly; the other signals
+    are matched through :data:`ALIASES` among the headers not named."""
     mapping: dict[str, str] = {}
     problems: list[str] = []
+    found = ", ".join(map(str, headers)) or "none"
+    for name, given in (columns or {}).items():
+        header = _find_header(headers, given)
+        if header is None:
+            problems.append(f"--columns {name}={given}: no column {given!r} in the file "
+                            f"(found: {found})")
+        mapping[name] = header if header is not None else given
+    claimed = set(mapping.values())
     for header in headers:
+        if header in claimed:
+            continue
         key = _canonical(header)
         for name, aliases in ALIASES.items():
+            if name in (columns or {}):
+                continue
             if key in aliases:
                 if name in mapping:
                     problems.append(f"column {name}: given twice ({mapping[name]!r} and "
@@ -179,8 +313,8 @@ def match_columns(headers: list[str]) -> tuple[dict[str, str], list[str]]:
     for name in REQUIRED:
         if name not in mapping:
             problems.append(f"column {name}: missing (accepted names: "
-                            f"{', '.join(ALIASES[name])}; found: "
-                            f"{', '.join(map(str, headers)) or 'none'})")
+                            f"{', '.join(ALIASES[name])}; found: {found}; or name its "
+                            f"header: --columns {name}=HEADER)")
     return mapping, problems
 
 
@@ -242,7 +376,8 @@ def validate(columns: dict[str, Any], source: str = "data",
         out = (values < lo) | (values > hi)
         if out.any():
             worst = float(values[np.argmax(np.abs(values))])
-            hint = " (SI units required: millimetres?)" if name in ("com", "xu", "xs") else ""
+            hint = (f" (SI units required: millimetres? declare them: '{name} [mm]' or "
+                    f"--units mm)" if name in LENGTH_SIGNALS else "")
             problems.append(f"column {name}: {int(out.sum())} value(s) outside the physical "
                             f"range [{lo:g}, {hi:g}] {unit}, e.g. {worst:g}{hint}")
     if problems:
@@ -384,20 +519,31 @@ def from_arrays(t, com, xu, p12=None, xs=None, source: str = "data",
         source=str(source), info=info)
 
 
-def load(path: str | Path, command_hold: str = "auto") -> MeasuredData:
+def load(path: str | Path | RecordFile, command_hold: str = "auto",
+         columns: Mapping[str, str] | str | None = None,
+         units: str | None = None) -> MeasuredData:
     """Read, validate and resample a measured record (CSV/TSV/TXT or Parquet).
 
     ``command_hold`` says how the command is rebuilt between its samples
     (:data:`COMMAND_HOLDS`; ``auto`` decides from the command, :func:`detect_hold`).
+    ``columns`` (signal -> header, or ``"com=command_mm,xu=position_mm"``) and ``units``
+    (m, mm, um: of the length columns whose header has none) read a record as its user has
+    it (:class:`RecordFile`; a ``RecordFile`` given as ``path`` brings its own).
 
     Raises
     ------
     MeasuredDataError
-        File missing or unreadable, unsupported type, or any validation problem.
+        File missing or unreadable, unsupported type, a bad ``columns`` or ``units``, or any
+        validation problem.
     """
     from eha.campaigns.traces import read_table_file
 
-    path = Path(path)
+    if isinstance(path, RecordFile):
+        record = RecordFile(path.path, path.columns if columns is None else columns,
+                            path.units if units is None else units)
+    else:
+        record = RecordFile(Path(path), columns, units)
+    path = record.path
     source = str(path)
     if not path.is_file():
         raise MeasuredDataError(source, ["file not found"])
@@ -410,8 +556,8 @@ def load(path: str | Path, command_hold: str = "auto") -> MeasuredData:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MeasuredDataError(source, [f"cannot read the table: {first}"]) from None
     headers = [str(c) for c in frame.columns]
-    mapping, problems = match_columns(headers)
-    scales, unit_problems = unit_scales(mapping)
+    mapping, problems = match_columns(headers, record.columns)
+    scales, unit_problems = unit_scales(mapping, record.units)
     if problems or unit_problems:
         raise MeasuredDataError(source, problems + unit_problems)
     cols = {name: frame[header].to_numpy() for name, header in mapping.items()}
@@ -420,7 +566,8 @@ def load(path: str | Path, command_hold: str = "auto") -> MeasuredData:
 
 
 __all__ = ["MeasuredData", "MeasuredDataError", "load", "from_arrays", "validate",
-           "match_columns", "ALIASES", "REQUIRED", "OPTIONAL", "SAMPLING_TOLERANCE",
+           "match_columns", "RecordFile", "same_format", "parse_columns", "SIGNALS",
+           "LENGTH_UNITS", "ALIASES", "REQUIRED", "OPTIONAL", "SAMPLING_TOLERANCE",
            "MIN_SAMPLES", "MIN_DURATION", "PHYSICAL_RANGES", "synthetic_record", "noise_level",
            "COMMAND_HOLDS", "detect_hold", "resolve_hold"]
 

@@ -17,11 +17,12 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Iterable, Mapping
+from eha.errors import InputError
 
 MODELS = ("hf", "lf")
 
 
-class ParameterError(ValueError):
+class ParameterError(InputError):
     """A parameter name or value that the models do not accept (message is one line)."""
 
 

@@ -50,6 +50,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
+from eha.errors import InputError
 
 #: Degradation laws.
 LAWS = ("linear", "exponential", "power")
@@ -83,7 +84,7 @@ MAX_FIT_CHECKS = 30
 QUANTILES = (0.05, 0.5, 0.95)
 
 
-class PrognosticsError(ValueError):
+class PrognosticsError(InputError):
     """Bad prognostics input; the message is one line naming the field and allowed values."""
 
 

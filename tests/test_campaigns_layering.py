@@ -28,8 +28,9 @@ def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
                     + "".join(f"import eha.campaigns.{m}\n" for m in INFRA)
                     + "print(json.dumps(sorted(sys.modules)))")
     eha = [m for m in loaded if m == "eha" or m.startswith("eha.")]
-    # eha.models: the output columns of a trace (constants; the package imports no kernels)
-    foreign = [m for m in eha if m not in ("eha", "eha.campaigns", "eha.models")
+    # eha.models: the output columns of a trace (constants; the package imports no kernels);
+    # eha.errors: the error hierarchy every layer derives its errors from (imports nothing)
+    foreign = [m for m in eha if m not in ("eha", "eha.campaigns", "eha.models", "eha.errors")
                and not m.startswith("eha.campaigns.")]
     assert foreign == [], foreign
     assert "numba" not in loaded and "eha.simulate" not in loaded
@@ -38,13 +39,14 @@ def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
 @pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
 def test_infrastructure_modules_name_no_domain_module(module):
     """No import of a module outside eha.campaigns, not even inside a function, but the
-    trace columns (eha.models.OUTPUTS, constants): the runner and its workers reach a job
-    kind's module through the registry only."""
+    trace columns (eha.models.OUTPUTS, constants) and the error hierarchy (eha.errors): the
+    runner and its workers reach a job kind's module through the registry only."""
     tree = ast.parse((PACKAGE / f"{module}.py").read_text(encoding="utf-8"))
     named = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
     named += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     domain = [m for m in named if m.split(".")[0] == "eha"
-              and not (m in ("eha.campaigns", "eha.models") or m.startswith("eha.campaigns."))]
+              and not (m in ("eha.campaigns", "eha.models", "eha.errors")
+                       or m.startswith("eha.campaigns."))]
     assert domain == [], f"eha/campaigns/{module}.py imports {domain}"
 
 

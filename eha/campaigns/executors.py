@@ -246,15 +246,17 @@ def check_scheduler(address: str) -> str:
 
     Raises
     ------
-    ValueError
-        One line naming the option and the expected form.
+    eha.errors.InputError
+        One line naming the option and the expected form (a ``ValueError``).
     """
     import re
+
+    from eha.errors import InputError
 
     ok = re.fullmatch(r"(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
                       r":(\d{1,5})", address.strip())
     if not ok or not 0 < int(ok.group(1)) < 65536:
-        raise ValueError(f"--scheduler {address!r}: not a scheduler address; expected "
+        raise InputError(f"--scheduler {address!r}: not a scheduler address; expected "
                          "tcp://HOST:PORT (PORT in [1, 65535])")
     return address
 

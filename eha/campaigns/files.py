@@ -64,6 +64,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
+from eha.errors import InputError
 
 #: Upper bound on the number of jobs of one campaign (a typo in a grid should not explode).
 MAX_JOBS = 200_000
@@ -76,12 +77,11 @@ TOP_KEYS = ("name", "description", "kind", "models", "commands", "seeds", "t_end
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
 
 
-class CampaignError(ValueError):
+class CampaignError(InputError):
     """A campaign file that cannot run; ``problems`` holds one line per problem."""
 
     def __init__(self, problems: list[str]):
-        self.problems = list(problems)
-        super().__init__("\n".join(self.problems))
+        super().__init__(problems, message="\n".join(problems))
 
 
 @dataclass(frozen=True)

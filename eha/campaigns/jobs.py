@@ -30,6 +30,7 @@ from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
+from eha.errors import EhaError
 
 #: Entry-point groups: job kinds, campaign-file sections, worker warm-ups.
 JOB_GROUP = "eha.jobs"
@@ -37,7 +38,7 @@ SECTION_GROUP = "eha.campaign_sections"
 WARM_UP_GROUP = "eha.worker_warm_up"
 
 
-class UnknownJobKind(KeyError):
+class UnknownJobKind(EhaError, KeyError):
     """No module registers this job kind (or campaign section)."""
 
     def __str__(self) -> str:

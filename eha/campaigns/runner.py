@@ -39,6 +39,7 @@ from typing import Any
 
 from eha.campaigns.executors import Executor, make_executor
 from eha.campaigns.jobs import JobKind, execute_task, find_job_kind
+from eha.errors import InputError
 
 #: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` runs): a
 #: commit costs tens of milliseconds whatever its rows, the parent shares the cores with the
@@ -47,7 +48,7 @@ BATCH_SECONDS = 0.5
 BATCH_ROWS = 5000
 
 
-class CampaignChanged(ValueError):
+class CampaignChanged(InputError):
     """The campaign was recorded from a different definition under the same name."""
 
 

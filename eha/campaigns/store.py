@@ -26,17 +26,23 @@ from typing import Any, Mapping, Sequence
 # No simulation code at import time (eha.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
 from eha.campaigns.traces import DEEP_VERIFY_MAX, trace_intact
+from eha.errors import BAD_INPUT, FAILURE, EhaError
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
 
 
-class StoreError(RuntimeError):
-    """The result database cannot be used (locked, missing, bad query); one-line message."""
+class StoreError(EhaError, RuntimeError):
+    """The result database cannot be used (locked, missing, bad query); one-line message.
+    The command line exits 2: the results folder or the query given is at fault."""
+
+    exit_code = BAD_INPUT
 
 
 class StoreWriteError(StoreError):
     """The result database could not be written (disk full, I/O error): a failure of the
     machine, not of the input (the CLI exits 1, not 2); committed results are kept."""
+
+    exit_code = FAILURE
 
 
 def db_path(results: str | Path) -> Path:

@@ -29,7 +29,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
             flow_gain_spread: float | None = None, null: Any = "simulate",
             null_actuators: int | None = None,
             on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
-            **fdi_options: float) -> ExplainResult:
+            settings: LoopSettings | None = None, **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
 
     Parameters
@@ -75,6 +75,9 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Healthy actuators of a simulated null (:class:`LoopSettings`, default 12).
     on_progress : callable(str), optional
         Called with a short message before each fit.
+    settings : LoopSettings, optional
+        All the loop's settings at once (``eha explain`` builds them); the keyword arguments
+        above that are given replace its values.
 
     Returns
     -------
@@ -84,8 +87,11 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
              "null_actuators": null_actuators}
-    settings = LoopSettings(**{k: v for k, v in given.items() if v is not None},
-                            method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    given = {k: v for k, v in given.items() if v is not None}
+    if settings is None:
+        settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    elif given or method is not None:
+        settings = replace(settings, **given, **({"method": method} if method else {}))
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
                         fdi_options)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,

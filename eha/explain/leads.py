@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from eha.errors import InputError
 
 #: Candidate features, in column order: name -> meaning. Signals are the model's (LF) position
 #: x [m] and jack velocity v [m/s], the command c [m] and the load pressure P12 [Pa].
@@ -85,7 +86,7 @@ MIN_SHARE = 0.01
 LEAD_SHARE = 0.10
 
 
-class LeadsError(ValueError):
+class LeadsError(InputError):
     """Bad input to the residual leads (one line)."""
 
 

@@ -51,6 +51,7 @@ import numpy as np
 from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_POWER,
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
+from eha.errors import InputError
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 2
@@ -65,7 +66,7 @@ def noise_class(noise: float) -> float:
     return float(10.0 ** (k / NOISE_CLASSES_PER_DECADE))
 
 
-class NullError(ValueError):
+class NullError(InputError):
     """Bad null input (``--healthy`` folder, too few records); one-line message."""
 
 
@@ -462,11 +463,12 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
                  on_progress: Callable[[str], None] | None = None) -> Null:
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
-    Not cached (the files are the user's)."""
-    from eha.measured import FILE_TYPES, MeasuredDataError, load
+    Not cached (the files are the user's). A :class:`eha.measured.RecordFile` folder reads
+    its records with its columns and units."""
+    from eha.measured import FILE_TYPES, MeasuredDataError, load, same_format
     from eha.simulate import MODEL_VERSION
 
-    folder = Path(folder)
+    spec, folder = folder, Path(folder)
     if not folder.is_dir():
         raise NullError(f"--healthy {folder}: not a folder")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in FILE_TYPES)
@@ -476,7 +478,7 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
     records = []
     for path in files:
         try:
-            records.append(load(path, command_hold))
+            records.append(load(same_format(spec, path), command_hold))
         except MeasuredDataError as exc:
             raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
     names = covered_effects(effects)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
@@ -92,12 +93,39 @@ def plot_explain_trace(result, path: str | Path) -> Path:
     return _save(fig, Path(path))
 
 
+def read_prior(path: str | Path) -> list:
+    """``--prior``: the ``--json`` of an earlier ``eha explain`` (an object whose ``steps`` is a
+    list of ``{"effect": ..., "params": {...}}``, or that list itself); its steps.
+
+    Raises
+    ------
+    ExplainError
+        Not a readable JSON file, or not of that shape (one line naming ``--prior``).
+    """
+    from eha.explain.settings import ExplainError
+
+    try:
+        prior = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ExplainError(f"--prior {path}: not a readable JSON file "
+                           f"({getattr(exc, 'strerror', None) or str(exc).splitlines()[0]})"
+                           ) from None
+    steps = prior.get("steps") if isinstance(prior, dict) else prior
+    if not isinstance(steps, list) or not all(isinstance(s, dict) and "effect" in s
+                                              for s in steps):
+        keys = ", ".join(sorted(prior)) if isinstance(prior, dict) else type(prior).__name__
+        raise ExplainError(f"--prior {path}: expected the --json of an earlier eha explain (key "
+                           f"'steps', a list of {{effect, params}}); found "
+                           f"{keys or 'an empty object'}")
+    return steps
+
+
 def explain_report(data: str | Path, fit: str | None = None, effects: str | None = None,
                    holdout: float | None = None, validate: str | Path | None = None,
                    prior: str | Path | None = None, json_path: str | Path | None = None,
                    out: str | Path | None = None, results: str | Path = "results",
-                   on_progress=None, known: dict[str, float] | None = None,
-                   command_hold: str = "auto", **options) -> dict:
+                   on_progress=None, known=None, command_hold: str = "auto",
+                   **options) -> dict:
     """``eha explain``: run the residual loop on a measured file and write its outputs.
 
     Everything is read and validated before anything is written. Writes, under ``out``
@@ -106,9 +134,11 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     ``explain.json`` (everything); the rows of ``explain_runs``/``explain_steps`` in
     ``results/eha.duckdb``; and, when given, ``json_path`` with the contract of issue 5.
     ``known`` holds LF parameters fixed at known values (test conditions such as a test load
-    ``{"FRC": 4000}``), on top of the ``prior``'s effects; they are not candidates.
-    ``command_hold`` says how the records' commands are rebuilt between their samples
-    (:data:`eha.measured.COMMAND_HOLDS`).
+    ``{"FRC": 4000}``, or ``--set`` items ``["FRC=4000"]``), on top of the ``prior``'s effects;
+    they are not candidates. ``command_hold`` says how the records' commands are rebuilt
+    between their samples (:data:`eha.measured.COMMAND_HOLDS`). ``data`` and ``validate`` may
+    be :class:`eha.measured.RecordFile` (a record's columns and units); ``options`` go to
+    :func:`eha.explain.api.explain` (``settings``: a :class:`LoopSettings`).
 
     Returns
     -------
@@ -127,17 +157,18 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.measured import load
     from eha.campaigns.store import StoreError, save_explain
 
+    from eha.params import ParameterError, parse_assignments, resolve
+
+    if known is not None and not isinstance(known, Mapping):
+        try:
+            known = parse_assignments(known)
+        except ParameterError as exc:
+            raise ExplainError(f"--set {exc}") from None
+    steps = read_prior(prior) if prior is not None else None
     record = load(data, command_hold=command_hold)
     check = load(validate, command_hold=command_hold) if validate is not None else None
-    base = None
-    if prior is not None:
-        try:
-            base = augmented_base(json.loads(Path(prior).read_text()))
-        except (OSError, ValueError) as exc:
-            raise ExplainError(f"--prior {prior}: {str(exc).splitlines()[0]}") from None
+    base = augmented_base(steps) if steps is not None else None
     if known:
-        from eha.params import ParameterError, resolve
-
         try:
             base = resolve("lf", dict(known), base=base)
         except ParameterError as exc:
@@ -151,6 +182,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     digest.update(json.dumps([str(validate), str(prior), dict(known or {}), result.settings,
                               {k: list(v) for k, v in result.fit_bounds.items()}],
                              sort_keys=True, default=str).encode())
+    if getattr(data, "columns", None) or getattr(data, "units", None):   # a RecordFile's format
+        digest.update(json.dumps([data.columns, data.units], sort_keys=True).encode())
     run_id = digest.hexdigest()[:16]
     paths = {"steps": out / "steps.csv", "candidates": out / "candidates.csv",
              "residuals": out / "residuals.png", "trace": out / "trace.png",

@@ -15,9 +15,10 @@ from typing import Any, Iterable, Mapping, Sequence
 from eha.effects import COMBINATIONS
 from eha.fdi import DEFAULT_METHOD
 from eha.params import ParameterError, parse_name_value
+from eha.errors import InputError
 
 
-class ExplainError(ValueError):
+class ExplainError(InputError):
     """Bad input to the residual loop (one line)."""
 
 
@@ -218,38 +219,45 @@ class LoopSettings:
     seed: int = 0
 
     def __post_init__(self):
+        problems = self.problems()
+        if problems:
+            raise ExplainError(problems)
+
+    def problems(self) -> list[str]:
+        """One line per setting outside its range, naming its option (``--min-gain``) and the
+        range: the one place the loop's settings are checked (the CLI builds a LoopSettings
+        and prints these). Values are shown as given (``-1.0``, ``nan``)."""
         problems = []
         if not 0.0 <= self.holdout <= 0.8:
-            problems.append(f"--holdout {self.holdout:g}: allowed range [0, 0.8]")
-        if not 0.0 <= self.min_gain <= 1.0:
-            problems.append(f"--min-gain {self.min_gain:g}: allowed range [0, 1]")
+            problems.append(f"--holdout {self.holdout}: allowed range [0, 0.8]")
+        if not 0.0 <= self.min_gain <= 1.0:  # also refuses nan
+            problems.append(f"--min-gain {self.min_gain}: allowed range [0, 1]")
         if not 0.0 <= self.penalty <= 1.0:
-            problems.append(f"penalty {self.penalty:g}: allowed range [0, 1]")
+            problems.append(f"penalty {self.penalty}: allowed range [0, 1]")
         if not 0.0 < self.alpha < 1.0:
-            problems.append(f"--alpha {self.alpha:g}: allowed range (0, 1)")
+            problems.append(f"--alpha {self.alpha}: allowed range (0, 1)")
         if not 0.0 < self.significance < 1.0:
-            problems.append(f"significance {self.significance:g}: allowed range (0, 1)")
-        if self.null_actuators < MIN_RECORDS:
+            problems.append(f"significance {self.significance}: allowed range (0, 1)")
+        if not self.null_actuators >= MIN_RECORDS:
             problems.append(f"--null-actuators {self.null_actuators}: allowed range "
                             f"[{MIN_RECORDS}, ...]")
-        if self.max_steps < 0:
+        if not self.max_steps >= 0:
             problems.append(f"--max-steps {self.max_steps}: allowed range [0, ...]")
-        if self.candidates < 0:
+        if not self.candidates >= 0:
             problems.append(f"--candidates {self.candidates}: allowed range [0, ...] (0 = all)")
         if not self.noise_factor >= 0.0:
-            problems.append(f"noise_factor {self.noise_factor:g}: allowed range [0, ...]")
+            problems.append(f"noise_factor {self.noise_factor}: allowed range [0, ...]")
         if not 0.0 <= self.p12_weight <= 100.0:
-            problems.append(f"--p12-weight {self.p12_weight:g}: allowed range [0, 100]")
+            problems.append(f"--p12-weight {self.p12_weight}: allowed range [0, 100]")
         if not 0.0 <= self.flow_gain_spread <= 0.5:
-            problems.append(f"--flow-gain-spread {self.flow_gain_spread:g}: allowed range "
+            problems.append(f"--flow-gain-spread {self.flow_gain_spread}: allowed range "
                             f"[0, 0.5]")
-        if self.pop < 2:
+        if not self.pop >= 2:
             problems.append(f"--pop {self.pop}: allowed range [2, ...]")
-        if self.method not in ("ga", "ga+ps"):
+        if self.method not in GLOBAL_METHODS:
             problems.append(f"--method {self.method}: the loop's refits search globally; "
                             f"allowed ga, ga+ps")
-        if problems:
-            raise ExplainError("; ".join(problems))
+        return problems
 
 
 #: Defaults of the loop (see :class:`LoopSettings`), for the CLI.
@@ -278,7 +286,9 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
                 raise ExplainError(f"--fit {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
                                    f"BKL=0:1e-3") from None
             if name in items:
-                raise ExplainError(f"--fit {name}: given twice")
+                given = spec if isinstance(spec, str) else ",".join(parts)
+                raise ExplainError(f"--fit {given}: {name} given twice; name each parameter "
+                                   f"once")
             if rng is not None:
                 items[name] = rng
             else:

@@ -21,13 +21,14 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from eha.errors import InputError
 
 #: Section ids and headings, in page order.
 SECTIONS = {"fleet": "Fleet", "health": "Health", "identification": "Identification",
             "explain": "Residual loop", "campaigns": "Campaigns"}
 
 
-class ReportError(ValueError):
+class ReportError(InputError):
     """Nothing to report: the results folder is missing, empty, or holds no result (one line;
     the CLI exits 2)."""
 

@@ -1,0 +1,172 @@
+"""Fault campaigns and the result database: ``eha campaign validate|plan|run``, ``eha
+query``, ``eha export``, ``eha plot``.
+
+``eha query`` must start fast: nothing here imports the simulation stack (numba kernels) at
+module level; each command imports what it calls.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from eha.cli.guard import console, discard_stdout, fail, resumable, warn
+from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
+                             check_out_file)
+
+campaign_app = typer.Typer(no_args_is_help=True,
+                           help="Fault campaigns: validate, plan and run TOML campaign files.\n\n"
+                                "Example: eha campaign run campaigns/thesis-matrix.toml")
+
+
+def _load(file: Path):
+    from eha.campaigns.files import load_campaign
+
+    return load_campaign(file)
+
+
+@campaign_app.command("validate")
+def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.")):
+    """Check a campaign file; prints one line per problem (exit 2) or the job count.
+
+    Example: eha campaign validate campaigns/thesis-matrix.toml
+    """
+    camp = _load(file)
+    console.print(escape(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs"))
+
+
+@campaign_app.command("plan")
+def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
+                  workers: WorkersOption = WORKERS,
+                  jobs: bool = typer.Option(False, "--jobs", help="List every job.")):
+    """Show what a campaign would run: job counts and an estimated wall time.
+
+    Example: eha campaign plan campaigns/thesis-single-fault.toml --jobs
+    """
+    from eha.campaigns.files import plan
+
+    camp = _load(file)
+    info = plan(camp, workers)
+    if jobs:
+        table = Table("run_key", "kind", "job")
+        for j in camp.jobs:
+            table.add_row(j.run_key, j.kind, j.label)
+        console.print(table)
+    console.print(f"campaign {camp.name}: {info['jobs']} jobs "
+                  f"({', '.join(f'{k}: {v}' for k, v in info['by_model'].items() if k)}), "
+                  f"{info['fault_sets']} fault sets, commands "
+                  f"{', '.join(str(c) for c in info['by_command'] if c)}")
+    console.print(f"estimated wall time on {workers} workers: {info['estimated_s']:.1f} s")
+
+
+@campaign_app.command("run")
+def campaign_run(
+    file: Path = typer.Argument(..., help="Campaign TOML file."),
+    workers: WorkersOption = WORKERS,
+    results: ResultsOption = RESULTS,
+    scheduler: Optional[str] = typer.Option(None, "--scheduler",
+                                            help="Dask scheduler tcp://HOST:PORT (eha[dask])."),
+    replace: bool = typer.Option(False, "--replace",
+                                 help="The file changed: discard the recorded runs it no "
+                                      "longer has (shared runs are kept)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Run or resume a campaign: Parquet traces and DuckDB rows under --results.
+
+    Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
+    """
+    from eha.campaigns.executors import check_scheduler
+    from eha.campaigns.runner import run_campaign
+    from eha.errors import EhaError
+
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    check_out_dir(results, "--results")
+    camp = _load(file)
+    with resumable("finished runs are saved, re-run the same command to resume"):
+        try:
+            s = run_campaign(camp, results, workers=workers, scheduler=scheduler,
+                             replace=replace, progress=progress)
+        except (EhaError, typer.Exit):  # typer.Exit is a RuntimeError too
+            raise
+        except RuntimeError as exc:  # e.g. cannot reach the Dask scheduler
+            fail(str(exc), 1)
+    if s.changed:
+        console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
+                      "it no longer has, kept the shared ones")
+    console.print(escape(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
+                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb"))
+    for line in s.errors:  # a worker's message is text, brackets included
+        warn(line, "failed")
+    if s.failed:
+        raise typer.Exit(1)
+
+
+def _write_frame(frame, format: str) -> None:
+    """The query's result on standard output as a table, CSV or JSON."""
+    if format == "csv":
+        typer.echo(frame.to_csv(index=False), nl=False)
+    elif format == "json":
+        typer.echo(frame.to_json(orient="records", date_format="iso"))
+    else:
+        table = Table(*[str(c) for c in frame.columns])
+        for row in frame.itertuples(index=False):
+            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+        console.print(table)
+
+
+def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
+          results: ResultsOption = RESULTS,
+          format: str = typer.Option("table", "--format", help="table, csv or json.")):
+    """Query the result database read-only; Parquet traces are the view `traces`.
+
+    Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
+    (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
+    """
+    from eha.campaigns.query import query as run_query
+
+    if format not in ("table", "csv", "json"):
+        fail(f"--format {format!r}: allowed table, csv, json")
+    frame = run_query(results, sql)
+    try:
+        _write_frame(frame, format)
+        sys.stdout.flush()  # a full disk or a closed pipe shows here, not silently at exit
+    except OSError as exc:
+        discard_stdout()
+        fail(f"query: the result could not be written to standard output "
+             f"({exc.strerror or exc})", 1)
+
+
+def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs, metrics, "
+                                                 "traces, ...)."),
+           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           results: ResultsOption = RESULTS):
+    """Export a table of the result database to CSV.
+
+    Example: eha export metrics --csv results/metrics.csv
+    """
+    from eha.campaigns.query import export_csv
+
+    check_out_file(csv, "--csv", (".csv",))
+    n = export_csv(results, table, csv)
+    console.print(escape(f"{table}: {n} rows -> {csv}"))
+
+
+def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),
+         results: ResultsOption = RESULTS,
+         out: Optional[Path] = typer.Option(None, "--out",
+                                            help="Folder (default RESULTS/plots/CAMPAIGN).")):
+    """Campaign figures (PNG): HF vs LF xu and P12 per fault set, RMSE summary.
+
+    Example: eha plot thesis-matrix --results results
+    """
+    from eha.plots import plot_campaign
+
+    check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
+    for p in plot_campaign(results, campaign, out):
+        console.print(escape(str(p)))

@@ -1,0 +1,228 @@
+"""The residual loop: ``eha explain`` (trace a measured record's residual to missing LF
+effects).
+
+The loop's settings are checked in one place, :class:`eha.explain.settings.LoopSettings`:
+the command builds one and the guard prints its problems (``--min-gain nan: allowed range
+[0, 1]``). The loop's stack (numba kernels, the optimizers) is imported inside the command:
+``eha query`` and ``eha --help`` must not pay for it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from eha.cli.guard import console, err_console, fail
+from eha.cli.options import (COMMAND_HOLD, RESULTS, ColumnsOption, CommandHoldOption,
+                             ResultsOption, UnitsOption, check_out_dir, check_out_file,
+                             check_seed, library_default, print_paths, record_file,
+                             signature_default)
+
+
+def _setting(name: str, cast=float):
+    """A default of :data:`eha.explain.settings.DEFAULTS`, read when the option is parsed."""
+    return library_default("eha.explain.settings", "DEFAULTS", lambda d: cast(d[name]))
+
+
+# ---- the options, at module level so that the command stays short
+DATA = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu (SI; aliases "
+                      "in docs/explain.md, or see --columns, --units), optional p12, xs.")
+FIT = typer.Option(..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+                                                                 ",".join),
+                   help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated.")
+EFFECTS = typer.Option(None, "--effects", help="Candidate effects, comma-separated names of "
+                       "docs/model.md's effect table (default: all 14).")
+HOLDOUT = typer.Option(None, "--holdout", help="Fraction of the record held out at its end "
+                       "for scoring (default 0.3).")
+VALIDATE = typer.Option(None, "--validate", help="Second record used as held-out data "
+                        "instead of --holdout.")
+PRIOR = typer.Option(None, "--prior", help="--json of an earlier run: its effects start "
+                     "switched on (e.g. from nominal data).")
+KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALUE, repeatable "
+                     "(a test condition, e.g. a test load FRC=4000).")
+JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
+                        "and the steps as JSON.")
+OUT = typer.Option(None, "--out", help="Output folder (default RESULTS/explain/<file stem>).")
+METHOD = typer.Option(..., "--method", default_factory=library_default("eha.fdi",
+                                                                       "DEFAULT_METHOD"),
+                      help="Optimizer of every fit (eha fdi).")
+POP = typer.Option(..., "--pop", default_factory=signature_default("eha.explain.api",
+                                                                   "explain", "pop"),
+                   help="GA population of every fit.")
+SEED = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result).")
+CANDIDATES = typer.Option(..., "--candidates", default_factory=_setting("candidates", int),
+                          help="Effects refitted per round, the best-ranked by signature "
+                          "(0 = all).")
+MAX_STEPS = typer.Option(..., "--max-steps", default_factory=_setting("max_steps", int),
+                         help="Most effects added.")
+MIN_GAIN = typer.Option(..., "--min-gain", default_factory=_setting("min_gain"),
+                        help="Smallest penalised held-out RMSE reduction that adds an effect.")
+P12_WEIGHT = typer.Option(
+    ..., "--p12-weight", default_factory=_setting("p12_weight"),
+    help="Weight of the record's measured P12 in every fit and score, each signal in its own "
+         "noise (0 = position only; records without P12 use the position only).")
+FLOW_GAIN_SPREAD = typer.Option(
+    ..., "--flow-gain-spread", default_factory=_setting("flow_gain_spread"),
+    help="Fit the valve flow gain GQ with the faults within +- this fraction of nominal (the "
+         "healthy actuator's own spread; 0 = held at nominal). E.g. 0.1.")
+ALPHA = typer.Option(
+    ..., "--alpha", default_factory=_setting("alpha"),
+    help="False-positive level per record: the chance that a healthy actuator driven by this "
+         "command gets an effect added (thresholds from a healthy null).")
+HEALTHY = typer.Option(None, "--healthy", help="Folder of healthy records of your own actuators "
+                       "(commissioning tests, >= 5): the null instead of a simulated healthy "
+                       "fleet.")
+NULL_ACTUATORS = typer.Option(
+    ..., "--null-actuators", default_factory=_setting("null_actuators", int),
+    help="Healthy actuators of the simulated null (cached per command, sampling, noise).")
+PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress display.")
+
+
+def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
+            holdout: Optional[float] = HOLDOUT, validate: Optional[Path] = VALIDATE,
+            prior: Optional[Path] = PRIOR, known: List[str] = KNOWN,
+            json_out: Optional[Path] = JSON_OUT, out: Optional[Path] = OUT,
+            results: ResultsOption = RESULTS, method: str = METHOD, pop: int = POP,
+            seed: int = SEED, candidates: int = CANDIDATES, max_steps: int = MAX_STEPS,
+            min_gain: float = MIN_GAIN, p12_weight: float = P12_WEIGHT,
+            flow_gain_spread: float = FLOW_GAIN_SPREAD, alpha: float = ALPHA,
+            healthy: Optional[Path] = HEALTHY, null_actuators: int = NULL_ACTUATORS,
+            command_hold: CommandHoldOption = COMMAND_HOLD, columns: ColumnsOption = None,
+            units: UnitsOption = None, progress: bool = PROGRESS):
+    """Trace a measured record's residual to missing LF effects, add them, report the error.
+
+    --columns and --units apply to the record, to --validate and to the --healthy records.
+
+    Example: eha explain data/run1.csv --fit BKL,FDJ --holdout 0.3 --json out.json
+
+    Example (healthy actuator under a known 4 kN test load): eha explain loadtest.csv --set
+    FRC=4000 --json calibration.json
+    """
+    from eha.explain.outputs import explain_report
+    from eha.explain.settings import DEFAULTS, LoopSettings
+
+    if holdout is not None and validate is not None:
+        fail("--holdout and --validate exclude each other; give one")
+    check_out_file(json_out, "--json", (".json",))
+    check_out_dir(results, "--results")
+    check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
+    check_seed(seed)
+    settings = LoopSettings(  # the one check of the loop's ranges
+        holdout=DEFAULTS["holdout"] if holdout is None else holdout, min_gain=min_gain,
+        alpha=alpha, null_actuators=null_actuators, max_steps=max_steps, candidates=candidates,
+        p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
+        seed=seed)
+    record = record_file(data, columns, units)
+    with _progress_bar(progress) as step:
+        run = explain_report(
+            record, fit=fit, effects=effects, validate=validate and record.at(validate),
+            prior=prior, json_path=json_out, out=out, known=known, command_hold=command_hold,
+            results=results, on_progress=step, settings=settings,
+            null=record.at(healthy) if healthy is not None else "simulate")
+    _render(run["result"])
+    print_paths(run["paths"])
+    if run["db_error"]:
+        fail(f"results database not written: {run['db_error']}", code=1)
+
+
+class _progress_bar:
+    """A transient spinner on stderr counting the fits; yields the ``on_progress`` callback."""
+
+    def __init__(self, enabled: bool):
+        from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
+                            TextColumn("[dim]{task.completed} fits"), TimeElapsedColumn(),
+                            console=err_console, disable=not enabled, transient=True)
+
+    def __enter__(self):
+        self.bar.__enter__()
+        task = self.bar.add_task("reading the record", total=None)
+        return lambda message: self.bar.update(task, description=message, advance=1)
+
+    def __exit__(self, *exc):
+        return self.bar.__exit__(*exc)
+
+
+def _render(res) -> None:
+    """The steps table, the alternatives, the final check, the verdict and the null's
+    undetectable sizes."""
+    console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held out: "
+                  f"{res.holdout}")
+    console.print(_steps_table(res))
+    for line in _notes(res):
+        console.print(line)
+    console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
+                  f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
+                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")
+    if res.intervals:
+        console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
+            f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
+            for k, (lo, hi) in res.intervals.items()))
+    console.print(f"verdict: {escape(res.verdict)}", highlight=False)
+    if res.null:
+        console.print(f"decisions at alpha {res.null['alpha']:g} against {res.null['source']}"
+                      f" on this command; what this record could not have shown (the null's "
+                      f"prediction, a lower bound: measured power in docs/explain.md):",
+                      highlight=False)
+        for line in res.undetectable():
+            console.print(f"  {escape(line)}", highlight=False)
+    if res.beyond_healthy:
+        err_console.print("warning: the residual after the best library model is still well "
+                          "above the noise: unexplained; the fault intervals are widened, "
+                          "do not read the estimates as numbers", highlight=False)
+    elif res.unexplained:
+        err_console.print("warning: the residual is above the noise level: the effects added "
+                          "are tentative, and an effect below this command's healthy band may "
+                          "be missing", highlight=False)
+
+
+def _steps_table(res) -> Table:
+    table = Table("step", "effect", "parameters", "RMSE fit [µm]", "RMSE held-out [µm]",
+                  "RMSE all [µm]", "faults after")
+    table.add_row("0", "(declared faults)", "-", f"{1e6 * res.before.rmse_fit:.3g}",
+                  f"{1e6 * res.before.rmse_hold:.3g}", f"{1e6 * res.rmse_before:.3g}",
+                  ", ".join(f"{k}={v:.4g}" for k, v in res.faults_before.items()))
+    for row, s in zip(res.steps_table(), res.steps):
+        table.add_row(str(row["step"]), s.effect, row["params"],
+                      f"{1e6 * s.rmse_fit_before:.3g} → {1e6 * s.rmse_fit_after:.3g}",
+                      f"{1e6 * s.rmse_hold_before:.3g} → {1e6 * s.rmse_hold_after:.3g}",
+                      f"{1e6 * s.rmse_before:.3g} → {1e6 * s.rmse_after:.3g}",
+                      row["faults_after"])
+    return table
+
+
+def _notes(res) -> list[str]:
+    """Lines on the alternatives, the final check's removals, the passes, GQ and P12."""
+    lines = [f"step {row['step']} ({row['chosen']}, score {row['chosen_score']:+.2f}): nearly "
+             f"as good, not told apart by this record: {row['alternatives']}"
+             for row in res.steps_table() if row["alternatives"]]
+    for d in res.dismissed:
+        if d.replaced_by:
+            lines.append(f"final check: {d.effect} replaced by {d.replaced_by}: the model "
+                         f"with {d.replaced_by} in its place scores {-d.loss:.1%} better "
+                         f"(p = {d.p_value:.2g})")
+            continue
+        when = (f"round {d.round + 1}: {d.effect} chosen but not added" if d.round <
+                len(res.rounds) else f"final check: {d.effect} removed")
+        lines.append(f"{when}: with the rest of the model refitted without it, it reduces "
+                     f"the RMSE by only {d.loss:.1%} (p = {d.p_value:.2g})")
+    settings = res.settings
+    if settings.get("passes", 1) > 1:
+        lines.append("the first pass left the record unexplained; a second pass ran from the "
+                     "structure pinned at its physical values: " +
+                     ("its result is reported" if settings.get("structure_pinned")
+                      else "not better by the loop's rule, the first pass is reported"))
+    if settings.get("flow_gain_released"):
+        lines.append(f"{settings['flow_gain_released']}: a flow loss beyond a healthy "
+                     f"actuator's spread; GQ was put back to its nominal value and no longer "
+                     f"fitted")
+    if settings.get("p12_used"):
+        lines.append(f"measured P12 used in every fit and score (noise taken as "
+                     f"{settings['p12_noise_pa'] / 1e5:.3g} bar; --p12-weight "
+                     f"{settings['p12_weight']:g})")
+    return lines

@@ -1,0 +1,224 @@
+"""The one guard of the command line: signals, exit codes and one-line errors.
+
+Every command runs inside :class:`GuardedGroup`: SIGTERM unwinds like Ctrl-C (exit 143),
+Ctrl-C exits 130, an error the library anticipated (:class:`eha.errors.EhaError`) is printed
+one ``error:`` line per problem and exits with its code (2 for bad input), and any other
+exception becomes one ``error:`` line and exit 1 (``--debug`` shows the traceback). No Python
+traceback reaches a user (docs/reliability.md).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from contextlib import contextmanager
+from typing import Iterator
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from typer.core import TyperGroup
+
+from eha.errors import BAD_INPUT, FAILURE, EhaError
+
+console = Console()
+err_console = Console(stderr=True)
+
+# The option parser's exceptions: click's, or the copy of click that typer >= 0.20 vendors.
+_CLICK = sys.modules[typer.BadParameter.__module__]
+_NO_ARGS = getattr(_CLICK, "NoArgsIsHelpError", ())
+#: Exit status after SIGTERM (128 + 15, what a shell reports for a terminated process).
+TERMINATED = 143
+#: Exit status after Ctrl-C (128 + SIGINT).
+INTERRUPTED = 130
+#: ``--debug`` (or EHA_DEBUG=1): unexpected errors show their traceback.
+STATE = {"debug": bool(os.environ.get("EHA_DEBUG"))}
+
+_TERMINATED_LINE = "terminated (SIGTERM); outputs are written only when complete"
+_INTERRUPTED_LINE = "interrupted (Ctrl-C); outputs are written only when complete"
+
+__all__ = ["BAD_INPUT", "FAILURE", "TERMINATED", "INTERRUPTED", "GuardedGroup", "Terminated",
+           "console", "err_console", "error_line", "fail", "fail_lines", "warn", "resumable",
+           "discard_stdout", "stdout_failed"]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received: unwinds like Ctrl-C (every ``finally`` commits what is finished)."""
+
+
+def _on_sigterm(signum, frame):  # pragma: no cover - exercised by subprocess tests
+    raise Terminated()
+
+
+def _handle_sigterm():
+    """Turn SIGTERM into :class:`Terminated`; returns the previous handler (None when it
+    cannot be set: not the main thread, e.g. an embedding application)."""
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:
+        return None
+
+
+def error_line(message: str) -> None:
+    """``error: message`` on stderr, as text (escaped: "[fdi]", "[0, 0.1] m" are not markup)."""
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
+                      soft_wrap=True)
+
+
+def warn(message: str, prefix: str = "warning") -> None:
+    """``warning: message`` (or another ``prefix``) on stderr, as text."""
+    err_console.print(f"{prefix}: {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def fail(message: str, code: int = BAD_INPUT) -> None:
+    """Print one line to stderr and exit with ``code``.
+
+    Called from a command's ``except KeyboardInterrupt`` with code 130 while the interrupt is
+    SIGTERM (:class:`Terminated`), it says so and exits 143, as the guard does."""
+    if code == INTERRUPTED and isinstance(sys.exc_info()[1], Terminated):
+        code = TERMINATED
+        message = message.replace("interrupted", "terminated (SIGTERM)", 1)
+    error_line(message)
+    raise typer.Exit(code)
+
+
+def fail_lines(lines: list[str], code: int = BAD_INPUT) -> None:
+    """One ``error:`` line per problem, then exit with ``code``."""
+    for line in lines:
+        error_line(line)
+    raise typer.Exit(code)
+
+
+@contextmanager
+def resumable(kept: str) -> Iterator[None]:
+    """Ctrl-C (or SIGTERM) inside: ``interrupted; KEPT`` and exit 130 (143 for SIGTERM)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        fail(f"interrupted; {kept}", INTERRUPTED)
+
+
+def _unexpected(exc: BaseException) -> str:
+    """One line for an exception no command anticipated (class 1 of docs/reliability.md)."""
+    import errno
+
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    if isinstance(exc, OSError):
+        # no file name: a stream (standard output, a pipe) failed
+        what = exc.filename or "writing the output"
+        reason = exc.strerror or first or type(exc).__name__
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            return f"{what}: {reason}; free some space and run the same command again"
+        return f"{what}: {reason}"
+    if isinstance(exc, UnicodeDecodeError):
+        return f"input is not UTF-8 text ({first})"
+    if isinstance(exc, MemoryError):
+        return "out of memory; make the input smaller (shorter t_end, fewer runs)"
+    if any("duckdb" in cls.__module__ for cls in type(exc).__mro__):
+        return (f"results database: {first}; if the file is damaged, move it away and run "
+                "the campaign again")
+    return (f"internal error ({type(exc).__name__}: {first}); run again with --debug for "
+            "the traceback")
+
+
+def stdout_failed() -> bool:
+    """Flush stdout; True (and stdout discarded) when it cannot be written (a full disk, a
+    closed pipe)."""
+    try:
+        sys.stdout.flush()
+        return False
+    except (OSError, ValueError):
+        discard_stdout()
+        return True
+
+
+def discard_stdout() -> None:
+    """After a failed write to stdout: point fd 1 at /dev/null so that the interpreter's
+    final flush of the unwritten rest does not fail a second time (with a traceback)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def _traceback(args=None) -> None:
+    if STATE["debug"] or "--debug" in (args if args is not None else sys.argv):
+        import traceback
+
+        traceback.print_exc()
+
+
+class GuardedGroup(TyperGroup):
+    """The top-level command group: the one guard of the CLI (see the module docstring).
+    Usage errors of the option parser (a value outside an option's range) are one line too,
+    exit 2."""
+
+    def invoke(self, ctx):
+        previous = _handle_sigterm()
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, typer.Abort, _CLICK.ClickException):
+            raise
+        except Terminated:
+            error_line(_TERMINATED_LINE)
+            raise typer.Exit(TERMINATED)
+        except KeyboardInterrupt:
+            error_line(_INTERRUPTED_LINE)
+            raise typer.Exit(INTERRUPTED)
+        except EhaError as exc:  # anticipated: its own words, one line a problem
+            for line in exc.lines():
+                error_line(line)
+            raise typer.Exit(exc.exit_code)
+        except Exception as exc:
+            _traceback()
+            if isinstance(exc, OSError) and stdout_failed():
+                exc = OSError(exc.errno, exc.strerror, "standard output")
+            error_line(_unexpected(exc))
+            raise typer.Exit(FAILURE)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        if not standalone_mode:
+            return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                                standalone_mode=False, **extra)
+        previous = _handle_sigterm()  # from here on: parsing reads defaults from the library
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                              standalone_mode=False, **extra)
+        except _NO_ARGS as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except _CLICK.ClickException as exc:
+            where = f"{exc.ctx.command_path}: " if getattr(exc, "ctx", None) else ""
+            error_line(where + exc.format_message().replace("\n", " "))
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            error_line("aborted")
+            sys.exit(FAILURE)
+        except Terminated:  # while the arguments were parsed, before invoke
+            error_line(_TERMINATED_LINE)
+            sys.exit(TERMINATED)
+        except KeyboardInterrupt:
+            error_line(_INTERRUPTED_LINE)
+            sys.exit(INTERRUPTED)
+        except EhaError as exc:
+            for line in exc.lines():
+                error_line(line)
+            sys.exit(exc.exit_code)
+        except Exception as exc:  # e.g. a default read from the library failed to import
+            _traceback(args)
+            error_line(_unexpected(exc))
+            sys.exit(FAILURE)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        if stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
+            error_line("the output could not be written to standard output")
+            sys.exit(FAILURE)
+        sys.exit(rv if isinstance(rv, int) else 0)

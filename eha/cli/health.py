@@ -1,0 +1,151 @@
+"""Health assessment: ``eha health calibrate`` (thresholds from a healthy fleet) and ``eha
+health check`` (a record: every fault with an interval, healthy or degraded, which fault).
+
+The assessment stack (numba kernels, the optimizers) is imported inside the commands: ``eha
+query`` and ``eha --help`` must not pay for it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from eha.cli.guard import console, err_console, fail, resumable, warn
+from eha.cli.options import (RESULTS, WORKERS, ColumnsOption, ResultsOption, UnitsOption,
+                             WorkersOption, check_out_dir, check_out_file, check_seed,
+                             library_default, print_paths, record_file)
+
+health_app = typer.Typer(no_args_is_help=True,
+                         help="Health assessment: calibrate thresholds on a healthy fleet, "
+                              "check a record (every fault with an interval, healthy or "
+                              "degraded, which fault).\n\nExample: eha health check record.csv "
+                              "--calibration results/health/calibration-chirp_1cm.json")
+
+
+@health_app.command("calibrate")
+def health_calibrate(
+    command: str = typer.Option("chirp_1cm", "--command",
+                                help="Command of the checks (a preset, `eha commands`)."),
+    actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
+                                  help="Healthy actuators in the fleet."),
+    alpha: float = typer.Option(
+        ..., "--alpha", default_factory=library_default("eha.detection", "DEFAULT_ALPHA"),
+        help="Probability that a healthy check raises any alarm, in (0, 1)."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
+    noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),
+    seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
+                             "noise, optimizer)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
+                                       "RESULTS/health/calibration-COMMAND.json)."),
+    results: ResultsOption = RESULTS,
+    workers: WorkersOption = WORKERS,
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Run a healthy fleet (manufacturing dispersion, sensor noise, dither) through the
+    campaign runner and set each fault's threshold for the false-alarm probability --alpha.
+
+    Dispersion (eha.detection.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
+    FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
+
+    Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
+    """
+    from eha.monitoring import calibrate_fleet
+
+    check_seed(seed)
+    check_out_file(out, "--out", (".json",))
+    check_out_dir(results, "--results")
+    with resumable("finished assessments are saved, re-run the same command to resume"):
+        res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
+                              noise=noise, alpha=alpha, out=out, results=results,
+                              workers=workers, progress=progress)
+    _render_calibration(res, actuators, command, alpha, results)
+
+
+def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
+                        results: Path) -> None:
+    from eha.detection import alarm_value
+
+    cal = res["calibration"]
+    table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
+                  "alarms in fleet")
+    for name, thr in cal.thresholds.items():
+        h = cal.healthy[name]
+        table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}", alarm_value(name, thr),
+                      f"{cal.false_alarms['per_fault'][name]:.3f}")
+    console.print(table)
+    console.print(f"{actuators} healthy actuators on {command}; any-fault alarms in the fleet "
+                  f"{cal.false_alarms['any']:.3f} (target {alpha:g}); calibration: "
+                  f"{res['path']}; database {results}/eha.duckdb (health_thresholds, "
+                  f"health_assessments)")
+
+
+@health_app.command("check")
+def health_check(
+    record: Path = typer.Argument(..., help="Record: CSV/TSV/Parquet with t, com, xu (SI, or "
+                                  "see --columns, --units)."),
+    calibration: Optional[Path] = typer.Option(None, "--calibration", help="Thresholds from "
+                                               "eha health calibrate (without it: estimates "
+                                               "and intervals, no verdict)."),
+    level: Optional[float] = typer.Option(None, "--level", help="Nominal coverage of the "
+                                          "intervals, in (0, 1) (default: the calibration's, "
+                                          "else 0.9)."),
+    seed: int = typer.Option(0, "--seed", help="Optimizer seed."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the check as JSON."),
+    results: ResultsOption = RESULTS,
+    columns: ColumnsOption = None,
+    units: UnitsOption = None,
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress display."),
+):
+    """Assess a record: every fault's estimate with its interval, healthy or degraded (with a
+    calibration), and which fault(s) are isolated.
+
+    Example: eha health check record.csv --calibration results/health/calibration-chirp_1cm.json
+    --json check.json
+
+    Example (a record in millimetres without units in its header): eha health check rec.csv
+    --units mm
+    """
+    from eha.monitoring import check_record
+
+    check_seed(seed)
+    check_out_file(json_out, "--json", (".json",))
+    check_out_dir(results, "--results")
+    if level is not None and not 0 < level < 1:  # eha.monitoring words it as level=...
+        fail(f"--level {level!r}: allowed range (0, 1)")
+    with err_console.status("assessing ...") as status:
+        run = check_record(record_file(record, columns, units), calibration, level=level,
+                           seed=seed, json_path=json_out, results=results,
+                           on_progress=(lambda m: status.update(f"assessing: {m}"))
+                           if progress else None)
+    _render_check(run, record)
+    if run.db_error:
+        fail(f"results database not written: {run.db_error}", code=1)
+
+
+def _render_check(run, record: Path) -> None:
+    """The faults' table, the status line, the warnings and the files written."""
+    from eha.detection import alarm_value
+
+    a = run.assessment
+    table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",
+                  "verdict", "weight")
+    for v in run.verdicts:
+        verdict = "-" if v.degraded is None else ("DEGRADED" if v.degraded else "healthy")
+        if v.name in run.isolated:
+            verdict += " (isolated)"
+        table.add_row(v.name, f"{v.estimate:.4g}", f"[{v.interval[0]:.3g}, {v.interval[1]:.3g}]",
+                      f"{v.healthy:.4g}", "-" if v.threshold is None else
+                      alarm_value(v.name, v.threshold),
+                      verdict, "-" if v.weight is None else f"{v.weight:.2f}")
+    console.print(f"record: {record}; calibration: {run.calibration or 'none (no verdicts)'}")
+    console.print(table)
+    status_text = run.to_dict()["status"]
+    console.print(f"status: {status_text}; isolated: {', '.join(run.isolated) or 'none'}; "
+                  f"residual {1e6 * a.residual_rmse:.3g} µm, noise {1e6 * a.noise_rmse:.3g} µm, "
+                  f"{a.seconds:.1f} s (seed {a.seed})")
+    for note in a.notes:
+        warn(note)
+    print_paths(run.paths)

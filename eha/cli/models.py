@@ -1,0 +1,90 @@
+"""The models: ``eha simulate``, ``eha params``, ``eha commands``.
+
+Imports of the simulation stack (numba kernels) stay inside the command functions: ``eha
+query`` and ``eha --help`` must not pay for them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from eha.cli.guard import console, fail
+from eha.cli.options import PLOT_SUFFIXES, check_out_file, check_seed
+
+
+def simulate(
+    model: str = typer.Option("hf", "--model", help="hf (detailed) or lf (monitoring)."),
+    command: str = typer.Option("mixed", "--command", help="Preset or kind (see `eha commands`)."),
+    set_: List[str] = typer.Option([], "--set", help="Parameter NAME=VALUE (repeatable)."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time [s]."),
+    seed: int = typer.Option(0, "--seed", help="Dither seed (HF)."),
+    out: Path = typer.Option(..., "--out", help="Trace file (.parquet)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Also write a PNG plot."),
+):
+    """Simulate one model on one command and save the trace.
+
+    Example: eha simulate --model hf --command chirp_1cm --set BKL=1e-4 --set FDJ=800
+    --out results/chirp.parquet --plot results/chirp.png
+    """
+    from eha.params import parse_assignments
+    from eha.simulate import simulate as run
+
+    if out.suffix != ".parquet":
+        fail(f"--out {out}: the trace file must end in .parquet")
+    check_out_file(out, "--out")
+    check_out_file(plot, "--plot", PLOT_SUFFIXES)
+    check_seed(seed)
+    trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
+    from eha.campaigns.traces import write_trace
+
+    write_trace(trace, out)
+    if plot is not None:
+        from eha.plots import plot_traces
+
+        plot_traces([trace], plot)
+    console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
+                         + (f", plot {plot}" if plot else "")))
+
+
+def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or lf."),
+           faults: bool = typer.Option(False, "--faults", help="Only the fault parameters.")):
+    """List the model parameters: name, unit, nominal, range, description.
+
+    Example: eha params --model lf
+    """
+    from eha.params import PARAMETERS, MODELS
+
+    if model is not None and model not in MODELS:
+        fail(f"--model {model!r}: allowed hf, lf")
+    table = Table("name", "unit", "nominal HF", "nominal LF", "range", "models", "description")
+    for p in PARAMETERS:
+        if (model and model not in p.models) or (faults and not p.fault):
+            continue
+        table.add_row(p.name, p.unit,
+                      f"{p.nominal:g}" if "hf" in p.models else "-",
+                      f"{p.nominal_for('lf'):g}" if "lf" in p.models else "-",
+                      f"[{p.lo:g}, {p.hi:g}]", ",".join(p.models),
+                      p.description + (" (fault)" if p.fault else ""))
+    console.print(table)
+
+
+def commands():
+    """List the command presets and kinds with their parameters.
+
+    Example: eha commands
+    """
+    from eha.commands import KINDS, PRESETS
+
+    table = Table("name", "kind", "parameters", "description")
+    for name, (kind, values, desc) in PRESETS.items():
+        table.add_row(name, kind, ", ".join(f"{k}={v:g}" for k, v in values.items()), desc)
+    for kind in KINDS.values():
+        pars = ", ".join(f"{k}={d:g} {u} [{lo:g}, {hi:g}]"
+                         for k, (d, u, lo, hi) in kind.params.items())
+        table.add_row(kind.name, kind.name, pars, kind.description)
+    console.print(table)

@@ -1,0 +1,171 @@
+"""Prognostics: ``eha fleet simulate`` (the test bench of degrading actuators), ``eha rul``
+(remaining useful life from health histories) and ``eha limits`` (a fault limit from a
+performance requirement).
+
+The prognostics stack (numba kernels, the optimizers) is imported inside the commands: ``eha
+query`` and ``eha --help`` must not pay for it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+from rich.table import Table
+
+from eha.cli.guard import console, resumable, warn
+from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
+                             check_out_file, check_seed, library_default, print_paths,
+                             split_names, write_json)
+
+fleet_app = typer.Typer(no_args_is_help=True,
+                        help="Simulated fleets of degrading actuators (the prognostics test "
+                             "bench).\n\nExample: eha fleet simulate examples/fleet-demo.toml "
+                             "--out results/fleet-demo")
+
+
+@fleet_app.command("simulate")
+def fleet_simulate(
+    file: Path = typer.Argument(..., help="Fleet TOML file (format in docs/prognostics.md)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: records/, manifest.csv, "
+                             "truth.json, eha.duckdb."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Simulate a fleet: HF check records with sensor noise, the manifest and the truth.
+
+    Example: eha fleet simulate examples/fleet-demo.toml --out results/fleet-demo
+    """
+    from eha.fleet import load_fleet, simulate_fleet
+
+    check_out_dir(out, "--out")
+    fleet = load_fleet(file)
+    with resumable("finished records are kept, re-run the same command to resume"):
+        res = simulate_fleet(fleet, out, workers=workers, progress=progress)
+    s = res.summary
+    console.print(f"{fleet.name}: {res.actuators} actuators, {res.records} records "
+                  f"({s.done} simulated now, {s.skipped} already there, {s.failed} failed), "
+                  f"{res.censored} without end of life within max_cycles, {s.wall_s:.1f} s")
+    console.print(f"manifest: {res.manifest}\ntruth: {res.truth}")
+    if s.failed:
+        raise typer.Exit(1)
+
+
+def rul(
+    manifest: Path = typer.Argument(..., help="Manifest CSV: actuator, cycle, record "
+                                    "(records relative to its folder)."),
+    limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
+                                    "fault (SI, repeatable), e.g. FDJ=2000."),
+    fit: str = typer.Option(
+        ..., "--fit", default_factory=library_default("eha.prognostics_jobs", "RUL_FIT",
+                                                      ",".join),
+        help="Faults identified and tracked (comma-separated; limited faults are added). "
+        "GM (motor gain) is tracked by default: its manufacturing dispersion would "
+        "otherwise bias FDJ."),
+    bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
+                                     "(default: eha fdi's, widened to twice the limit)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions "
+                                            "(and metrics) as JSON."),
+    results: ResultsOption = RESULTS,
+    truth: Optional[Path] = typer.Option(None, "--truth", help="True end of life: truth.json "
+                                         "of eha fleet simulate, or CSV actuator,eol; adds the "
+                                         "prognostic metrics."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the PNG plots and "
+                                         "the fleet summary table."),
+    laws: str = typer.Option("linear,exponential,power", "--laws", help="Degradation laws "
+                             "averaged by evidence."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the identifications and RUL draws."),
+    workers: WorkersOption = WORKERS,
+    skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
+                                      "monitoring model does not explain out of the fits."),
+    base_model: Optional[str] = typer.Option(None, "--base-model", help="LF base of the "
+                                             "assessment: plain or calibrated (default: as "
+                                             "eha fdi --data)."),
+    limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
+                                                "of the assessment's systematic error "
+                                                "(default 0.02)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+):
+    """Remaining useful life from health histories: assess each record, fit degradation
+    trends, predict when each limited fault reaches its limit (median, 5 %, 95 %).
+
+    Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
+    --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul
+    """
+    from eha.fdi import parse_bounds
+    from eha.prognostics_jobs import parse_limits, run_rul
+
+    check_out_file(json_out, "--json", (".json",))
+    check_out_dir(plots, "--plots")
+    check_out_dir(results, "--results")
+    check_seed(seed)
+    with resumable("finished assessments are saved, re-run to resume"):
+        res = run_rul(manifest, parse_limits(limit), fit=split_names(fit),
+                      bounds=parse_bounds(bounds), results=results, json_out=json_out,
+                      truth=truth, plots=plots, seed=seed, workers=workers,
+                      laws=split_names(laws), skip_flagged=skip_flagged, progress=progress,
+                      limit_error=limit_error, base_model=base_model)
+    _render_rul(res, results)
+    if res.failed:
+        raise typer.Exit(1)
+
+
+def _render_rul(res, results: Path) -> None:
+    """The last prediction of each actuator, the fleet's metrics, the files, the failures."""
+    table = Table("actuator", "checks", "last cycle", "RUL median", "RUL 5 %", "RUL 95 %",
+                  "driver")
+    fmt = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
+    for aid, preds in res.predictions.items():
+        last = preds[-1] if preds else None
+        table.add_row(aid, str(len(preds)), fmt(last.cycle if last else None),
+                      fmt(last.rul if last else None), fmt(last.rul_lo if last else None),
+                      fmt(last.rul_hi if last else None), (last.driver if last else None)
+                      or "-")
+    console.print(table)
+    if res.metrics:
+        f = res.metrics["fleet"]
+        pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
+        console.print(f"alpha-lambda (alpha 0.2) over lambda in [0.5, 0.95]: "
+                      f"{pct(f.get('alpha_lambda_fraction'))} of "
+                      f"{f.get('alpha_lambda_checks')} checks; at 0.5: "
+                      f"{pct(f['alpha_lambda'].get('0.5'))}, at 0.75: "
+                      f"{pct(f['alpha_lambda'].get('0.75'))}; 90 % interval coverage "
+                      f"{pct(f.get('coverage'))}; median width at lambda 0.5: "
+                      f"{f.get('median_width_rel_at_0.5') or float('nan'):.2f} x true RUL")
+    console.print(f"{res.assessed} records assessed now, {res.reused} reused; "
+                  f"{res.seconds['total']:.1f} s -> {results}/eha.duckdb ({res.run_id})")
+    print_paths(res.paths, skip=("database",))
+    for line in res.failed:
+        warn(line, "failed")
+
+
+def limits(
+    fault: str = typer.Option(..., "--fault", help="HF fault parameter, e.g. FDJ or BKL."),
+    require: str = typer.Option(..., "--require", help="Failure condition METRIC(COMMAND) "
+                                "OP VALUE, e.g. 'lag(mixed) > 0.02' (docs/prognostics.md)."),
+    lo: float = typer.Option(..., "--lo", help="Fault value where the requirement holds."),
+    hi: float = typer.Option(..., "--hi", help="Fault value where it fails."),
+    set_: List[str] = typer.Option([], "--set", help="Other HF parameter NAME=VALUE held "
+                                   "fixed (repeatable)."),
+    tol: float = typer.Option(1e-3, "--tol", help="Bisection stops below tol*(hi-lo)."),
+    seed: int = typer.Option(0, "--seed", help="HF dither seed."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time [s]."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
+):
+    """Derive a fault limit from a performance requirement by HF simulation (bisection).
+
+    Example: eha limits --fault FDJ --require "lag(mixed) > 0.02" --lo 200 --hi 20000
+    """
+    from eha.params import parse_assignments
+    from eha.prognostics_limits import derive_limit
+
+    check_out_file(json_out, "--json", (".json",))
+    check_seed(seed)
+    res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_), tol=tol,
+                       seed=seed, t_end=t_end)
+    console.print(f"{fault} limit for '{res.requirement}': {res.limit:.6g} "
+                  f"({len(res.points)} HF runs, bracket [{lo:g}, {hi:g}], tol {tol:g})")
+    if json_out is not None:
+        write_json(json_out, res.to_dict(), indent=1)
+        console.print(f"json: {json_out}")

@@ -1,0 +1,164 @@
+"""Records as users have them (issue 26, item 7): ``--columns SIGNAL=HEADER`` and ``--units``
+of the commands that read a measured record, implemented in the loader
+(:class:`eha.measured.RecordFile`, :func:`eha.measured.load`); and the CLI's one error
+hierarchy (:mod:`eha.errors`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import error_line, files_under, invoke_eha, run_eha
+
+from eha.errors import EhaError, InputError
+from eha.measured import MeasuredDataError, RecordFile, load
+
+USER_HEADER = {"t": "time_s", "com": "command_mm", "xu": "position_mm"}
+COLUMNS = "t=time_s,com=command_mm,xu=position_mm"
+
+
+def _record(path, header=USER_HEADER, scale=1e3, p12=None):
+    """A 0.3 s, 1 kHz sine record; lengths multiplied by ``scale`` (1e3: millimetres)."""
+    t = np.arange(301) * 1e-3
+    com = 2e-3 * np.sin(2 * np.pi * 5 * t)
+    frame = {header["t"]: t, header["com"]: com * scale, header["xu"]: 0.98 * com * scale}
+    if p12 is not None:
+        frame[p12] = 1e6 * np.cos(8 * t)
+    pd.DataFrame(frame).to_csv(path, index=False)
+    return path
+
+
+# ----------------------------------------------------------------------------- the loader
+def test_a_user_header_is_refused_without_columns_and_loads_with_them(tmp_path):
+    path = _record(tmp_path / "rec.csv")
+    with pytest.raises(MeasuredDataError) as err:
+        load(path)
+    assert any("column com: missing" in line and "--columns com=HEADER" in line
+               for line in err.value.lines())
+    rec = load(path, columns=COLUMNS)          # the _mm suffix is the unit
+    assert rec.com.max() == pytest.approx(2e-3, rel=1e-3)
+    assert rec.xu.max() == pytest.approx(0.98 * 2e-3, rel=1e-3)
+    same = load(RecordFile(path, {"t": "time_s", "com": "command_mm", "xu": "position_mm"}))
+    np.testing.assert_array_equal(same.xu, rec.xu)
+
+
+def test_units_apply_to_length_columns_without_a_unit_of_their_own(tmp_path):
+    path = _record(tmp_path / "rec.csv", {"t": "t", "com": "cmd", "xu": "pos"})
+    with pytest.raises(MeasuredDataError, match="millimetres.*--units mm"):
+        load(path)
+    rec = load(path, units="mm")
+    assert rec.xu.max() == pytest.approx(0.98 * 2e-3, rel=1e-3)
+    um = _record(tmp_path / "um.csv", {"t": "t", "com": "cmd", "xu": "pos"}, scale=1e6)
+    assert load(um, units="um").com.max() == pytest.approx(2e-3, rel=1e-3)
+    # a unit in the header wins over --units
+    marked = _record(tmp_path / "m.csv", {"t": "t", "com": "com [mm]", "xu": "xu [mm]"})
+    assert load(marked, units="m").xu.max() == pytest.approx(0.98 * 2e-3, rel=1e-3)
+
+
+def test_columns_map_any_header_and_leave_the_others_to_the_aliases(tmp_path):
+    path = _record(tmp_path / "rec.csv", {"t": "t", "com": "setpoint", "xu": "LVDT 1"},
+                   scale=1.0, p12="dP")
+    rec = load(path, columns="xu=lvdt 1")      # case and spaces around are forgiven
+    assert rec.p12 is not None and rec.xu.max() == pytest.approx(0.98 * 2e-3, rel=1e-3)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"columns": "pos=position_mm"}, "--columns pos=position_mm: unknown signal 'pos'"),
+    ({"columns": "com=command_mm,xu=nope"}, "--columns xu=nope: no column 'nope' in the file"),
+    ({"columns": "com"}, "--columns com=: no header"),
+    ({"columns": "com=command_mm,com=position_mm"}, "com given twice"),
+    ({"columns": "com=command_mm,xu=command_mm"}, "header 'command_mm' given for two signals"),
+    ({"units": "inch"}, "--units 'inch': allowed m, mm, um"),
+])
+def test_bad_columns_or_units_are_one_line_naming_the_option(tmp_path, kwargs, message):
+    path = _record(tmp_path / "rec.csv")
+    with pytest.raises(MeasuredDataError) as err:
+        load(path, **{"columns": COLUMNS, **kwargs})
+    assert any(message in line for line in err.value.lines()), err.value.lines()
+    assert all("\n" not in line for line in err.value.lines())
+
+
+# ----------------------------------------------------------------------------- the CLI
+@pytest.mark.parametrize("command", [
+    ["explain", "{rec}", "--results", "{res}", "--json", "{res}/x.json", "--no-progress"],
+    ["fdi", "--data", "{rec}", "--json", "{res}/x.json"],
+    ["health", "check", "{rec}", "--results", "{res}", "--json", "{res}/x.json",
+     "--no-progress"],
+])
+@pytest.mark.parametrize("options, message", [
+    (["--columns", "position=position_mm"], "--columns position=position_mm: unknown signal"),
+    (["--columns", "t=time_s,com=command_mm,xu=pos"], "--columns xu=pos: no column 'pos'"),
+    (["--columns", COLUMNS, "--units", "inch"], "--units 'inch': allowed m, mm, um"),
+    ([], "column com: missing"),
+])
+def test_bad_columns_or_units_exit_2_in_one_line_and_write_nothing(tmp_path, command, options,
+                                                                   message):
+    rec = _record(tmp_path / "rec.csv")
+    before = files_under(tmp_path)
+    args = [a.format(rec=rec, res=tmp_path / "res") for a in command] + options
+    proc = invoke_eha(*args)
+    if not options:     # a missing column and a missing column: two lines, one a problem
+        assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+    else:
+        assert message in error_line(proc, 2)
+    assert files_under(tmp_path) == before
+
+
+def test_columns_and_units_need_a_record_in_fdi(tmp_path):
+    line = error_line(invoke_eha("fdi", "--command", "ramp", "--units", "mm", "--json",
+                                 tmp_path / "x.json"), 2)
+    assert "only with --data" in line and not files_under(tmp_path)
+
+
+def test_a_record_in_millimetres_loads_through_the_command_line(tmp_path):
+    """End to end in a real process: `eha fdi --data` on a time_s,command_mm,position_mm file
+    with --columns identifies (least squares, one parameter: a second or two)."""
+    rec = _record(tmp_path / "rec.csv")
+    out = tmp_path / "fit.json"
+    proc = run_eha("fdi", "--data", rec, "--columns", COLUMNS, "--fit", "FDJ", "--method",
+                   "lm", "--json", out, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "reference: " in proc.stdout and out.exists()
+    proc = run_eha("fdi", "--data", rec, "--columns", "t=time_s,signal=command_mm", "--json",
+                   tmp_path / "y.json")
+    assert "unknown signal 'signal'" in error_line(proc, 2)
+    assert not (tmp_path / "y.json").exists()
+
+
+# ----------------------------------------------------------------------------- the errors
+def test_the_library_errors_derive_from_one_hierarchy():
+    from eha.campaigns.files import CampaignError
+    from eha.campaigns.runner import CampaignChanged
+    from eha.campaigns.store import StoreError, StoreWriteError
+    from eha.commands import CommandError
+    from eha.detection import DetectionError
+    from eha.explain.settings import ExplainError
+    from eha.fdi import FDIError
+    from eha.fleet import FleetError
+    from eha.manifest import ManifestError
+    from eha.params import ParameterError
+    from eha.prognostics import PrognosticsError
+    from eha.report_html import ReportError
+
+    for cls in (CampaignError, CampaignChanged, CommandError, DetectionError, ExplainError,
+                FDIError, FleetError, ManifestError, MeasuredDataError, ParameterError,
+                PrognosticsError, ReportError):
+        assert issubclass(cls, InputError) and issubclass(cls, ValueError), cls
+    assert issubclass(StoreError, EhaError) and issubclass(StoreError, RuntimeError)
+    assert StoreError.exit_code == 2 and StoreWriteError.exit_code == 1
+    err = CampaignError(["a: 1: allowed [0, 0.5]", "b: missing"])
+    assert err.lines() == ["a: 1: allowed [0, 0.5]", "b: missing"] and err.exit_code == 2
+    rec = MeasuredDataError("r.csv", ["column t: missing", "column xu: missing"])
+    assert rec.lines() == ["r.csv: column t: missing", "r.csv: column xu: missing"]
+    assert str(rec) == "r.csv: column t: missing; column xu: missing"
+
+
+def test_loop_settings_are_checked_in_one_place():
+    """`eha explain` builds a LoopSettings: its problems are the CLI's lines."""
+    from eha.explain.settings import ExplainError, LoopSettings
+
+    with pytest.raises(ExplainError) as err:
+        LoopSettings(min_gain=float("nan"), alpha=1.5)
+    assert err.value.lines() == ["--min-gain nan: allowed range [0, 1]",
+                                 "--alpha 1.5: allowed range (0, 1)"]
+    assert LoopSettings().problems() == []
