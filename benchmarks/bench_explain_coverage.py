@@ -72,7 +72,7 @@ def build(i: int, block: int, tmp: Path):
 def model_of(loop, effects: dict[str, dict[str, float]], values: dict[str, float]):
     """The loop's base with ``effects`` on at ``values`` (the structure at its probe) and the
     faults at ``values``: (params, bounds of every fitted parameter)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     params, bounds = loop.base, dict(loop.bounds)
     for name in effects:

@@ -85,7 +85,7 @@ def record_seed(seed: int, command: str, k: int) -> int:
 
 def healthy_params(seed: int) -> dict[str, float]:
     """HF overrides of a healthy actuator drawn with ``default_rng([seed, 1])``."""
-    from eha.params import HFParams
+    from eha.models.params import HFParams
 
     nominal = HFParams()
     rng = np.random.default_rng([seed, 1])
@@ -102,9 +102,9 @@ def step_sequence(kind: str, seed: int, t_end: float = 1.0):
 
     ``n`` steps (uniform in the kind's range) at distinct random sample instants in
     [20 ms, t_end - 50 ms], at least 40 ms apart, each to a level uniform within +-max; the
-    command starts at 0. Returns the :class:`~eha.commands.Command` and its step list.
+    command starts at 0. Returns the :class:`~eha.models.commands.Command` and its step list.
     """
-    from eha.commands import array_command
+    from eha.models.commands import array_command
 
     lo, hi, amp = STEP_KINDS[kind]
     rng = np.random.default_rng([seed, 2])
@@ -273,7 +273,7 @@ def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = 
 
 def effects_on(result) -> list[str]:
     """Effects on in the final model and not in the starting one (the loop's doing)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     return [name for name, e in EFFECTS.items()
             if e.is_on(result.after.params) and not e.is_on(result.before.params)]

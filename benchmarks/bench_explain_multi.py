@@ -1,7 +1,7 @@
 """Several undeclared effects at once: does the residual loop (`eha explain`) find them all?
 
 HF records with the declared faults BKL = 0.1 mm and FDJ = 800 N and two or three undeclared
-effects of the library (:data:`eha.effects.EFFECTS`; the HF parameter has the LF parameter's
+effects of the library (:data:`eha.explain.effects.EFFECTS`; the HF parameter has the LF parameter's
 name) in combinations a PHM engineer meets (:data:`COMBOS`: a loaded actuator with worn seals,
 a motor offset with an aerodynamic hinge moment, ...), each on two of the commands mixed,
 test (0.6 s), chirp_1cm and a random step sequence held between 1 kHz samples (``steps``:
@@ -111,7 +111,7 @@ TOLERANCE_CLEARANCE = 1.25
 def injected(combo: str) -> dict[str, dict[str, float]]:
     """effect -> {HF/LF parameter: value} of a combination (names checked in the registry,
     values clear of the healthy tolerance)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     out = {}
     for effect, value in COMBOS[combo][0].items():
@@ -160,8 +160,8 @@ def hf_own(result) -> dict[str, dict[str, float]]:
     """Effects of the final model that the HF has at its nominal values (its parameter
     differs from the LF's off value) and that the loop estimated within PARAM_TOL of the HF's
     value: effect -> {parameter: relative error}. Not spurious: the record has them."""
-    from eha.effects import EFFECTS
-    from eha.params import HFParams
+    from eha.explain.effects import EFFECTS
+    from eha.models.params import HFParams
 
     hf, out = HFParams(), {}
     for name, effect in EFFECTS.items():

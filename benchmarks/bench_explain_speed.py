@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from eha.commands import array_command, as_command
+from eha.models.commands import array_command, as_command
 from eha.explain import explain
 from eha.measured import load, synthetic_record
 

@@ -40,7 +40,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print figures as JSON only")
     args = ap.parse_args()
 
-    from eha.params import parse_assignments, resolve
+    from eha.models.params import parse_assignments, resolve
 
     camp = fdi_cases.load_fdi_campaign(args.campaign)
     base = resolve("lf", {**camp.base, **parse_assignments(args.base)})

@@ -53,7 +53,7 @@ def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
     from eha.fdi import BASE_MODELS, identify
     from eha.health import CORE_FAULTS, FAULTS, assess_record
     from eha.measured import from_arrays, synthetic_record
-    from eha.params import resolve
+    from eha.models.params import resolve
 
     command, faults, seed = draw_record(i, seed_block, extra)
     df = synthetic_record(command, faults, t_end=1.0, noise=1e-6, seed=seed)
@@ -205,8 +205,8 @@ def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9
     from eha.health import CORE_FAULTS, FAULTS
     from eha.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
     from eha.measured import from_arrays, synthetic_record
-    from eha.params import resolve
-    from eha.simulate import command_on_grid, grid
+    from eha.models.params import resolve
+    from eha.models.simulate import command_on_grid, grid
 
     z = normal_quantile(level)
     base = resolve("lf", CALIBRATED_LF)

@@ -324,8 +324,8 @@ def check_prior(path: Path) -> None:
 
 
 def _input_errors():
-    from eha.commands import CommandError
-    from eha.params import ParameterError
+    from eha.models.commands import CommandError
+    from eha.models.params import ParameterError
 
     return (ParameterError, CommandError)
 
@@ -345,8 +345,8 @@ def simulate(
     Example: eha simulate --model hf --command chirp_1cm --set BKL=1e-4 --set FDJ=800
     --out results/chirp.parquet --plot results/chirp.png
     """
-    from eha.params import parse_assignments
-    from eha.simulate import simulate as run
+    from eha.models.params import parse_assignments
+    from eha.models.simulate import simulate as run
 
     if out.suffix != ".parquet":
         fail(f"--out {out}: the trace file must end in .parquet")
@@ -375,7 +375,7 @@ def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or
 
     Example: eha params --model lf
     """
-    from eha.params import PARAMETERS, MODELS
+    from eha.models.params import PARAMETERS, MODELS
 
     if model is not None and model not in MODELS:
         fail(f"--model {model!r}: allowed hf, lf")
@@ -397,7 +397,7 @@ def commands():
 
     Example: eha commands
     """
-    from eha.commands import KINDS, PRESETS
+    from eha.models.commands import KINDS, PRESETS
 
     table = Table("name", "kind", "parameters", "description")
     for name, (kind, values, desc) in PRESETS.items():
@@ -691,7 +691,7 @@ def fdi(
     """
     from eha.fdi import FDIError, identify_source, parse_bounds
     from eha.measured import MeasuredDataError
-    from eha.params import parse_assignments
+    from eha.models.params import parse_assignments
 
     check_names(fit, "--fit")
     check_seed(seed)
@@ -828,7 +828,7 @@ def explain(
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")
-    from eha.params import ParameterError, parse_assignments
+    from eha.models.params import ParameterError, parse_assignments
 
     try:
         known_values = parse_assignments(known)
@@ -1351,7 +1351,7 @@ def limits(
 
     Example: eha limits --fault FDJ --require "lag(mixed) > 0.02" --lo 200 --hi 20000
     """
-    from eha.params import parse_assignments
+    from eha.models.params import parse_assignments
     from eha.prognostics import PrognosticsError
     from eha.prognostics_limits import derive_limit
 

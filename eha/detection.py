@@ -66,7 +66,7 @@ class DetectionError(ValueError):
 def draw_actuator(seed: int, dispersion: Mapping[str, tuple[str, float, float]] = DISPERSION
                   ) -> dict[str, float]:
     """HF parameters of one healthy actuator (reproducible from ``seed``)."""
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     rng = np.random.default_rng([7919, seed])
     out = {}
@@ -107,7 +107,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
     added.
     """
-    from eha.commands import CommandError, as_command
+    from eha.models.commands import CommandError, as_command
     from eha.fdi import BASE_MODELS
 
     extra = set(section) - _SECTION_KEYS
@@ -149,7 +149,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if not isinstance(faults, Mapping):
         problems.append("health.faults: a table NAME = [level, ...]")
         faults = {}
-    from eha.params import ParameterError, check_value
+    from eha.models.params import ParameterError, check_value
 
     for name, levels in faults.items():
         if name not in FAULTS:
@@ -197,7 +197,7 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.health import assess_record
     from eha.measured import from_arrays, synthetic_record
     from eha.models import O_COM, O_T, O_XU
-    from eha.simulate import Trace
+    from eha.models.simulate import Trace
 
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
                           noise=float(spec["noise"]), seed=int(spec["seed"]))
@@ -225,7 +225,7 @@ def run_health_assessment_job(spec: Mapping[str, Any], run_key: str, campaign: s
     """Worker of a ``health_assessment`` job (:func:`run_health_job`): a
     ``health_assessments`` row and the record (t, com, xu) as the trace."""
     from eha.campaigns.traces import write_trace
-    from eha.simulate import Trace
+    from eha.models.simulate import Trace
 
     row, record = run_health_job(spec)
     write_trace(Trace(record.data, {**record.meta, "run_key": run_key, "campaign": campaign}),
@@ -305,7 +305,7 @@ class Calibration:
 
 def load_calibration(path: str | Path) -> Calibration:
     """Read a calibration file; one-line :class:`DetectionError` on any problem."""
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     path = Path(path)
     try:

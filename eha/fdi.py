@@ -4,7 +4,7 @@ Fit chosen LF parameters (by default the faults BKL and FDJ) so that the LF outp
 reference trace: an HF run (:func:`hf_reference`) or measured data. Every decision variable is
 normalised to [0, 1] within its bounds (the thesis' own suggestion), and every batch of
 candidates (a GA generation, a pattern-search poll) is simulated in ONE parallel numba call
-(:func:`eha.simulate.simulate_lf_batch`), never one Python call per individual.
+(:func:`eha.models.simulate.simulate_lf_batch`), never one Python call per individual.
 
 Methods (``identify(method=...)``):
 
@@ -46,10 +46,10 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from eha.commands import Command, as_command
-from eha.params import (LF, SPECS, LFParams, ParameterError, check_value, parse_name_value,
+from eha.models.commands import Command, as_command
+from eha.models.params import (LF, SPECS, LFParams, ParameterError, check_value, parse_name_value,
                         resolve)
-from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
+from eha.models.simulate import OUTPUT_DT, Trace, command_on_grid, grid, simulate, simulate_lf_batch
 
 #: Identification methods (see the module docstring).
 METHODS = ("ga", "ga+ps", "ps", "lm")
@@ -558,7 +558,7 @@ def identify(reference_xu: np.ndarray, command: Command | str,
     names = tuple(bounds)
     base = base if base is not None else LFParams()
     if getattr(base, "model", None) != "lf":
-        raise FDIError("base: an LF parameter set (eha.params.LFParams) is required")
+        raise FDIError("base: an LF parameter set (eha.models.params.LFParams) is required")
 
     reference = np.asarray(reference_xu, dtype=np.float64)
     if reference.ndim != 1 or reference.size < 3 or not np.all(np.isfinite(reference)):
@@ -681,7 +681,7 @@ def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
     Raises
     ------
     FDIError
-        A malformed item, in :func:`eha.params.parse_name_value`'s words.
+        A malformed item, in :func:`eha.models.params.parse_name_value`'s words.
     """
     out: dict[str, tuple[float, float]] = {}
     for item in items:

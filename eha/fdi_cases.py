@@ -16,12 +16,12 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from eha.campaigns.jobs import register_job, register_section
-from eha.commands import as_command
+from eha.models.commands import as_command
 from eha.fdi import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, METHODS,
                      OBJECTIVES, FDIError, FitResult, check_bounds, hf_reference, identify,
                      mean_error_pct, percent_errors)
-from eha.params import LFParams, ParameterError, resolve
-from eha.simulate import Trace, simulate
+from eha.models.params import LFParams, ParameterError, resolve
+from eha.models.simulate import Trace, simulate
 
 @dataclass(frozen=True)
 class FDICase:

@@ -150,8 +150,8 @@ def _range(where: str, value: Any, lo: float, hi: float, problems: list[str],
 
 def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     """Validate a parsed fleet TOML; raises :class:`FleetError` with one line per problem."""
-    from eha.commands import CommandError, make_command
-    from eha.params import ParameterError, SPECS, check_value
+    from eha.models.commands import CommandError, make_command
+    from eha.models.params import ParameterError, SPECS, check_value
 
     p: list[str] = []
     for key in table:
@@ -291,7 +291,7 @@ def draw_truth(fleet: Fleet) -> dict[str, Any]:
     Each actuator ``i`` uses ``numpy.random.default_rng([seed, i])``; its record ``k`` the
     seed :func:`record_seed` (HF dither and sensor noise).
     """
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     width = len(str(fleet.actuators))
     out: dict[str, Any] = {}
@@ -364,7 +364,7 @@ def record_seed(seed: int, actuator: str, k: int) -> int:
 def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
     """The records as a campaign of ``fleet_record`` jobs (one per check)."""
     from eha.campaigns.files import Campaign, Job
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     jobs = []
     for aid, act in truth["actuators"].items():
@@ -393,7 +393,7 @@ def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
     import time
 
     from eha.campaigns.traces import write_table_file
-    from eha.commands import make_command
+    from eha.models.commands import make_command
     from eha.measured import synthetic_record
 
     t0 = time.perf_counter()

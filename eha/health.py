@@ -30,9 +30,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from eha.commands import Command
+from eha.models.commands import Command
 from eha.fdi import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult, identify
-from eha.params import LFParams, resolve
+from eha.models.params import LFParams, resolve
 
 
 @dataclass(frozen=True)

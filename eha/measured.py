@@ -21,7 +21,7 @@ Validation (:func:`validate`) reports every problem at once, one line each:
 
 Accepted records are shifted to start at t = 0 and resampled (linear interpolation) onto the
 models' 1 kHz output grid; the command keeps its original samples and is rebuilt on the
-integration step by :func:`eha.commands.array_command`, either interpolated (``linear``) or
+integration step by :func:`eha.models.commands.array_command`, either interpolated (``linear``) or
 held between samples (``zoh``, the output of a digital controller: a step changes *at* a sample
 instant). ``command_hold="auto"`` (the default) decides from the command itself
 (:func:`detect_hold`). Reading writes nothing.
@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from eha.commands import Command, array_command
-from eha.simulate import OUTPUT_DT
+from eha.models.commands import Command, array_command
+from eha.models.simulate import OUTPUT_DT
 
 #: Required columns, then optional ones.
 REQUIRED = ("t", "com", "xu")
@@ -433,7 +433,7 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
     Parameters
     ----------
     command : Command or str
-        Position command (preset name or :class:`~eha.commands.Command`).
+        Position command (preset name or :class:`~eha.models.commands.Command`).
     overrides : dict, optional
         Parameters of the model (faults and the "undeclared" effect, e.g. ``{"FRC": 2000}``).
     t_end : float
@@ -454,9 +454,9 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
     """
     import pandas as pd
 
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
-    from eha.commands import as_command
+    from eha.models.commands import as_command
 
     # The model is driven by the 1 kHz samples of the command, exactly what a reader of the
     # record can rebuild (held, or a sharp step becomes a 1 ms ramp): the record is

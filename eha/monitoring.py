@@ -39,7 +39,7 @@ def _assessments(results: str | Path, campaign: str):
 
 
 def _command_samples(command: str, t_end: float) -> np.ndarray:
-    from eha.commands import as_command
+    from eha.models.commands import as_command
 
     t = np.arange(int(round(t_end / 1e-3)) + 1) * 1e-3
     return as_command(command).sample(t)
@@ -57,7 +57,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     """
     from eha.campaigns.files import build_campaign, CampaignError
     from eha.campaigns.runner import run_campaign
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
     from eha.campaigns.store import replace_rows
 
     if not 0 < alpha < 1:

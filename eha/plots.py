@@ -15,7 +15,7 @@ import numpy as np
 
 from eha.figures import pyplot as _pyplot
 from eha.figures import save as _save
-from eha.simulate import Trace
+from eha.models.simulate import Trace
 
 
 def _label(trace: Trace) -> str:
@@ -64,7 +64,7 @@ def plot_traces(traces: Sequence[Trace], path: str | Path, title: str | None = N
     return _save(fig, path, dpi=110)
 
 def _fmt_value(name: str, value: float) -> str:
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     unit = SPECS[name].unit if name in SPECS else ""
     if unit == "m" and abs(value) < 0.1:

@@ -43,7 +43,7 @@ def parse_limits(items: Sequence[str]) -> dict[str, float]:
     PrognosticsError
         One line naming the item and what is allowed.
     """
-    from eha.params import ParameterError, check_value
+    from eha.models.params import ParameterError, check_value
 
     out: dict[str, float] = {}
     for item in items:
@@ -77,7 +77,7 @@ def health_bounds(names: Sequence[str], limits: Mapping[str, float],
     limited fault can be identified up to twice its limit (or down to half of it), then
     ``bounds`` overrides."""
     from eha.fdi import default_bounds
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     out = default_bounds(names)
     for n, lim in limits.items():
@@ -115,7 +115,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
     ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
     ``eha fdi --data`` uses)."""
     from eha.campaigns.files import Campaign, Job
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     from eha import fdi
 

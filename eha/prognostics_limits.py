@@ -8,7 +8,7 @@ e.g. ``"lag(mixed) > 0.02"`` (the tracking lag on the mixed command exceeds 20 m
 ``"spool_saturation(chirp_1cm) > 0"`` (the spool reaches its end stop on chirp_1cm). The
 command is a preset or kind of ``eha commands`` (kind parameters as in
 ``chirp(A0=0.005,f1=2)``). Metrics (SI units) are those of the campaign ``metrics`` table
-(:func:`eha.run_metrics.trace_metrics`):
+(:func:`eha.models.run_metrics.trace_metrics`):
 
 ``lag`` [s], ``rmse_xu_com`` [m], ``max_err_xu_com`` [m], ``final_err_xu_com`` [m],
 ``settling_time`` [s], ``xs_abs_max`` [m], ``p12_abs_max`` [Pa], ``cor_abs_max`` [mA],
@@ -64,7 +64,7 @@ class Requirement:
 
 def parse_requirement(text: str) -> Requirement:
     """Parse ``METRIC(COMMAND) OP VALUE``; raises :class:`PrognosticsError` (one line)."""
-    from eha.commands import CommandError, make_command
+    from eha.models.commands import CommandError, make_command
 
     m = _REQ.match(text or "")
     if not m:
@@ -96,10 +96,10 @@ def parse_requirement(text: str) -> Requirement:
 def metric_of(req: Requirement, fault: str, value: float, base: Mapping[str, float],
               seed: int = 0, t_end: float = 1.0) -> float | None:
     """The requirement's metric on an HF run with ``fault = value``."""
-    from eha.commands import make_command
-    from eha.params import resolve
-    from eha.run_metrics import trace_metrics
-    from eha.simulate import simulate
+    from eha.models.commands import make_command
+    from eha.models.params import resolve
+    from eha.models.run_metrics import trace_metrics
+    from eha.models.simulate import simulate
 
     params = {**base, fault: value}
     tr = simulate("hf", make_command(req.command, **req.command_set), params, t_end=t_end,
@@ -158,7 +158,7 @@ def derive_limit(fault: str, requirement: str, lo: float, hi: float,
     PrognosticsError
         Bad fault, bracket or requirement, or a bracket that does not bracket.
     """
-    from eha.params import ParameterError, check_value
+    from eha.models.params import ParameterError, check_value
 
     req = parse_requirement(requirement)
     try:

@@ -27,7 +27,7 @@ UNITS = {"BKL": ("µm", 1e6), "FDJ": ("N", 1.0)}
 def _unit(name: str) -> tuple[str, float]:
     if name in UNITS:
         return UNITS[name]
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     return (SPECS[name].unit if name in SPECS else "", 1.0)
 

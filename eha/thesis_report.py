@@ -291,8 +291,8 @@ def plot_fdi_cases(rows: Sequence[dict], campaign, out: str | Path) -> dict[int,
     injected faults against the LF model with the identified ones, for the case's first seed
     (both re-simulated: the runs are deterministic). Returns ``case -> PNG path``."""
     from eha.fdi import hf_reference
-    from eha.params import resolve
-    from eha.simulate import simulate
+    from eha.models.params import resolve
+    from eha.models.simulate import simulate
 
     base = resolve("lf", campaign.base)
     paths = {}

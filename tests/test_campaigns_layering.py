@@ -32,7 +32,7 @@ def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
     foreign = [m for m in eha if m not in ("eha", "eha.campaigns", "eha.models")
                and not m.startswith("eha.campaigns.")]
     assert foreign == [], foreign
-    assert "numba" not in loaded and "eha.simulate" not in loaded
+    assert "numba" not in loaded and "eha.models.simulate" not in loaded
 
 
 @pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
@@ -67,7 +67,7 @@ def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
                     "job_kind('fleet_record')\n"
                     "print(json.dumps(sorted(sys.modules)))")
     assert "eha.fleet" in loaded
-    assert not {"eha.fdi_cases", "eha.detection", "eha.prognostics_jobs", "eha.batch"} & \
+    assert not {"eha.fdi_cases", "eha.detection", "eha.prognostics_jobs", "eha.models.batch"} & \
         set(loaded)
 
 

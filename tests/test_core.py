@@ -11,14 +11,14 @@ import sys
 import numpy as np
 import pytest
 
-from eha.commands import NOMINAL_COMMANDS, make_command
+from eha.models.commands import NOMINAL_COMMANDS, make_command
 from eha.models import OUTPUTS
 from eha.models.friction import (borello_velocity, borello_velocity_first_order,
                                  karnopp_velocity, karnopp_velocity_first_order, play)
 from eha.models.hf import dither_samples, run_hf
 from eha.models.lf import _lf_loop, run_lf
-from eha.params import LF, resolve
-from eha.simulate import command_on_grid, grid, simulate
+from eha.models.params import LF, resolve
+from eha.models.simulate import command_on_grid, grid, simulate
 
 DT_OVER_M = 1e-5 / 20.0  # nominal jack: DT / MJ
 
@@ -126,7 +126,7 @@ def test_lf_dithered_hysteresis_follows_the_hf_ensemble_mean(command):
     dithered play, at the HF's values (structure in), is within 2 µm of the mean of 16 HF
     records (whose own scatter is ~0.6 µm); with a plain play (dither_ma 0) it is more than 3x
     as far (measured: 1.23 and 0.74 µm vs 27.9 and 5.2 µm)."""
-    from eha.commands import array_command
+    from eha.models.commands import array_command
 
     if command == "steps_1mm_like":   # held 1 kHz steps within +-1 mm, as the FP bench's
         t = np.arange(1001) * 1e-3
@@ -197,7 +197,7 @@ def test_kernels_equal_a_fully_interpreted_run(tmp_path):
     # NUMBA_DISABLE_JIT runs every helper (friction, play) as plain Python too.
     code = (
         "import json, sys, numpy as np\n"
-        "from eha.simulate import simulate\n"
+        "from eha.models.simulate import simulate\n"
         "out = {m: simulate(m, 'mixed', {'BKL': 1e-4, 'FDJ': 800}, t_end=0.005).data.tolist()"
         " for m in ('hf', 'lf')}\n"
         "json.dump(out, open(sys.argv[1], 'w'))\n")
@@ -351,7 +351,7 @@ def test_chirp_amplitude_falls_and_test_sequence_levels():
 
 
 def test_command_parameters_override_and_validate():
-    from eha.commands import CommandError, array_command
+    from eha.models.commands import CommandError, array_command
 
     assert make_command("step_1mm", A=2e-3).sample(np.array([1.0]))[0] == 2e-3
     with pytest.raises(CommandError, match="A=5 is out of range"):
@@ -367,7 +367,7 @@ def test_command_parameters_override_and_validate():
 # ---------------------------------------------------------------- parameters
 
 def test_every_parameter_is_declared_with_unit_and_range_containing_its_nominal():
-    from eha.params import PARAMETERS, fault_names
+    from eha.models.params import PARAMETERS, fault_names
 
     for p in PARAMETERS:
         assert p.unit and p.lo <= p.nominal <= p.hi, p.name
@@ -385,7 +385,7 @@ def test_every_parameter_is_declared_with_unit_and_range_containing_its_nominal(
     ({"XJ0": 0.5}, "XJ0=0.5 is out of range"),
 ])
 def test_bad_parameters_are_rejected_in_one_line(overrides, message):
-    from eha.params import ParameterError
+    from eha.models.params import ParameterError
 
     with pytest.raises(ParameterError) as info:
         resolve("hf", overrides)

@@ -4,10 +4,10 @@ output."""
 import numpy as np
 import pytest
 
-from eha.effects import (EFFECTS, Effect, effects_on, get, missing_requirements, register,
+from eha.explain.effects import (EFFECTS, Effect, effects_on, get, missing_requirements, register,
                          switch_on_with_requirements)
-from eha.params import SPECS, LFParams, ParameterError
-from eha.simulate import simulate
+from eha.models.params import SPECS, LFParams, ParameterError
+from eha.models.simulate import simulate
 
 SPEC_NAMES = ("orifice_law", "leakage", "external_load", "hinge_moment", "offset", "hysteresis",
               "motor_gain", "clogging", "supply_pressure", "flapper_dynamics",
@@ -92,8 +92,8 @@ def test_shift_is_the_distance_of_the_effect_parameter_from_off():
     from its off value, in its unit; nan for a switch or a two-parameter effect."""
     import math
 
-    from eha.effects import EFFECTS
-    from eha.params import LFParams
+    from eha.explain.effects import EFFECTS
+    from eha.models.params import LFParams
 
     leak, psr = EFFECTS["leakage"], EFFECTS["supply_pressure"]
     assert leak.shift_at(LFParams().replace(Clk=5e-12)) == pytest.approx(5e-12)

@@ -20,7 +20,7 @@ from eha.explain.null import (Null, NullError, covered_effects, load_null, noise
 
 
 def _null(stats: dict[str, list[float]], resolution: float = 0.0) -> Null:
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     return Null(source="canned", key="k", statistics=stats,
                 gains={k: [0.0] * len(v) for k, v in stats.items()},
@@ -128,7 +128,7 @@ def test_cache_key_follows_the_command_noise_and_settings():
 def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
     """An effect the null covers is refused while its shift is within the threshold; one it
     does not cover (the structure) only when its fit switched it off."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import LoopSettings, ResidualLoop
     from eha.measured import from_arrays
 
@@ -202,7 +202,7 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     gets five statistics; the second call reads the cache (same object, no new fit).
     Reproducible: the same seed gives the same statistics (two calibrations, the cache
     off)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.null import healthy_record, healthy_statistics, simulated_null
 

@@ -12,8 +12,8 @@ import eha.fdi as fdi
 import eha.fdi_cases as fdi_cases
 from eha.fdi import FDIError, identify, percent_errors, mean_error_pct
 from eha.fdi_cases import load_fdi_campaign
-from eha.params import LFParams
-from eha.simulate import simulate
+from eha.models.params import LFParams
+from eha.models.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 T_END = 0.4

@@ -150,7 +150,7 @@ def test_cli_fdi_against_hf_and_bad_input(tmp_path):
 
 @pytest.mark.slow
 def test_cli_fdi_against_a_measured_csv(tmp_path):
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     frame = simulate("hf", "chirp_1cm", {"BKL": 2e-4, "FDJ": 200.0}, t_end=0.3).to_pandas()
     good = tmp_path / "rec.csv"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eha.simulate import simulate
+from eha.models.simulate import simulate
 from foreign_physics import FOREIGN_EFFECTS, foreign_record, simulate_foreign
 
 

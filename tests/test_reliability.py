@@ -393,7 +393,7 @@ def test_fdi_fit_named_twice(tmp_path):
 
 
 def test_one_name_value_parser():
-    from eha.params import ParameterError, parse_assignment, parse_name_value
+    from eha.models.params import ParameterError, parse_assignment, parse_name_value
 
     assert parse_assignment(" BKL =1e-4") == ("BKL", 1e-4)
     assert parse_name_value("BKL=0:1e-3", "--bounds", "LO:HI") == ("BKL", (0.0, 1e-3))

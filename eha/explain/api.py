@@ -16,7 +16,7 @@ from eha.explain.results import ExplainResult
 from eha.explain.settings import SECOND_PASS, STRUCTURAL, ExplainError, LoopSettings
 from eha.fdi import DEFAULT_METHOD
 from eha.measured import MeasuredData
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
@@ -40,7 +40,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Declared fault parameters and bounds (:func:`parse_fit`); default BKL, FDJ.
     effects : names, optional
         Candidate effects (names of docs/model.md's effect table); default all of
-        :data:`eha.effects.EFFECTS`.
+        :data:`eha.explain.effects.EFFECTS`.
     holdout : float, optional
         Fraction of the record (at its end) held out for scoring, in [0, 0.8]; default 0.3.
     validate : MeasuredData, optional

@@ -18,12 +18,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from eha.effects import EFFECTS, Effect
+from eha.explain.effects import EFFECTS, Effect
 from eha.explain.results import Candidate, Evaluation, ExplainResult
 from eha.explain.settings import (ALTERNATIVE_MARGIN, CONFIRM_FRACTION, FLOW_GAIN_EDGE,
                                   POSITION_WORSENING, RIVAL_MARGIN, SPECIFIC_GAIN, STRUCTURAL,
                                   LoopSettings)
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 def significance(before: float, after: float, added: int, n_eff: float) -> float:

@@ -8,13 +8,13 @@ from typing import Mapping
 
 import numpy as np
 
-from eha.effects import Effect
+from eha.explain.effects import Effect
 from eha.explain.record import rmse
 from eha.explain.results import Evaluation
 from eha.explain.settings import (GLOBAL_METHODS, LEAST_SQUARES_FINISH, MULTISTART,
                                   MULTISTART_PARAMS, SWITCHED_OFF, ExplainError)
 from eha.intervals import effective_samples
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 class Fitting:

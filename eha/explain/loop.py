@@ -11,7 +11,7 @@ import time
 from dataclasses import fields, replace
 from typing import Any, Callable, Iterable
 
-from eha.effects import EFFECTS, Effect, get as get_effects
+from eha.explain.effects import EFFECTS, Effect, get as get_effects
 from eha.explain.decide import edge_of_spread
 from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitting
@@ -21,7 +21,7 @@ from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Ste
 from eha.explain.rounds import Rounds
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
 from eha.measured import MeasuredData, noise_level
-from eha.params import LFParams, ParameterError, resolve
+from eha.models.params import LFParams, ParameterError, resolve
 
 
 class ResidualLoop(Rounds, FinalCheck, Fitting):

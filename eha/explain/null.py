@@ -19,7 +19,7 @@ never fits above a few hundred). The null is
    added the structure), then each library effect refitted on top by the loop's local test
    (:meth:`eha.explain.loop.ResidualLoop.local_test`: least squares from the effect off and
    from its probe, the better fit); the statistic is the parameter's distance from its off value
-   (:meth:`eha.effects.Effect.shift`);
+   (:meth:`eha.explain.effects.Effect.shift`);
 3. per effect, the threshold of the shared detection engine
    (:func:`eha.detection.tail_threshold`): a normal tail with probability ``alpha / m`` for
    ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
@@ -27,7 +27,7 @@ never fits above a few hundred). The null is
 
 Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
 sampling, the noise, the declared faults, the loop's fit settings and the model version
-(:data:`eha.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
+(:data:`eha.models.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
 The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
 """
 
@@ -89,7 +89,7 @@ class Null:
     key : str
         Cache key (empty for user records).
     statistics : dict of str to list of float
-        Per effect, its :meth:`~eha.effects.Effect.shift` on each healthy record (the
+        Per effect, its :meth:`~eha.explain.effects.Effect.shift` on each healthy record (the
         parameter's unit).
     gains : dict of str to list of float
         Per effect, the relative RMSE reduction its refit brought on each healthy record.
@@ -180,7 +180,7 @@ class Null:
 
 def load_null(path: str | Path) -> Null | None:
     """A cached null, or None when the file is missing, damaged or of another format."""
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -214,7 +214,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         The residual of faults and structure over the record's noise (what the verdict
         compares with the flag ratio).
     """
-    from eha.effects import COMBINATIONS, EFFECTS, missing_requirements
+    from eha.explain.effects import COMBINATIONS, EFFECTS, missing_requirements
     from eha.explain.loop import ResidualLoop
 
     STRUCTURAL_ORDER = [name for combo in COMBINATIONS for name in combo]
@@ -278,7 +278,7 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
     """
     from eha.detection import draw_actuator
     from eha.measured import from_arrays, noise_level
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     overrides = draw_actuator(seed)
     overrides.update(_declared_values(np.random.default_rng([seed, 3]), fit))
@@ -304,7 +304,7 @@ def _fleet_member(args):
     data, fit, effects, settings, seed, base, fixed, fdi_options = args
     known = {}
     if base is not None and fixed:
-        from eha.params import SPECS
+        from eha.models.params import SPECS
         # a known test condition (a test load) is the healthy fleet's too
         known = {n: getattr(base, n) for n in fixed if "hf" in SPECS[n].models}
     record, _ = healthy_record(data, fit, seed, known)
@@ -317,7 +317,7 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
     """Cache key of a simulated null for ``data``'s command, sampling and noise."""
     from eha.detection import command_signature
     from eha.measured import noise_level
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     noise = noise_class(float(data.info.get("noise_m", noise_level(data.xu))))
     parts = {
@@ -348,7 +348,7 @@ def _changed(base) -> dict[str, float]:
         return {}
     from dataclasses import fields as dc_fields
 
-    from eha.params import LFParams
+    from eha.models.params import LFParams
 
     nominal = LFParams()
     return {f.name: getattr(base, f.name) for f in dc_fields(base)
@@ -356,7 +356,7 @@ def _changed(base) -> dict[str, float]:
 
 
 def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     units, resolution = {}, {}
     for name in effects:
@@ -370,7 +370,7 @@ def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
 def covered_effects(effects: Sequence[str]) -> list[str]:
     """The effects a null covers: those with exactly one fitted parameter that are not the
     model's known structure."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     return [n for n in effects if n not in STRUCTURAL and len(EFFECTS[n].params) == 1]
 
@@ -397,7 +397,7 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
     workers : int, optional
         Processes (default: the machine's cores, at most 2 per calibration).
     """
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     names = covered_effects(effects)
     if actuators < MIN_RECORDS:
@@ -464,7 +464,7 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
     Not cached (the files are the user's)."""
     from eha.measured import FILE_TYPES, MeasuredDataError, load
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     folder = Path(folder)
     if not folder.is_dir():

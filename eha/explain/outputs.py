@@ -136,7 +136,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
         except (OSError, ValueError) as exc:
             raise ExplainError(f"--prior {prior}: {str(exc).splitlines()[0]}") from None
     if known:
-        from eha.params import ParameterError, resolve
+        from eha.models.params import ParameterError, resolve
 
         try:
             base = resolve("lf", dict(known), base=base)

@@ -10,11 +10,11 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.effects import get as get_effects
+from eha.explain.effects import get as get_effects
 from eha.explain.settings import P12_NOISE_FLOOR, START_TOLERANCE, ExplainError
 from eha.measured import MeasuredData, noise_level
-from eha.params import LFParams, ParameterError
-from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
+from eha.models.params import LFParams, ParameterError
+from eha.models.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
                           xj0_for_recorded)
 
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Iterable, Mapping, Sequence
 
-from eha.effects import COMBINATIONS
+from eha.explain.effects import COMBINATIONS
 from eha.fdi import DEFAULT_METHOD
-from eha.params import ParameterError, parse_name_value
+from eha.models.params import ParameterError, parse_name_value
 
 
 class ExplainError(ValueError):

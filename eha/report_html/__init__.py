@@ -74,7 +74,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     from eha.report_html import sections as S
     from eha.report_html.figures import shared_template
     from eha.report_html.page import Page, esc
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
     from eha.campaigns.store import connect, db_path
 
     t0 = time.perf_counter()

@@ -22,10 +22,10 @@ DISPLAY_UNITS = {"BKL": ("µm", 1e6)}
 
 def unit_of(name: str) -> tuple[str, float]:
     """Display unit and scale factor of a parameter (``BKL`` in µm, the rest as in
-    :data:`eha.params.SPECS`)."""
+    :data:`eha.models.params.SPECS`)."""
     if name in DISPLAY_UNITS:
         return DISPLAY_UNITS[name]
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     return (SPECS[name].unit if name in SPECS else "", 1.0)
 

@@ -40,10 +40,10 @@ def fit_figures(rows: Sequence[Any], campaign) -> dict[str, dict]:
     from plotly.subplots import make_subplots
 
     from eha.fdi import hf_reference
-    from eha.params import resolve
+    from eha.models.params import resolve
     from eha.report_html.data import unit_of
     from eha.report_html.figures import _done
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     base = resolve("lf", campaign.base)
     out = {}

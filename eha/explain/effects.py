@@ -3,16 +3,16 @@
 Every effect is one registered :class:`Effect`: a stable name (used in reports and JSON), the LF
 parameters it fits with their search bounds, the parameters it merely switches (``orifice_law``),
 a probe value used to compute its signature, and a one-line description. The LF kernel already
-carries every effect parameter with a neutral "off" value (:mod:`eha.params`), so switching an
-effect on is setting parameters on an :class:`~eha.params.LFParams`; any combination runs in the
+carries every effect parameter with a neutral "off" value (:mod:`eha.models.params`), so switching an
+effect on is setting parameters on an :class:`~eha.models.params.LFParams`; any combination runs in the
 one compiled kernel.
 
 Adding an effect is one :func:`register` call in this module (or in user code).
 
 Examples
 --------
->>> from eha.effects import EFFECTS
->>> from eha.params import LFParams
+>>> from eha.explain.effects import EFFECTS
+>>> from eha.models.params import LFParams
 >>> p = EFFECTS["external_load"].switch_on(LFParams(), {"FRC": 500.0})
 >>> p.FRC
 500.0
@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
-from eha.params import SPECS, LFParams, ParameterError, resolve
+from eha.models.params import SPECS, LFParams, ParameterError, resolve
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ Parquet file, per-run metrics, a row-by-row commit) cost more than the run. The 
 groups a campaign's simulations into *chunks* (:func:`plan_chunks`): consecutive runs of the
 campaign, whole HF/LF cases kept together, sized to about :data:`TASK_SECONDS` of work. A worker
 runs a chunk (:func:`run_chunk`): it simulates each run, computes the metrics of all of them at
-once (:func:`eha.run_metrics.batch_metrics`) and the HF-vs-LF metrics of the cases inside the
+once (:func:`eha.models.run_metrics.batch_metrics`) and the HF-vs-LF metrics of the cases inside the
 chunk, writes one chunk file (:mod:`eha.campaigns.traces`) and returns Arrow tables that the
 parent inserts in bulk.
 
@@ -109,10 +109,10 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     import pyarrow as pa
 
     from eha.campaigns.traces import write_chunk
-    from eha.commands import make_command
-    from eha.run_metrics import (PAIR_METRICS, RUN_METRICS, batch_metrics,
+    from eha.models.commands import make_command
+    from eha.models.run_metrics import (PAIR_METRICS, RUN_METRICS, batch_metrics,
                                  batch_pair_metrics)
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     t_task = time.perf_counter()
     worker = f"{socket.gethostname()}:{os.getpid()}"
@@ -182,8 +182,8 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
 def bare_simulate(specs: Sequence[Mapping[str, Any]]) -> float:
     """Seconds [s] of a bare loop of ``simulate()`` (command built and run) over ``specs``:
     the ideal against which the benchmarks measure a campaign's efficiency; nothing stored."""
-    from eha.commands import make_command
-    from eha.simulate import simulate
+    from eha.models.commands import make_command
+    from eha.models.simulate import simulate
 
     t0 = time.perf_counter()
     for s in specs:
@@ -246,9 +246,9 @@ def run_simulation_job(spec: Mapping[str, Any], run_key: str, campaign: str, tra
     import numpy as np
 
     from eha.campaigns.traces import write_trace
-    from eha.commands import make_command
-    from eha.run_metrics import trace_metrics
-    from eha.simulate import Trace, simulate
+    from eha.models.commands import make_command
+    from eha.models.run_metrics import trace_metrics
+    from eha.models.simulate import Trace, simulate
 
     cmd = make_command(spec["command"]["name"], **spec["command"]["set"])
     t0 = time.perf_counter()
@@ -334,7 +334,7 @@ class Pairs:
                 self._add(key, sig)
 
     def _add(self, run_key: str, signals: dict) -> None:
-        from eha.run_metrics import pair_metrics
+        from eha.models.run_metrics import pair_metrics
 
         case, model = self.case[run_key]
         mine = self.waiting.setdefault(case, {})
@@ -357,7 +357,7 @@ def finish_pairs(db, campaign: str) -> int:
     (e.g. one of them ran in an earlier session): reads their traces; returns how many.
     ``db``: the runner's :class:`eha.campaigns.store.ResultStore`."""
     from eha.campaigns.traces import read_trace
-    from eha.run_metrics import pair_metrics
+    from eha.models.run_metrics import pair_metrics
 
     rows = []
     for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):

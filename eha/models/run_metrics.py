@@ -120,7 +120,7 @@ def lag(t, xu, com, max_lag: float = MAX_LAG) -> float | None:
 
 
 def trace_metrics(trace) -> dict[str, float | None]:
-    """Metrics of one run (a :class:`~eha.simulate.Trace`): the columns of the ``metrics``
+    """Metrics of one run (a :class:`~eha.models.simulate.Trace`): the columns of the ``metrics``
     table, computed by :func:`batch_metrics` on a chunk of one."""
     sig = {n: np.asarray(trace[n])[None] for n in ("xu", "com", "xs", "p12", "cor")}
     out = batch_metrics(np.asarray(trace.t), sig)
@@ -131,7 +131,7 @@ def trace_metrics(trace) -> dict[str, float | None]:
 def pair_metrics(hf, lf) -> dict[str, float | None]:
     """HF-vs-LF metrics of one case (same command, faults, seed, t_end).
 
-    ``hf``, ``lf``: :class:`~eha.simulate.Trace` or mappings with ``"xu"`` and ``"p12"``.
+    ``hf``, ``lf``: :class:`~eha.models.simulate.Trace` or mappings with ``"xu"`` and ``"p12"``.
     """
     out = {"rmse_xu_hf_lf": rmse(hf["xu"], lf["xu"]),
            "max_err_xu_hf_lf": max_abs_error(hf["xu"], lf["xu"]),

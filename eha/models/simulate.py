@@ -9,11 +9,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from eha.commands import Command, as_command
+from eha.models.commands import Command, as_command
 from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
 from eha.models.hf import dither_samples, run_hf
 from eha.models.lf import run_lf, run_lf_batch
-from eha.params import ModelParams, ParameterError, resolve
+from eha.models.params import ModelParams, ParameterError, resolve
 
 #: Recorded sample period [s] (thesis: 100*DT).
 OUTPUT_DT = 1e-3
@@ -123,7 +123,7 @@ def simulate(model: str, command: Command | str = "mixed",
     ----------
     model : {"hf", "lf"}
     command : Command or str
-        A :class:`~eha.commands.Command` or a preset name (``eha commands``).
+        A :class:`~eha.models.commands.Command` or a preset name (``eha commands``).
     params : ModelParams or mapping, optional
         Parameter set, or overrides of the nominal one by name (``{"BKL": 1e-4}``).
     t_end : float
@@ -186,7 +186,7 @@ def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: in
     float64 array, shape (n, n_out): recorded xu of each row; with ``with_p12`` the pair
     ``(xu, p12)``, P12 in Pa.
     """
-    from eha.params import LF
+    from eha.models.params import LF
 
     out = np.empty((param_rows.shape[0], n_out, len(OUTPUTS)))
     if recorded_start is not None:
