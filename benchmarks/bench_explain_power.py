@@ -68,7 +68,7 @@ def command(name: str):
 def template(name: str):
     """A nominal HF record of the command (its samples, hold and noise are what the null
     and the test records copy)."""
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
 
     hold = "zoh" if name == "held_steps" else "auto"
     df = synthetic_record(command(name), {}, t_end=1.0, noise=NOISE, seed=0,

@@ -50,9 +50,10 @@ def draw_record(i: int, seed_block: int, extra: bool = True) -> tuple[str, dict,
 
 
 def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
-    from eha.fdi import BASE_MODELS, identify
+    from eha.identification.fdi import identify
+    from eha.identification.problem import BASE_MODELS
     from eha.health import CORE_FAULTS, FAULTS, assess_record
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
     from eha.models.params import resolve
 
     command, faults, seed = draw_record(i, seed_block, extra)
@@ -134,11 +135,11 @@ FLOOR_GRID = {
 
 
 def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
-    """The health rows re-scored with the current model-form floors (eha.intervals.MODEL_FORM):
+    """The health rows re-scored with the current model-form floors (eha.identification.intervals.MODEL_FORM):
     each hypothesis' std rebuilt from its stored HAC part, the mixture intervals recomputed with
     the tool's own functions. For floors changed after a long run; the report says so."""
     from eha.health import FAULTS, fault_components, mixture_interval
-    from eha.intervals import MODEL_FORM, ModelForm, inflation, total_std
+    from eha.identification.intervals import MODEL_FORM, ModelForm, inflation, total_std
 
     terms = MODEL_FORM["calibrated"]
     out = []
@@ -161,10 +162,10 @@ def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
 def calibrate(rows: list[dict], level: float = 0.9) -> dict:
     """Smallest model-form floors that bring each fault's coverage on these records to
     ``level``: the health assessment's mixture intervals recomputed from each hypothesis'
-    HAC part with candidate floors (eha.intervals.total_std, eha.health.fault_components: the
+    HAC part with candidate floors (eha.identification.intervals.total_std, eha.health.fault_components: the
     tool's own definitions)."""
     from eha.health import FAULTS, fault_components, mixture_interval
-    from eha.intervals import ModelForm, inflation, total_std
+    from eha.identification.intervals import ModelForm, inflation, total_std
 
     found = {}
     for name, (rels, abss) in FLOOR_GRID.items():
@@ -201,10 +202,12 @@ def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9
     """Coverage of three interval methods on the same fits (calibrated LF, BKL and FDJ, records
     without an extra fault): white-noise Laplace (sigma = noise), the HAC sandwich alone, and
     the tool's intervals (HAC + measured floors + widening)."""
-    from eha.fdi import CALIBRATED_LF, BatchObjective, identify
+    from eha.identification.fdi import identify
+    from eha.identification.optimizers import BatchObjective
+    from eha.identification.problem import CALIBRATED_LF
     from eha.health import CORE_FAULTS, FAULTS
-    from eha.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
+    from eha.identification.measured import from_arrays, synthetic_record
     from eha.models.params import resolve
     from eha.models.simulate import command_on_grid, grid
 

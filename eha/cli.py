@@ -178,7 +178,7 @@ ResultsOption = Annotated[Path, typer.Option(
 WORKERS = 2
 WorkersOption = Annotated[int, typer.Option("--workers", min=1,
                                             help="Local worker processes.")]
-#: How a measured record's command is rebuilt between its samples (eha.measured).
+#: How a measured record's command is rebuilt between its samples (eha.identification.measured).
 COMMAND_HOLD = "auto"
 CommandHoldOption = Annotated[str, typer.Option(
     "--command-hold", help="How the record's command is rebuilt between its samples: zoh "
@@ -187,8 +187,8 @@ CommandHoldOption = Annotated[str, typer.Option(
 
 
 def check_command_hold(value: str) -> None:
-    """One line and exit 2 for a --command-hold outside eha.measured.COMMAND_HOLDS."""
-    from eha.measured import COMMAND_HOLDS
+    """One line and exit 2 for a --command-hold outside eha.identification.measured.COMMAND_HOLDS."""
+    from eha.identification.measured import COMMAND_HOLDS
 
     if value not in COMMAND_HOLDS:
         fail(f"--command-hold {value!r}: allowed: {', '.join(COMMAND_HOLDS)}")
@@ -651,7 +651,7 @@ def fdi(
     data: Optional[Path] = typer.Option(None, "--data", help="Measured record instead of an "
                                         "HF reference: CSV/Parquet with t, com, xu (SI)."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+        ..., "--fit", default_factory=library_default("eha.identification.fdi", "DEFAULT_FIT",
                                                             ",".join),
         help="LF parameters to identify."),
     bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
@@ -659,12 +659,12 @@ def fdi(
     base: List[str] = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE "
                                    "(e.g. orifice_law=1)."),
     method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+        ..., "--method", default_factory=library_default("eha.identification.fdi", "DEFAULT_METHOD"),
         help="ga (the thesis), ga+ps "
                                "(GA + pattern-search polish), ps (pattern search from the "
                                "--base / nominal values) or lm (least squares from them)."),
     pop: int = typer.Option(
-        ..., "--pop", default_factory=signature_default("eha.fdi", "identify_source",
+        ..., "--pop", default_factory=signature_default("eha.identification.fdi", "identify_source",
                                                               "pop"),
         help="GA population."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
@@ -675,7 +675,7 @@ def fdi(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG: reference vs identified LF."),
     level: float = typer.Option(
-        ..., "--level", default_factory=library_default("eha.fdi", "DEFAULT_LEVEL"),
+        ..., "--level", default_factory=library_default("eha.identification.fdi", "DEFAULT_LEVEL"),
         help="Nominal coverage of the parameter intervals, in (0, 1)."),
     base_model: Optional[str] = typer.Option(
         None, "--base-model", help="LF model: plain (the thesis') or calibrated (by eha "
@@ -689,8 +689,9 @@ def fdi(
 
     Example: eha fdi --data record.csv --fit BKL,FDJ,Clk --level 0.95 --json fit.json
     """
-    from eha.fdi import FDIError, identify_source, parse_bounds
-    from eha.measured import MeasuredDataError
+    from eha.identification.fdi import identify_source, parse_bounds
+    from eha.identification.problem import FDIError
+    from eha.identification.measured import MeasuredDataError
     from eha.models.params import parse_assignments
 
     check_names(fit, "--fit")
@@ -749,7 +750,7 @@ def explain(
     data: Path = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu "
                                 "(SI; aliases in docs/explain.md), optional p12, xs."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT", ",".join),
+        ..., "--fit", default_factory=library_default("eha.identification.fdi", "DEFAULT_FIT", ",".join),
         help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated."),
     effects: Optional[str] = typer.Option(None, "--effects", help="Candidate effects, "
                                           "comma-separated names of docs/model.md's effect "
@@ -769,7 +770,7 @@ def explain(
                                        "RESULTS/explain/<file stem>)."),
     results: ResultsOption = RESULTS,
     method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+        ..., "--method", default_factory=library_default("eha.identification.fdi", "DEFAULT_METHOD"),
         help="Optimizer of every fit (eha fdi)."),
     pop: int = typer.Option(
         ..., "--pop", default_factory=signature_default("eha.explain.api", "explain", "pop"),
@@ -822,8 +823,8 @@ def explain(
     FRC=4000 --json calibration.json
     """
     from eha.explain import ExplainError
-    from eha.fdi import FDIError
-    from eha.measured import MeasuredDataError
+    from eha.identification.problem import FDIError
+    from eha.identification.measured import MeasuredDataError
     from eha.explain.outputs import explain_report
 
     if holdout is not None and validate is not None:
@@ -1146,7 +1147,7 @@ def health_check(
     --json check.json
     """
     from eha.detection import DetectionError
-    from eha.measured import MeasuredDataError
+    from eha.identification.measured import MeasuredDataError
     from eha.monitoring import check_record
 
     check_seed(seed)
@@ -1277,7 +1278,8 @@ def rul(
     Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
     --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul
     """
-    from eha.fdi import FDIError, parse_bounds
+    from eha.identification.fdi import parse_bounds
+    from eha.identification.problem import FDIError
     from eha.manifest import ManifestError
     from eha.prognostics import PrognosticsError
     from eha.prognostics_jobs import parse_limits, run_rul

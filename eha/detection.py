@@ -108,7 +108,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     added.
     """
     from eha.models.commands import CommandError, as_command
-    from eha.fdi import BASE_MODELS
+    from eha.identification.problem import BASE_MODELS
 
     extra = set(section) - _SECTION_KEYS
     for key in sorted(extra):
@@ -193,9 +193,9 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
 def run_health_job(spec: Mapping[str, Any]):
     """Worker side of a ``health`` job: the HF record with noise, its assessment; returns the
     ``health_assessments`` row and the record as a Trace."""
-    from eha.fdi import BASE_MODELS
+    from eha.identification.problem import BASE_MODELS
     from eha.health import assess_record
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
     from eha.models import O_COM, O_T, O_XU
     from eha.models.simulate import Trace
 

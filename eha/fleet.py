@@ -394,7 +394,7 @@ def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,
 
     from eha.campaigns.traces import write_table_file
     from eha.models.commands import make_command
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     t0 = time.perf_counter()
     cmd = make_command(spec["command"]["name"], **spec["command"]["set"])

@@ -6,7 +6,7 @@ assessment runs a **bank of fault hypotheses** (the multiple-model approach of f
 isolation): ``H0`` fits the thesis' two faults (backlash BKL, jack friction FDJ) and each
 ``H_f`` fits them together with one more fault ``f`` (motor gain GM, clogging Kintas, leakage
 Clk, offset Ofs, spool friction FSS). Each hypothesis is one identification with intervals
-(:func:`eha.fdi.identify`, warm-started at ``H0``'s estimate so that it is never worse).
+(:func:`eha.identification.fdi.identify`, warm-started at ``H0``'s estimate so that it is never worse).
 
 Hypotheses are weighed by the Bayesian information criterion computed on the *effective*
 number of samples (``n / τ``, with ``τ`` the integrated autocorrelation time of the best
@@ -31,7 +31,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from eha.models.commands import Command
-from eha.fdi import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult, identify
+from eha.identification.fdi import identify
+from eha.identification.problem import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult
 from eha.models.params import LFParams, resolve
 
 
@@ -256,7 +257,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     command : Command or str
         Its position command.
     base : LFParams or mapping, optional
-        The LF model (default: :data:`eha.fdi.CALIBRATED_LF`, the LF calibrated by
+        The LF model (default: :data:`eha.identification.problem.CALIBRATED_LF`, the LF calibrated by
         ``eha explain``).
     faults : sequence of str
         Faults that get a hypothesis of their own (default all of :data:`EXTRA_FAULTS`).
@@ -273,7 +274,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
                           f"{', '.join(EXTRA_FAULTS)}")
     base = _lf_base(base)
     start = time.perf_counter()
-    from eha.measured import noise_level
+    from eha.identification.measured import noise_level
 
     xu = np.asarray(reference_xu, dtype=np.float64)
     noise = float(noise_level(xu) if noise is None else noise)
@@ -327,7 +328,7 @@ def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
                   faults: Sequence[str] = EXTRA_FAULTS, level: float = DEFAULT_LEVEL,
                   seed: int = 0, pop: int = 20,
                   on_progress: Callable[[str], None] | None = None) -> Assessment:
-    """:func:`assess` a measured record (:class:`eha.measured.MeasuredData`).
+    """:func:`assess` a measured record (:class:`eha.identification.measured.MeasuredData`).
 
     The LF model starts where the record starts, as in ``eha explain``; the noise is estimated
     on the record's raw samples (before any resampling).

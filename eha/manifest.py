@@ -31,7 +31,7 @@ from pathlib import Path
 
 #: Required manifest columns.
 COLUMNS = ("actuator", "cycle", "record")
-#: Record file types accepted (those of :mod:`eha.measured`).
+#: Record file types accepted (those of :mod:`eha.identification.measured`).
 RECORD_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from eha.detection import (DEFAULT_ALPHA, Calibration, DetectionError, calibrate_thresholds,
                            command_signature, empirical_false_alarms, load_calibration,
                            performance, verdicts)
-from eha.fdi import BASE_MODELS, DEFAULT_LEVEL
+from eha.identification.problem import BASE_MODELS, DEFAULT_LEVEL
 
 #: Records the health check accepts [s] (the bank runs 6 identifications of the whole record).
 RECORD_SECONDS = (0.2, 10.0)
@@ -145,12 +145,12 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
     DetectionError
         Bad calibration file, a record of another command or length than the calibration, a
         record outside :data:`RECORD_SECONDS`, a level outside (0, 1).
-    eha.measured.MeasuredDataError
+    eha.identification.measured.MeasuredDataError
         The record cannot be read.
     """
     from eha.health import assess_record
-    from eha.intervals import check_level
-    from eha.measured import load
+    from eha.identification.intervals import check_level
+    from eha.identification.measured import load
 
     cal = load_calibration(calibration) if calibration is not None else None
     if level is None:

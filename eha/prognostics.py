@@ -1,7 +1,7 @@
 """Prognostics: degradation trends of identified faults and remaining useful life (RUL).
 
 Input: a health history, i.e. for each actuator the faults identified at successive checks
-(:mod:`eha.manifest` lists the records, :func:`eha.fdi.identify_source` assesses each one with
+(:mod:`eha.manifest` lists the records, :func:`eha.identification.fdi.identify_source` assesses each one with
 its intervals). Output: at every check, from the checks up to that one only, the predicted
 cycle at which each limited fault reaches its limit, as a distribution.
 

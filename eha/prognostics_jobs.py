@@ -30,7 +30,7 @@ from eha.campaigns.jobs import register_job
 from eha.prognostics import LAWS, PrognosticsError, histories_from_checks, predict_history
 from eha.prognostics import LIMIT_ERROR as PRED_LIMIT_ERROR
 
-#: Identification method of the health assessment (eha.fdi.METHODS).
+#: Identification method of the health assessment (eha.identification.problem.METHODS).
 HEALTH_METHOD = "ga+ps"
 
 
@@ -73,10 +73,10 @@ RUL_FIT: tuple[str, ...] = ("BKL", "FDJ", "GM")
 def health_bounds(names: Sequence[str], limits: Mapping[str, float],
                   bounds: Mapping[str, Sequence[float]] | None = None
                   ) -> dict[str, tuple[float, float]]:
-    """Search bounds of the assessment: :func:`eha.fdi.default_bounds`, widened so that a
+    """Search bounds of the assessment: :func:`eha.identification.problem.default_bounds`, widened so that a
     limited fault can be identified up to twice its limit (or down to half of it), then
     ``bounds`` overrides."""
-    from eha.fdi import default_bounds
+    from eha.identification.problem import default_bounds
     from eha.models.params import SPECS
 
     out = default_bounds(names)
@@ -112,22 +112,22 @@ def run_id_of(manifest_path: Path) -> str:
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
                     method: str = HEALTH_METHOD, base_model: str | None = None):
     """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
-    ``base_model``: LF base of the assessment (``eha.fdi.BASE_MODELS``; default the one
+    ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default the one
     ``eha fdi --data`` uses)."""
     from eha.campaigns.files import Campaign, Job
     from eha.models.simulate import MODEL_VERSION
 
-    from eha import fdi
+    from eha.identification.problem import BASE_MODELS, DEFAULT_BASE_MODEL, DEFAULT_LEVEL
 
     name = run_id_of(manifest.source)
     jobs = []
     fit = {k: [float(v[0]), float(v[1])] for k, v in bounds.items()}
-    # the assessment's LF base and interval level, spelled out: a change of eha.fdi's
-    # defaults changes the run keys (no stale assessment is reused)
+    # the assessment's LF base and interval level, spelled out: a change of the identification's
+    # defaults (eha.identification.problem) changes the run keys (no stale assessment is reused)
     if base_model is None:
-        base_model = getattr(fdi, "DEFAULT_BASE_MODEL", {}).get("data")
-    base = dict(getattr(fdi, "BASE_MODELS", {}).get(base_model, {}))
-    level = float(getattr(fdi, "DEFAULT_LEVEL", 0.9))
+        base_model = DEFAULT_BASE_MODEL["data"]
+    base = dict(BASE_MODELS.get(base_model, {}))
+    level = float(DEFAULT_LEVEL)
     for c in manifest.checks:
         spec = {"record": str(c.record), "sha": file_sha(c.record), "actuator": c.actuator,
                 "cycle": c.cycle, "fit": fit, "seed": int(seed), "method": method,
@@ -146,8 +146,8 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
 def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
                    trace_file: str) -> dict[str, Any]:
     """Worker of a ``health`` job: identify the fitted faults of one record with intervals
-    (:func:`eha.fdi.identify_source`); returns its ``health_checks`` row."""
-    from eha.fdi import identify_source
+    (:func:`eha.identification.fdi.identify_source`); returns its ``health_checks`` row."""
+    from eha.identification.fdi import identify_source
 
     fit = {k: tuple(v) for k, v in spec["fit"].items()}
     extra = {}
@@ -283,7 +283,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Relative std of the assessment's systematic error (default
         :data:`eha.prognostics.LIMIT_ERROR`).
     base_model : str, optional
-        LF base of the assessment (``eha.fdi.BASE_MODELS``, default that of ``eha fdi
+        LF base of the assessment (``eha.identification.problem.BASE_MODELS``, default that of ``eha fdi
         --data``).
 
     Raises
@@ -307,17 +307,14 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     if bad_laws or not laws:
         raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "
                                f"{', '.join(LAWS)}")
-    from eha.fdi import FDIError, check_bounds
+    from eha.identification.problem import BASE_MODELS, FDIError, check_bounds
 
     try:
         chosen = check_bounds(health_bounds(names, limits, bounds))
     except FDIError as exc:
         raise PrognosticsError(str(exc)) from None
-    from eha import fdi as _fdi
-
-    models = getattr(_fdi, "BASE_MODELS", None)
-    if base_model is not None and models is not None and base_model not in models:
-        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(models)}")
+    if base_model is not None and base_model not in BASE_MODELS:
+        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     truth_eol = load_truth(truth) if truth is not None else None
     if json_out is not None and Path(json_out).suffix.lower() != ".json":
         raise PrognosticsError(f"--json {json_out}: the file must end in .json")

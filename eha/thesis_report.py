@@ -133,9 +133,9 @@ def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None =
     Parameters
     ----------
     rows : sequence of dict
-        FDI results (:class:`eha.fdi_cases.FDIRow` rows, or rows of the ``fdi_results`` table
+        FDI results (:class:`eha.identification.cases.FDIRow` rows, or rows of the ``fdi_results`` table
         through :func:`fdi_results`), any number of seeds per case.
-    campaign : eha.fdi_cases.FDICampaign
+    campaign : eha.identification.cases.FDICampaign
         The cases: injected faults, bounds, population and the thesis' values.
 
     Returns
@@ -290,7 +290,7 @@ def plot_fdi_cases(rows: Sequence[dict], campaign, out: str | Path) -> dict[int,
     """One figure per case, like the thesis' Figures 6.4–6.16: the HF reference with the
     injected faults against the LF model with the identified ones, for the case's first seed
     (both re-simulated: the runs are deterministic). Returns ``case -> PNG path``."""
-    from eha.fdi import hf_reference
+    from eha.identification.fdi import hf_reference
     from eha.models.params import resolve
     from eha.models.simulate import simulate
 
@@ -316,8 +316,8 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
 
     Returns
     -------
-    (list of dict, eha.fdi_cases.FDICampaign)
-        Rows as :func:`eha.fdi_cases.run_case` returns them; the campaign as it was run (its stored
+    (list of dict, eha.identification.cases.FDICampaign)
+        Rows as :func:`eha.identification.cases.run_case` returns them; the campaign as it was run (its stored
         definition, so the thesis' values travel with the results).
 
     Raises
@@ -325,7 +325,7 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
     eha.campaigns.store.StoreError
         No database, or no FDI result of that campaign in it.
     """
-    from eha.fdi_cases import parse_fdi_campaign, rows_from_results
+    from eha.identification.cases import parse_fdi_campaign, rows_from_results
     from eha.campaigns.query import query
     from eha.campaigns.store import StoreError
 

@@ -14,7 +14,7 @@ these three switches (the lines marked ``FOREIGN``); each switch is a branch tak
 is on, so with all three off the kernel computes exactly what ``run_hf`` computes
 (tests/test_foreign_physics.py checks it against ``simulate("hf", ...)``). Parameters, grid,
 command sampling, dither and sensor model are eha's own (:mod:`eha.models.simulate`), and
-:func:`foreign_record` makes a record the way :func:`eha.measured.synthetic_record` does.
+:func:`foreign_record` makes a record the way :func:`eha.identification.measured.synthetic_record` does.
 
 If ``run_hf`` changes, copy it again and re-apply the three ``FOREIGN`` blocks.
 
@@ -209,7 +209,7 @@ def _sampled_command(cmd: Command, t: np.ndarray, command_hold: str) -> Command:
     values = cmd.sample(t)
     name = cmd.name or "array"
     try:  # eha with command holds (zero-order hold of a digital controller's command)
-        from eha.measured import resolve_hold
+        from eha.identification.measured import resolve_hold
     except ImportError:  # an eha that always interpolates between command samples
         if command_hold not in ("auto", "linear"):
             raise ValueError(f"command_hold {command_hold!r}: this eha only interpolates")
@@ -223,7 +223,7 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
                    noise: float = 1e-6, seed: int = 0, command_hold: str = "auto"):
     """A measured-like record of the HF model with one foreign effect, plus noise.
 
-    Made as :func:`eha.measured.synthetic_record` makes one (the HF driven by the 1 kHz samples
+    Made as :func:`eha.identification.measured.synthetic_record` makes one (the HF driven by the 1 kHz samples
     of the command, Gaussian noise on xu from ``seed``), so with ``magnitude=0`` it is the same
     record.
 
@@ -245,7 +245,7 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
         Seed of the noise and of the dither.
     command_hold : {"auto", "zoh", "linear"}
         How the model is driven between the command's samples, as ``synthetic_record`` does
-        (``auto``: as the reader of the record will decide, ``eha.measured.detect_hold``).
+        (``auto``: as the reader of the record will decide, ``eha.identification.measured.detect_hold``).
 
     Returns
     -------

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from eha.models.commands import array_command, as_command
-from eha.measured import detect_hold, from_arrays, load, synthetic_record
+from eha.identification.measured import detect_hold, from_arrays, load, synthetic_record
 
 from conftest import error_line, invoke_eha
 

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from eha.cli import app
 from eha.explain import (P12_NOISE_FLOOR, ExplainError, LoopSettings, augmented_base, explain,
                          noise_level, p12_objective_weight, parse_fit)
-from eha.measured import load, synthetic_record
+from eha.identification.measured import load, synthetic_record
 from eha.models.params import LFParams
 
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}

@@ -101,7 +101,7 @@ def test_cache_key_follows_the_command_noise_and_settings():
     """Same record and settings, same key; another command, noise level or population, another
     key (a null belongs to one command, sampling, noise and fit)."""
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     t = np.arange(301) * 1e-3
     com = 1e-3 * np.sin(2 * np.pi * 3 * t)
@@ -130,7 +130,7 @@ def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
     does not cover (the structure) only when its fit switched it off."""
     from eha.explain.effects import EFFECTS
     from eha.explain import LoopSettings, ResidualLoop
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     t = np.arange(401) * 1e-3
     com = 1e-3 * np.sin(2 * np.pi * 3 * t)
@@ -209,7 +209,7 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))
     t = np.arange(401) * 1e-3
     com = 2e-3 * np.sin(2 * np.pi * 4 * t)
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     data = from_arrays(t, com, com + np.random.default_rng(2).normal(0, 1e-6, t.size))
     settings = LoopSettings(pop=12)
@@ -239,7 +239,7 @@ def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
     with probability alpha (normal tail, spread RATIO_SPREAD), never above FLAG_RATIO; an older
     null without ratios falls back to FLAG_RATIO (exact arithmetic, tolerance 1e-12)."""
     from eha.explain.settings import RATIO_SPREAD
-    from eha.intervals import FLAG_RATIO
+    from eha.identification.intervals import FLAG_RATIO
 
     null = _null({"leakage": [0.0, 1e-13, 2e-13]})
     assert null.residual_limit(0.05) == FLAG_RATIO

@@ -1,4 +1,4 @@
-"""Fault identification (eha.fdi): round trips, reproducibility, bounds, bad input.
+"""Fault identification (eha.identification.fdi): round trips, reproducibility, bounds, bad input.
 
 Runs use short records (t_end 0.3-0.4 s) so the whole file stays within a few tens of seconds.
 """
@@ -8,10 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import eha.fdi as fdi
-import eha.fdi_cases as fdi_cases
-from eha.fdi import FDIError, identify, percent_errors, mean_error_pct
-from eha.fdi_cases import load_fdi_campaign
+import eha.identification.fdi as fdi
+import eha.identification.optimizers as optimizers
+import eha.identification.cases as fdi_cases
+from eha.identification.fdi import identify, mean_error_pct, percent_errors
+from eha.identification.problem import DEFAULT_METHOD, FDIError
+from eha.identification.cases import load_fdi_campaign
 from eha.models.params import LFParams
 from eha.models.simulate import simulate
 
@@ -95,13 +97,13 @@ def test_hf_round_trip_within_model_mismatch():
 
 def test_thesis_ga_history_and_batches(lf_reference, monkeypatch):
     calls = []
-    real = fdi.simulate_lf_batch
+    real = optimizers.simulate_lf_batch
 
     def counting(rows, *args, **kwargs):
         calls.append(rows.shape[0])
         return real(rows, *args, **kwargs)
 
-    monkeypatch.setattr(fdi, "simulate_lf_batch", counting)
+    monkeypatch.setattr(optimizers, "simulate_lf_batch", counting)
     res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", pop=20, seed=3,
                    t_end=T_END, max_gen=15, level=None)   # the GA alone (intervals: below)
     hist = np.array(res.history)
@@ -203,9 +205,9 @@ def test_combined_objective_adds_the_weighted_p12_residual():
     mean absolute error 3 + 4 = 7; a weight of 0.5 m/Pa makes the P12 part 2."""
     xu, ref = np.full((1, 10), 3.0), np.zeros(10)
     p12, ref_p = np.full((1, 10), -4.0), np.zeros(10)
-    assert fdi.combined_objective(xu, ref, p12, ref_p, 1.0)[0] == pytest.approx(5.0)
-    assert fdi.combined_objective(xu, ref, p12, ref_p, 1.0, "objfcn")[0] == pytest.approx(7.0)
-    assert fdi.combined_objective(xu, ref, p12, ref_p, 0.5)[0] == pytest.approx(13 ** 0.5)
+    assert optimizers.combined_objective(xu, ref, p12, ref_p, 1.0)[0] == pytest.approx(5.0)
+    assert optimizers.combined_objective(xu, ref, p12, ref_p, 1.0, "objfcn")[0] == pytest.approx(7.0)
+    assert optimizers.combined_objective(xu, ref, p12, ref_p, 0.5)[0] == pytest.approx(13 ** 0.5)
 
 
 def test_round_trip_with_the_measured_p12():
@@ -250,7 +252,7 @@ def test_run_case_row(tmp_path):
     case = fdi_cases.FDICase(case=99, command="chirp_1cm", faults={"BKL": 5e-4, "FDJ": 200.0},
                        bounds={"BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0)}, pop=20)
     row = fdi_cases.run_case(case, seed=2, t_end=T_END)
-    assert row["case"] == 99 and row["seed"] == 2 and row["method"] == fdi.DEFAULT_METHOD
+    assert row["case"] == 99 and row["seed"] == 2 and row["method"] == DEFAULT_METHOD
     assert set(row["errors_pct"]) == {"BKL", "FDJ"}
     assert row["mean_err_pct"] == pytest.approx(
         (abs(row["errors_pct"]["BKL"]) + abs(row["errors_pct"]["FDJ"])) / 2)
@@ -258,14 +260,14 @@ def test_run_case_row(tmp_path):
 
 
 def test_unstable_candidates_score_infinity(lf_reference, monkeypatch):
-    real = fdi.simulate_lf_batch
+    real = optimizers.simulate_lf_batch
 
     def half_broken(rows, *args, **kwargs):
         xu = real(rows, *args, **kwargs)
         xu[::2] = np.nan                      # every other candidate "diverges"
         return xu
 
-    monkeypatch.setattr(fdi, "simulate_lf_batch", half_broken)
+    monkeypatch.setattr(optimizers, "simulate_lf_batch", half_broken)
     res = identify(lf_reference, "chirp_1cm", BOUNDS, method="ga", seed=0, t_end=T_END,
                    max_gen=5)
     assert np.isfinite(res.objective) and all(np.isfinite(res.history))
@@ -274,7 +276,7 @@ def test_unstable_candidates_score_infinity(lf_reference, monkeypatch):
 def test_least_squares_survives_diverging_runs_and_keeps_its_budget(lf_reference, monkeypatch):
     """Runs that blow up (finite but huge, or NaN) count as failed points: "lm" neither
     crashes nor moves there, and it stays within max_evals runs in all."""
-    real = fdi.BatchObjective.simulate
+    real = optimizers.BatchObjective.simulate
 
     def flaky(self, U, with_p12=False):
         out = real(self, U, with_p12)
@@ -284,7 +286,7 @@ def test_least_squares_survives_diverging_runs_and_keeps_its_budget(lf_reference
         xu[U[:, 0] > 0.5] = np.nan          # BKL above half its range: an unstable one
         return out
 
-    monkeypatch.setattr(fdi.BatchObjective, "simulate", flaky)
+    monkeypatch.setattr(optimizers.BatchObjective, "simulate", flaky)
     start = LFParams().replace(BKL=2.4e-4, FDJ=960.0)
     res = identify(lf_reference, "chirp_1cm", BOUNDS, base=start, method="lm", t_end=T_END,
                    max_evals=30, level=None)

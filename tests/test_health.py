@@ -123,7 +123,7 @@ def test_calibration_file_checks(tmp_path):
 
 
 def _record(path, command="chirp_1cm", faults=None, t_end=0.3, seed=5):
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     synthetic_record(command, faults or {"BKL": 3e-4, "FDJ": 900.0}, t_end=t_end, noise=1e-6,
                      seed=seed).to_csv(path, index=False)
@@ -205,9 +205,9 @@ def test_calibrate_then_check_end_to_end(tmp_path):
 def test_fdi_fits_any_fault_with_an_interval(tmp_path):
     """`eha fdi --data --fit BKL,FDJ,GM`: the motor gain of an LF record (no model-form error)
     is found within 1 % and its interval, in the JSON, brackets the estimate; GM's default
-    search bounds are the health assessment's (eha.fdi.SEARCH_BOUNDS)."""
-    from eha.fdi import SEARCH_BOUNDS
-    from eha.measured import synthetic_record
+    search bounds are the health assessment's (eha.identification.problem.SEARCH_BOUNDS)."""
+    from eha.identification.problem import SEARCH_BOUNDS
+    from eha.identification.measured import synthetic_record
 
     rec = tmp_path / "gm.csv"
     synthetic_record("chirp_1cm", {"BKL": 2e-4, "FDJ": 600.0, "GM": 0.008}, t_end=0.5,

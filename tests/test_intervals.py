@@ -1,4 +1,4 @@
-"""Identification intervals (eha.intervals) and the health assessment's bank (eha.health).
+"""Identification intervals (eha.identification.intervals) and the health assessment's bank (eha.health).
 
 Statistical checks use fixed seeds and state their tolerance: a nominal-90 % interval on
 N independent repetitions covers the truth a Binomial(N, 0.9) number of times, so with
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eha.intervals import (bandwidth, check_level, estimate_intervals, hac_covariance,
+from eha.identification.intervals import (bandwidth, check_level, estimate_intervals, hac_covariance,
                            normal_quantile)
 
 
@@ -105,8 +105,8 @@ def test_mixture_interval_normal_point_mass_and_bound():
 def test_identify_reports_intervals_that_cover_an_lf_truth():
     """LF record (no model-form error) with 1 µm noise: BKL and FDJ intervals contain the
     truth, are narrow (< 5 % of FDJ) and are in the FitResult, its JSON and the level."""
-    from eha.fdi import identify
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.fdi import identify
+    from eha.identification.measured import from_arrays, synthetic_record
 
     df = synthetic_record("chirp_1cm", {"BKL": 3e-4, "FDJ": 900.0}, t_end=0.6, noise=1e-6,
                           seed=3, model="lf")
@@ -130,7 +130,8 @@ def test_identify_reports_intervals_that_cover_an_lf_truth():
 
 
 def test_identify_rejects_a_bad_level():
-    from eha.fdi import FDIError, identify
+    from eha.identification.fdi import identify
+    from eha.identification.problem import FDIError
 
     with pytest.raises(FDIError, match="level=1.2: allowed range"):
         identify(np.zeros(101), "chirp_1cm", level=1.2)
@@ -141,7 +142,7 @@ def test_health_bank_isolates_an_offset_and_covers_it():
     """HF record with an offset current of -0.19 mA: the bank gives H_Ofs almost all the
     weight, and every fault's interval covers its truth (healthy values for the others)."""
     from eha.health import FAULTS, assess_record
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
 
     faults = {"BKL": 8e-4, "FDJ": 750.0, "Ofs": -0.19}
     df = synthetic_record("mixed", faults, t_end=1.0, noise=1e-6, seed=3)
@@ -157,7 +158,7 @@ def test_flag_compares_the_residual_with_the_floored_noise():
     """The flag of an unexplained fit (shared by the intervals and the residual loop): the
     residual against FLAG_RATIO times the noise, the noise floored at NOISE_FLOOR of the
     record's spread (a noise-free record is not flagged for a tiny model-form residual)."""
-    from eha.intervals import FLAG_RATIO, NOISE_FLOOR, is_flagged, noise_reference
+    from eha.identification.intervals import FLAG_RATIO, NOISE_FLOOR, is_flagged, noise_reference
 
     ref = np.linspace(-1e-2, 1e-2, 101)
     assert noise_reference(1e-6, ref) == 1e-6
@@ -172,7 +173,7 @@ def test_loop_floor_joins_the_base_terms_in_quadrature():
     in quadrature with its base's terms (a parameter without a base term gets the floor)."""
     import math
 
-    from eha.intervals import LOOP_MODEL_FORM, ModelForm, loop_terms, total_std
+    from eha.identification.intervals import LOOP_MODEL_FORM, ModelForm, loop_terms, total_std
 
     base = {"BKL": ModelForm(rel=0.001, abs=1.5e-6)}
     terms = loop_terms(base, ["BKL", "FRC"])

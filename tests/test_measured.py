@@ -7,7 +7,7 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.measured import (MIN_SAMPLES, MeasuredDataError, from_arrays, load, match_columns,
+from eha.identification.measured import (MIN_SAMPLES, MeasuredDataError, from_arrays, load, match_columns,
                           synthetic_record)
 
 

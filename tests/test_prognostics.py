@@ -373,8 +373,8 @@ def test_tracking_the_motor_gain_removes_the_fdj_bias_of_a_dispersed_actuator(tm
     """Why ``eha rul`` fits GM by default (RUL_FIT): a unit whose motor gain is 3.5 % low has
     its FDJ identified far off with GM fixed at nominal, within 5 % with GM fitted (fleet-demo:
     10-26 % against at most 3 %; docs/prognostics.md). HF record, chirp_1cm, 2 µm noise."""
-    from eha.fdi import identify_source
-    from eha.measured import synthetic_record
+    from eha.identification.fdi import identify_source
+    from eha.identification.measured import synthetic_record
     from eha.prognostics_jobs import RUL_FIT
 
     assert RUL_FIT == ("BKL", "FDJ", "GM")

@@ -16,7 +16,7 @@ import pytest
 
 from conftest import (close, error_line, files_under, invoke_eha, run_eha,
                       write_campaign)
-from eha.measured import load
+from eha.identification.measured import load
 
 ROOT_IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 

@@ -7,7 +7,7 @@ module provides which kind: the entry points of ``pyproject.toml``::
     [project.entry-points."eha.jobs"]             # job kind -> module that registers it
     simulate = "eha.models.batch"
     [project.entry-points."eha.campaign_sections"]  # [section] of a campaign file -> module
-    fdi = "eha.fdi_cases"
+    fdi = "eha.identification.cases"
     [project.entry-points."eha.worker_warm_up"]   # run once in every worker as it starts
     simulate = "eha.models.batch:warm_up"
 

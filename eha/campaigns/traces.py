@@ -262,7 +262,7 @@ def read_table_file(path: str | Path):
     """Read a measured-data table (CSV/TSV/TXT or Parquet) into a pandas DataFrame, as is.
 
     Text files: the separator is sniffed (comma, semicolon, tab, spaces); lines starting with
-    ``#`` are comments. Validation of the columns is :mod:`eha.measured`'s job.
+    ``#`` are comments. Validation of the columns is :mod:`eha.identification.measured`'s job.
     """
     import pandas as pd
 

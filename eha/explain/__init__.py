@@ -1,8 +1,8 @@
 """The residual loop: fit the declared faults, trace the residual to a missing effect, add it.
 
-Given a measured record (:mod:`eha.measured`), :func:`explain`
+Given a measured record (:mod:`eha.identification.measured`), :func:`explain`
 
-a. fits the declared fault parameters of the LF model (:func:`eha.fdi.identify`) on the fitted
+a. fits the declared fault parameters of the LF model (:func:`eha.identification.fdi.identify`) on the fitted
    part of the record: the baseline and its residual ``r = y_measured - y_LF``;
 b. traces the residual: its correlation with the *signature* of every effect of
    :data:`eha.explain.effects.EFFECTS` (the change of the LF output xu when the effect is switched on at
@@ -62,7 +62,7 @@ from eha.explain.settings import (ALTERNATIVE_MARGIN, CONFIRM_FRACTION, DEFAULT_
                                   START_TOLERANCE, STRUCTURAL, SWAP_CANDIDATES, ExplainError,
                                   LoopSettings, parse_fit)
 from eha.explain.tracing import SIGNALS, signatures, trace_residual
-from eha.measured import noise_level
+from eha.identification.measured import noise_level
 
 __all__ = [
     # running the loop

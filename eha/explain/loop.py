@@ -20,7 +20,7 @@ from eha.explain.record import Record, initial_position, p12_objective_weight
 from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
-from eha.measured import MeasuredData, noise_level
+from eha.identification.measured import MeasuredData, noise_level
 from eha.models.params import LFParams, ParameterError, resolve
 
 
@@ -224,8 +224,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         """Does the current model leave the record unexplained: its position residual above
         what faults and structure leave on healthy actuators of this command
         (:meth:`eha.explain.null.Null.residual_limit`, at most
-        :data:`eha.intervals.FLAG_RATIO` times the noise; without a null, that ratio)?"""
-        from eha.intervals import noise_reference
+        :data:`eha.identification.intervals.FLAG_RATIO` times the noise; without a null, that ratio)?"""
+        from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all > self.residual_limit * noise_reference(self.noise,
                                                                           self.data.xu)
@@ -233,7 +233,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     @property
     def residual_limit(self) -> float:
         """Residual-to-noise ratio above which the record is unexplained."""
-        from eha.intervals import FLAG_RATIO
+        from eha.identification.intervals import FLAG_RATIO
 
         if self.null is None:
             return FLAG_RATIO
@@ -242,7 +242,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     def estimate(self) -> None:
         """(g) The final estimates: the model chosen, every fitted parameter (faults and the
         effects added) is refitted on the *whole* record by least squares (``"lm"``,
-        :func:`eha.fdi.identify`) from the loop's fit. The hold-out serves the choice of
+        :func:`eha.identification.fdi.identify`) from the loop's fit. The hold-out serves the choice of
         effects; once they are chosen the estimates use all the data. The loop's refits are on
         the fitted part alone, and a GA or compass search there can stop in a valley's side
         basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded
@@ -324,8 +324,9 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         their notes and level, and whether the record is left unexplained (flagged by the
         intervals, or :meth:`unexplained`); then the faults' intervals also span their
         estimates without the tentative effects (:meth:`faults_without_tentative`)."""
-        from eha.fdi import DEFAULT_LEVEL, intervals_at, model_form_of
-        from eha.intervals import MODEL_FORM, loop_terms
+        from eha.identification.fdi import intervals_at
+        from eha.identification.problem import DEFAULT_LEVEL, model_form_of
+        from eha.identification.intervals import MODEL_FORM, loop_terms
 
         final_bounds = dict(self.bounds)
         for step in self.steps:

@@ -146,10 +146,10 @@ class Null:
     def residual_limit(self, alpha: float) -> float:
         """The residual-to-noise ratio that faults and structure leave on a healthy record of
         this command with probability ``alpha`` (:func:`eha.detection.tail_threshold`, spread
-        :data:`RATIO_SPREAD`), at most :data:`eha.intervals.FLAG_RATIO`: a record whose final
+        :data:`RATIO_SPREAD`), at most :data:`eha.identification.intervals.FLAG_RATIO`: a record whose final
         model leaves more is unexplained. Without ratios (an older null): the flag ratio."""
         from eha.detection import tail_threshold
-        from eha.intervals import FLAG_RATIO
+        from eha.identification.intervals import FLAG_RATIO
 
         if len(self.residual_ratios) < 2:
             return FLAG_RATIO
@@ -234,7 +234,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     loop.current = loop.refit(start, free, "healthy record: the declared faults", starts=1)
     loop.cur = loop.evaluate([loop.current])[0]
     loop.free = free
-    from eha.intervals import noise_reference
+    from eha.identification.intervals import noise_reference
     ratio = loop.cur.rmse_all / noise_reference(loop.noise, data.xu)
     shifts, gains = {}, {}
     for effect in loop.pool:
@@ -277,7 +277,7 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
     conditions) are set on every actuator.
     """
     from eha.detection import draw_actuator
-    from eha.measured import from_arrays, noise_level
+    from eha.identification.measured import from_arrays, noise_level
     from eha.models.simulate import simulate
 
     overrides = draw_actuator(seed)
@@ -316,7 +316,7 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
              fdi_options: Mapping[str, float] | None = None) -> str:
     """Cache key of a simulated null for ``data``'s command, sampling and noise."""
     from eha.detection import command_signature
-    from eha.measured import noise_level
+    from eha.identification.measured import noise_level
     from eha.models.simulate import MODEL_VERSION
 
     noise = noise_class(float(data.info.get("noise_m", noise_level(data.xu))))
@@ -463,7 +463,7 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
     Not cached (the files are the user's)."""
-    from eha.measured import FILE_TYPES, MeasuredDataError, load
+    from eha.identification.measured import FILE_TYPES, MeasuredDataError, load
     from eha.models.simulate import MODEL_VERSION
 
     folder = Path(folder)

@@ -108,7 +108,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     ``known`` holds LF parameters fixed at known values (test conditions such as a test load
     ``{"FRC": 4000}``), on top of the ``prior``'s effects; they are not candidates.
     ``command_hold`` says how the records' commands are rebuilt between their samples
-    (:data:`eha.measured.COMMAND_HOLDS`).
+    (:data:`eha.identification.measured.COMMAND_HOLDS`).
 
     Returns
     -------
@@ -124,7 +124,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.explain.api import explain
     from eha.explain.record import augmented_base
     from eha.explain.settings import ExplainError
-    from eha.measured import load
+    from eha.identification.measured import load
     from eha.campaigns.store import StoreError, save_explain
 
     record = load(data, command_hold=command_hold)

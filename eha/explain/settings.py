@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Iterable, Mapping, Sequence
 
 from eha.explain.effects import COMBINATIONS
-from eha.fdi import DEFAULT_METHOD
+from eha.identification.problem import DEFAULT_METHOD
 from eha.models.params import ParameterError, parse_name_value
 
 
@@ -198,7 +198,7 @@ class LoopSettings:
         (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a
         declared fault or known (``fixed``).
     method, pop, seed
-        Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
+        Optimizer of every fit (:func:`eha.identification.fdi.identify`), same seed for all fits.
     """
 
     holdout: float = 0.3
@@ -260,9 +260,9 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
               ) -> dict[str, tuple[float, float]]:
     """Fault parameters to fit: ``"BKL,FDJ"`` or ``"BKL=0:1e-3,FDJ=200:4000"`` or a mapping.
 
-    Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or :func:`eha.fdi.default_bounds`.
+    Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or :func:`eha.identification.problem.default_bounds`.
     """
-    from eha.fdi import DEFAULT_FIT, FDIError, check_bounds, default_bounds
+    from eha.identification.problem import DEFAULT_FIT, FDIError, check_bounds, default_bounds
 
     if spec is None:
         spec = DEFAULT_FIT

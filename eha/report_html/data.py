@@ -258,7 +258,7 @@ class Identification:
 def read_identification(con) -> Identification | None:
     """Every FDI campaign with results (the augmented thesis campaign joins the thesis table
     as its ``aug_*`` columns, as in ``fdi_table.csv``); None when there is none."""
-    from eha.fdi_cases import parse_fdi_campaign, rows_from_results
+    from eha.identification.cases import parse_fdi_campaign, rows_from_results
     from eha.thesis_report import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
 
     if "fdi_results" not in _tables(con) or not _count(con, "fdi_results"):

@@ -26,9 +26,9 @@ def fit_figures(rows: Sequence[Any], campaign) -> dict[str, dict]:
 
     Parameters
     ----------
-    rows : sequence of eha.fdi_cases.FDIRow
+    rows : sequence of eha.identification.cases.FDIRow
         The campaign's results (any seeds; the lowest seed of each case is drawn).
-    campaign : eha.fdi_cases.FDICampaign
+    campaign : eha.identification.cases.FDICampaign
         The cases and the LF base of the identification.
 
     Returns
@@ -39,7 +39,7 @@ def fit_figures(rows: Sequence[Any], campaign) -> dict[str, dict]:
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    from eha.fdi import hf_reference
+    from eha.identification.fdi import hf_reference
     from eha.models.params import resolve
     from eha.report_html.data import unit_of
     from eha.report_html.figures import _done

@@ -1,6 +1,6 @@
 """The thesis' FDI cases and the campaign-runner glue of fault identification.
 
-The identification itself is :mod:`eha.fdi`; this module holds what the thesis reproduction
+The identification itself is :mod:`eha.identification.fdi`; this module holds what the thesis reproduction
 adds around it: FDI campaign files (``[fdi]`` sections, :class:`FDICampaign`), running a case
 (:func:`run_case`) into the one result type :class:`FDIRow`, and the runner's job functions
 (:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), which it registers
@@ -17,9 +17,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 from eha.campaigns.jobs import register_job, register_section
 from eha.models.commands import as_command
-from eha.fdi import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, METHODS,
-                     OBJECTIVES, FDIError, FitResult, check_bounds, hf_reference, identify,
-                     mean_error_pct, percent_errors)
+from eha.identification.fdi import hf_reference, identify, mean_error_pct, percent_errors
+from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHODS,
+                                        METHOD_DEFAULTS, OBJECTIVES, FDIError, FitResult,
+                                        check_bounds)
 from eha.models.params import LFParams, ParameterError, resolve
 from eha.models.simulate import Trace, simulate
 
@@ -157,7 +158,7 @@ def load_fdi_campaign(path: str | Path) -> FDICampaign:
 @dataclass(frozen=True)
 class FDIRow:
     """One identification of an FDI case: THE result type of the thesis cases, built from a
-    :class:`eha.fdi.FitResult` (:meth:`from_fit`), stored as one ``fdi_results`` row
+    :class:`eha.identification.problem.FitResult` (:meth:`from_fit`), stored as one ``fdi_results`` row
     (:meth:`to_record`) and read back from it (:meth:`from_record`). Reports read fields by
     name, also as ``row["case"]`` (read-only mapping access).
 
@@ -174,7 +175,7 @@ class FDIRow:
     evaluations, seconds, pop, bounds, history :
         Cost, GA population, search bounds, best objective per generation/poll.
     level, intervals, flagged, noise_rmse :
-        The intervals of the estimates (eha.intervals).
+        The intervals of the estimates (eha.identification.intervals).
     """
 
     case: int
@@ -263,7 +264,7 @@ def run_case(case: FDICase, seed: int = 0, method: str = DEFAULT_METHOD,
              level: float | None = DEFAULT_LEVEL, **options: float) -> FDIRow:
     """Run one case with one seed: HF reference (dither seed ``seed``), then identification
     (with intervals at ``level``). Percent errors as the thesis computes them
-    (:func:`eha.fdi.percent_errors`)."""
+    (:func:`eha.identification.fdi.percent_errors`)."""
     ref = hf_reference(case.command, case.faults, seed=seed, t_end=t_end)
     res = identify(ref.xu, case.command, case.bounds, base=base, method=method, pop=case.pop,
                    seed=seed, objective=objective, t_end=t_end, level=level, **options)

@@ -1,10 +1,10 @@
 """Intervals on identified parameters: how far the truth may be from an estimate.
 
-An identification (:func:`eha.fdi.identify`) minimises the RMSE between the LF model and a
+An identification (:func:`eha.identification.fdi.identify`) minimises the RMSE between the LF model and a
 record. Its estimate is wrong for three reasons, and the interval accounts for each:
 
 1. **Sensor noise** (white, estimated from the record's fourth differences,
-   :func:`eha.measured.noise_level`).
+   :func:`eha.identification.measured.noise_level`).
 2. **What the LF model cannot reproduce** — the HF dither, unmodelled effects, faults that were
    not fitted, model-form error. It shows up as a residual that is larger than the noise and
    strongly autocorrelated (tens of ms). We treat the residual as one realisation of a
@@ -315,7 +315,7 @@ def estimate_intervals(reference: np.ndarray, simulate_unit: Callable[[np.ndarra
     terms : mapping, optional
         Model-form terms per parameter; default ``MODEL_FORM.get(model_form, {})``.
     """
-    from eha.measured import noise_level
+    from eha.identification.measured import noise_level
 
     level = check_level(level)
     reference = np.asarray(reference, dtype=np.float64)
