@@ -990,7 +990,7 @@ def report_health(results: ResultsOption = RESULTS,
                   campaign: str = typer.Option("health-detection", "--campaign",
                                                help="Detection campaign (as in the database)."),
                   alpha: float = typer.Option(
-                      ..., "--alpha", default_factory=library_default("eha.detection",
+                      ..., "--alpha", default_factory=library_default("eha.health.detection",
                                                                       "DEFAULT_ALPHA"),
                       help="Probability that a healthy check raises any alarm, in (0, 1)."),
                   out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
@@ -1002,8 +1002,8 @@ def report_health(results: ResultsOption = RESULTS,
 
     Example: eha report health --campaign health-detection --results results
     """
-    from eha.detection import DetectionError
-    from eha.monitoring import health_report
+    from eha.identification.healthy import DetectionError
+    from eha.health.monitoring import health_report
     from eha.campaigns.store import StoreError
 
     if not 0 < alpha < 1:
@@ -1067,7 +1067,7 @@ def health_calibrate(
     actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
                                   help="Healthy actuators in the fleet."),
     alpha: float = typer.Option(
-        ..., "--alpha", default_factory=library_default("eha.detection", "DEFAULT_ALPHA"),
+        ..., "--alpha", default_factory=library_default("eha.health.detection", "DEFAULT_ALPHA"),
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
     t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
     noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),
@@ -1082,14 +1082,14 @@ def health_calibrate(
     """Run a healthy fleet (manufacturing dispersion, sensor noise, dither) through the
     campaign runner and set each fault's threshold for the false-alarm probability --alpha.
 
-    Dispersion (eha.detection.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
+    Dispersion (eha.identification.healthy.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
     FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """
     from eha.campaigns.files import CampaignError
-    from eha.detection import DetectionError
-    from eha.monitoring import calibrate_fleet
+    from eha.identification.healthy import DetectionError
+    from eha.health.monitoring import calibrate_fleet
     from eha.campaigns.store import StoreError
 
     check_seed(seed)
@@ -1111,7 +1111,7 @@ def health_calibrate(
         fail("interrupted; finished assessments are saved, re-run the same command to resume",
              INTERRUPTED)
     cal = res["calibration"]
-    from eha.detection import alarm_value
+    from eha.health.detection import alarm_value
 
     table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
                   "alarms in fleet")
@@ -1146,9 +1146,9 @@ def health_check(
     Example: eha health check record.csv --calibration results/health/calibration-chirp_1cm.json
     --json check.json
     """
-    from eha.detection import DetectionError
+    from eha.identification.healthy import DetectionError
     from eha.identification.measured import MeasuredDataError
-    from eha.monitoring import check_record
+    from eha.health.monitoring import check_record
 
     check_seed(seed)
     check_out_file(json_out, "--json", (".json",))
@@ -1165,7 +1165,7 @@ def health_check(
         _fail_lines("\n".join(f"{exc.source}: {p}" for p in exc.problems))
     except (DetectionError, *_input_errors()) as exc:
         fail(str(exc))
-    from eha.detection import alarm_value
+    from eha.health.detection import alarm_value
 
     a = run.assessment
     table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",

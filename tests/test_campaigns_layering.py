@@ -67,7 +67,7 @@ def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
                     "job_kind('fleet_record')\n"
                     "print(json.dumps(sorted(sys.modules)))")
     assert "eha.fleet" in loaded
-    assert not {"eha.identification.cases", "eha.detection", "eha.prognostics_jobs", "eha.models.batch"} & \
+    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics_jobs", "eha.models.batch"} & \
         set(loaded)
 
 

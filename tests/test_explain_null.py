@@ -14,7 +14,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from eha.detection import DetectionError, tail_threshold
+from eha.identification.healthy import DetectionError, tail_threshold
 from eha.explain.null import (Null, NullError, covered_effects, load_null, noise_class, null_key,
                               records_null)
 
@@ -49,8 +49,8 @@ def test_tail_threshold_is_mean_plus_z_scale():
 def test_health_calibration_thresholds_come_from_the_shared_engine():
     """eha health's per-fault thresholds are tail_threshold at alpha / m with the median
     spread: one definition for both."""
-    from eha.detection import calibrate_thresholds, statistic
-    from eha.health import FAULTS
+    from eha.health.detection import calibrate_thresholds, statistic
+    from eha.health.assessment import FAULTS
 
     rng = np.random.default_rng(3)
     rows = [{"means": {n: FAULTS[n].healthy + rng.normal(0, 0.01 * (abs(FAULTS[n].healthy)

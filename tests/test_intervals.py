@@ -1,4 +1,4 @@
-"""Identification intervals (eha.identification.intervals) and the health assessment's bank (eha.health).
+"""Identification intervals (eha.identification.intervals) and the health assessment's bank (eha.health.assessment).
 
 Statistical checks use fixed seeds and state their tolerance: a nominal-90 % interval on
 N independent repetitions covers the truth a Binomial(N, 0.9) number of times, so with
@@ -90,7 +90,7 @@ def test_estimate_intervals_linear_model_round_trip():
 
 
 def test_mixture_interval_normal_point_mass_and_bound():
-    from eha.health import mixture_interval
+    from eha.health.assessment import mixture_interval
 
     lo, hi = mixture_interval([(1.0, 5.0, 1.0)], 0.9, (-100.0, 100.0))
     assert lo == pytest.approx(5 - 1.645, abs=0.06) and hi == pytest.approx(5 + 1.645, abs=0.06)
@@ -141,7 +141,7 @@ def test_identify_rejects_a_bad_level():
 def test_health_bank_isolates_an_offset_and_covers_it():
     """HF record with an offset current of -0.19 mA: the bank gives H_Ofs almost all the
     weight, and every fault's interval covers its truth (healthy values for the others)."""
-    from eha.health import FAULTS, assess_record
+    from eha.health.assessment import FAULTS, assess_record
     from eha.identification.measured import from_arrays, synthetic_record
 
     faults = {"BKL": 8e-4, "FDJ": 750.0, "Ofs": -0.19}

@@ -180,7 +180,7 @@ def test_thesis_table_equals_fdi_table_csv(canned, tmp_path, monkeypatch):
 
 
 def test_health_section_equals_the_verdicts_and_eha_report_health(canned, tmp_path):
-    from eha.monitoring import health_report
+    from eha.health.monitoring import health_report
 
     results, _, page = canned
     checks = {r["record"]: r for r in page.tables["health checks"]}

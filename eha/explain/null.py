@@ -9,7 +9,7 @@ never fits above a few hundred). The null is
 
 1. a **healthy fleet simulated** on the record's command (:func:`simulated_null`): HF
    actuators with the manufacturing scatter of ``eha health calibrate``
-   (:data:`eha.detection.DISPERSION`), the declared faults drawn over a typical range
+   (:data:`eha.identification.healthy.DISPERSION`), the declared faults drawn over a typical range
    (:data:`DECLARED_DRAW`), the HF's dither, the record's noise level (position and, when the
    record has one, P12), sampling and command hold; or the user's own **healthy records**
    (:func:`records_null`, ``eha explain --healthy DIR``: commissioning tests of their
@@ -21,7 +21,7 @@ never fits above a few hundred). The null is
    from its probe, the better fit); the statistic is the parameter's distance from its off value
    (:meth:`eha.explain.effects.Effect.shift`);
 3. per effect, the threshold of the shared detection engine
-   (:func:`eha.detection.tail_threshold`): a normal tail with probability ``alpha / m`` for
+   (:func:`eha.identification.healthy.tail_threshold`): a normal tail with probability ``alpha / m`` for
    ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
    most ``alpha`` (union bound) — the same rule as ``eha health calibrate``'s thresholds.
 
@@ -51,6 +51,7 @@ import numpy as np
 from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_POWER,
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
+from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 2
@@ -119,9 +120,7 @@ class Null:
 
     def thresholds(self, alpha: float) -> dict[str, float]:
         """Per effect, the statistic a healthy record exceeds with probability ``alpha / m``
-        (``m`` effects; :func:`eha.detection.tail_threshold`)."""
-        from eha.detection import tail_threshold
-
+        (``m`` effects; :func:`eha.identification.healthy.tail_threshold`)."""
         m = max(len(self.statistics), 1)
         return {name: tail_threshold(values, alpha / m, self.resolution.get(name, 0.0))[0]
                 for name, values in self.statistics.items()}
@@ -132,8 +131,6 @@ class Null:
         threshold plus the ``power`` quantile of the healthy spread. An estimate of the
         loop's minimum detectable effect on this command; ``benchmarks/bench_explain_power.py``
         measures it."""
-        from eha.detection import tail_threshold
-
         z = NormalDist().inv_cdf(power)
         m = max(len(self.statistics), 1)
         out = {}
@@ -145,10 +142,9 @@ class Null:
 
     def residual_limit(self, alpha: float) -> float:
         """The residual-to-noise ratio that faults and structure leave on a healthy record of
-        this command with probability ``alpha`` (:func:`eha.detection.tail_threshold`, spread
+        this command with probability ``alpha`` (:func:`eha.identification.healthy.tail_threshold`, spread
         :data:`RATIO_SPREAD`), at most :data:`eha.identification.intervals.FLAG_RATIO`: a record whose final
         model leaves more is unexplained. Without ratios (an older null): the flag ratio."""
-        from eha.detection import tail_threshold
         from eha.identification.intervals import FLAG_RATIO
 
         if len(self.residual_ratios) < 2:
@@ -271,12 +267,11 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
     """One simulated healthy record like ``data``: same command (its original samples and
     hold), sampling, length and noise (position; P12 when ``data`` has it).
 
-    The actuator is :func:`eha.detection.draw_actuator` ``(seed)`` with the declared faults
+    The actuator is :func:`eha.identification.healthy.draw_actuator` ``(seed)`` with the declared faults
     drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
     dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test
     conditions) are set on every actuator.
     """
-    from eha.detection import draw_actuator
     from eha.identification.measured import from_arrays, noise_level
     from eha.models.simulate import simulate
 
@@ -315,7 +310,6 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
              actuators: int, seed: int, base=None, fixed: Sequence[str] = (),
              fdi_options: Mapping[str, float] | None = None) -> str:
     """Cache key of a simulated null for ``data``'s command, sampling and noise."""
-    from eha.detection import command_signature
     from eha.identification.measured import noise_level
     from eha.models.simulate import MODEL_VERSION
 

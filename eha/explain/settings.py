@@ -185,7 +185,7 @@ class LoopSettings:
     flow_gain_spread : float
         The valve flow gain GQ is fitted with the declared faults, within +- this fraction
         of the base's value, in [0, 0.5] (0: held at the base's). Default 0.04: the healthy
-        fleet's +-3 % (:data:`eha.detection.DISPERSION`, what the healthy null draws) and a
+        fleet's +-3 % (:data:`eha.identification.healthy.DISPERSION`, what the healthy null draws) and a
         third more, so that a healthy actuator's flow gain is fitted inside the spread and
         never at its edge. A healthy actuator's flow gain is its own, and where the valve
         saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves a healthy

@@ -14,10 +14,13 @@ Modules, by concern:
   terms) and the residual flag.
 - :mod:`~eha.identification.measured`: measured records: read, validate, resample (the input
   of every layer above).
+- :mod:`~eha.identification.healthy`: the healthy reference shared by detection
+  (:mod:`eha.health`) and the residual loop's null (:mod:`eha.explain`): manufacturing
+  dispersion, the tail threshold of a healthy statistic, command signatures.
 - :mod:`~eha.identification.cases`: the thesis' identification cases (the ``fdi`` job kind
   and the ``[fdi]`` campaign section).
 
-Above :mod:`eha.models`, below :mod:`eha.explain`, :mod:`eha.health` and
+Above :mod:`eha.models`, below :mod:`eha.explain`, :mod:`eha.health.assessment` and
 :mod:`eha.prognostics`: nothing here imports them (``tests/test_campaigns_layering.py``).
 The package imports nothing itself, so that a job kind's worker loads only its module.
 """

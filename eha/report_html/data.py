@@ -209,7 +209,7 @@ class Health:
     verdicts : pandas.DataFrame or None
         One row per check and fault, newest check first.
     campaigns : dict
-        ``{campaign: eha.detection.performance(...)}`` for every campaign with assessments.
+        ``{campaign: eha.health.detection.performance(...)}`` for every campaign with assessments.
     alpha : float
         False-alarm probability of the thresholds of ``campaigns``.
     """
@@ -221,7 +221,7 @@ class Health:
 
 def read_health(con) -> Health | None:
     """The health section's data, or None when there are neither checks nor assessments."""
-    from eha.detection import DEFAULT_ALPHA, performance
+    from eha.health.detection import DEFAULT_ALPHA, performance
 
     tables = _tables(con)
     out = Health(alpha=DEFAULT_ALPHA)

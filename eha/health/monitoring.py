@@ -1,5 +1,5 @@
 """Health workflows behind ``eha health``: calibrate on a healthy fleet, check a record, report
-detection performance. Each runs the library pieces (:mod:`eha.health`, :mod:`eha.detection`)
+detection performance. Each runs the library pieces (:mod:`eha.health.assessment`, :mod:`eha.health.detection`)
 through the campaign runner and the store, and is what one CLI command calls.
 """
 
@@ -14,9 +14,9 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from eha.detection import (DEFAULT_ALPHA, Calibration, DetectionError, calibrate_thresholds,
-                           command_signature, empirical_false_alarms, load_calibration,
-                           performance, verdicts)
+from eha.health.detection import (DEFAULT_ALPHA, Calibration, calibrate_thresholds,
+                                  empirical_false_alarms, load_calibration, performance, verdicts)
+from eha.identification.healthy import DISPERSION, DetectionError, command_signature
 from eha.identification.problem import BASE_MODELS, DEFAULT_LEVEL
 
 #: Records the health check accepts [s] (the bank runs 6 identifications of the whole record).
@@ -102,8 +102,6 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
 
 
 def _dispersion_text() -> dict[str, list]:
-    from eha.detection import DISPERSION
-
     return {k: list(v) for k, v in DISPERSION.items()}
 
 
@@ -148,7 +146,7 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
     eha.identification.measured.MeasuredDataError
         The record cannot be read.
     """
-    from eha.health import assess_record
+    from eha.health.assessment import assess_record
     from eha.identification.intervals import check_level
     from eha.identification.measured import load
 
@@ -214,7 +212,7 @@ def summary_markdown(perf: Mapping[str, Any], alpha: float) -> str:
     """Which command identifies what best: per fault and command the minimum detectable
     deviation (P_D >= 0.95 at the calibrated threshold), the detection rate and the share
     correctly isolated at each injected level; the false-alarm rates."""
-    from eha.health import FAULTS
+    from eha.health.assessment import FAULTS
 
     commands = list(perf)
     lines = ["| fault | " + " | ".join(commands) + " |",
@@ -254,7 +252,7 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
     DetectionError
         No assessments of ``campaign`` in the database.
     """
-    from eha.health_plots import plot_confusion, plot_roc
+    from eha.health.plots import plot_confusion, plot_roc
 
     rows = _assessments(results, campaign)
     if not rows:

@@ -3,9 +3,9 @@
 Pipeline
 --------
 1. **Fleets** (:func:`health_jobs`, the ``[health]`` section of a campaign file): actuators
-   drawn with manufacturing dispersion (:data:`DISPERSION`), optionally with one injected fault
+   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`), optionally with one injected fault
    at given levels, one HF record each (sensor noise, dither seed), each assessed by the
-   hypothesis bank (:func:`eha.health.assess_record`). Run by the campaign runner (2 workers,
+   hypothesis bank (:func:`eha.health.assessment.assess_record`). Run by the campaign runner (2 workers,
    resumable); rows in the DuckDB table ``health_assessments``.
 2. **Thresholds** (:func:`calibrate_thresholds`): from a healthy fleet, per fault, the
    detection statistic (the estimate's deviation from healthy in the direction of
@@ -25,9 +25,7 @@ Pipeline
 
 from __future__ import annotations
 
-import hashlib
 import json
-import math
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -36,17 +34,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
-from eha.health import CORE_FAULTS, EXTRA_FAULTS, FAULTS
+from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
+from eha.health.assessment import CORE_FAULTS, EXTRA_FAULTS, FAULTS
 
-#: Manufacturing dispersion of a healthy actuator: name -> (law, a, b).
-#: ``uniform_rel``: nominal x U(1 - a, 1 + a); ``normal``: N(a, b) (clipped at 10 %);
-#: ``loguniform``: exp(U(ln a, ln b)).
-DISPERSION: dict[str, tuple[str, float, float]] = {
-    "GP": ("uniform_rel", 0.03, 0.0), "GQ": ("uniform_rel", 0.03, 0.0),
-    "CJ": ("uniform_rel", 0.03, 0.0), "MJ": ("uniform_rel", 0.03, 0.0),
-    "FSS": ("uniform_rel", 0.03, 0.0), "GM": ("uniform_rel", 0.01, 0.0),
-    "FDJ": ("normal", 200.0, 20.0), "Clk": ("loguniform", 0.7e-13, 1.4e-13),
-}
 #: Smallest posterior weight of a one-more-fault hypothesis for its fault to be isolated.
 ISOLATION_WEIGHT = 0.5
 #: Default probability that a healthy check raises any alarm.
@@ -55,32 +45,8 @@ DEFAULT_ALPHA = 0.01
 CALIBRATION_FORMAT = 1
 
 
-class DetectionError(ValueError):
-    """Bad detection input (calibration file, fleet section); one-line message."""
-
-
 # --------------------------------------------------------------------------------------------
 # fleets
-
-
-def draw_actuator(seed: int, dispersion: Mapping[str, tuple[str, float, float]] = DISPERSION
-                  ) -> dict[str, float]:
-    """HF parameters of one healthy actuator (reproducible from ``seed``)."""
-    from eha.models.params import SPECS
-
-    rng = np.random.default_rng([7919, seed])
-    out = {}
-    for name, (law, a, b) in dispersion.items():
-        nominal = SPECS[name].nominal
-        if law == "uniform_rel":
-            out[name] = nominal * float(rng.uniform(1.0 - a, 1.0 + a))
-        elif law == "normal":
-            out[name] = float(max(0.1 * a, rng.normal(a, b)))
-        elif law == "loguniform":
-            out[name] = float(math.exp(rng.uniform(math.log(a), math.log(b))))
-        else:
-            raise DetectionError(f"dispersion {name}: unknown law {law!r}")
-    return out
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
@@ -194,7 +160,7 @@ def run_health_job(spec: Mapping[str, Any]):
     """Worker side of a ``health`` job: the HF record with noise, its assessment; returns the
     ``health_assessments`` row and the record as a Trace."""
     from eha.identification.problem import BASE_MODELS
-    from eha.health import assess_record
+    from eha.health.assessment import assess_record
     from eha.identification.measured import from_arrays, synthetic_record
     from eha.models import O_COM, O_T, O_XU
     from eha.models.simulate import Trace
@@ -269,13 +235,6 @@ def alarm_value(name: str, threshold: float) -> str:
     return f"{'>' if spec.direction > 0 else '<'} {value:.4g}"
 
 
-def command_signature(com: np.ndarray) -> str:
-    """Hash of a command sampled at 1 kHz (rounded to 0.1 µm): which command a calibration
-    belongs to."""
-    q = np.round(np.asarray(com, dtype=np.float64) / 1e-7).astype(np.int64)
-    return hashlib.sha256(q.tobytes()).hexdigest()[:16]
-
-
 @dataclass(frozen=True)
 class Calibration:
     """Per-fault thresholds from a healthy fleet, for one command, record length and model."""
@@ -328,40 +287,6 @@ def load_calibration(path: str | Path) -> Calibration:
         return Calibration(**data)
     except TypeError as exc:
         raise DetectionError(f"--calibration {path}: unexpected content ({exc})") from None
-
-
-def tail_threshold(values: Sequence[float], alpha: float, spread: float = 0.0
-                   ) -> tuple[float, dict[str, float]]:
-    """The value a healthy statistic exceeds with probability ``alpha``: the one hypothesis
-    test of ``eha health`` and of the residual loop (:mod:`eha.explain.null`).
-
-    ``values`` are the statistic on healthy records. Its spread has two parts: the healthy
-    records' dispersion, measured (``std``), and ``spread``, what one record's estimate
-    scatters by that a small sample can under-sample (a check's measurement uncertainty, an
-    optimizer's resolution). The threshold is ``mean + z·scale``, ``scale = sqrt(std² +
-    spread²)``, with ``z`` the normal quantile of ``1 - alpha``: a normal tail, because the
-    1e-3 quantiles it needs cannot be read from tens of records. Callers testing ``m``
-    statistics at once pass ``alpha / m`` (union bound).
-
-    Returns
-    -------
-    threshold : float
-    summary : dict
-        ``mean``, ``std``, ``spread``, ``scale``, ``n`` and ``max`` of the statistic.
-    """
-    from statistics import NormalDist
-
-    if not 0 < alpha < 1:
-        raise DetectionError(f"alpha={alpha!r}: allowed range (0, 1)")
-    d = np.asarray(values, dtype=np.float64)
-    d = d[np.isfinite(d)]
-    if d.size < 2:
-        raise DetectionError(f"{d.size} healthy values; a threshold needs at least 2")
-    mean, std = float(d.mean()), float(d.std(ddof=1))
-    scale = math.sqrt(std * std + spread * spread)
-    z = NormalDist().inv_cdf(1.0 - alpha)
-    return mean + z * scale, {"mean": mean, "std": std, "spread": float(spread),
-                              "scale": scale, "n": int(d.size), "max": float(d.max())}
 
 
 def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,

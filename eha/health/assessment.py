@@ -17,7 +17,7 @@ hypothesis fits the fault, a point mass at the healthy value where it does not. 
 those of the most probable hypothesis.
 
 A fault is *degraded* when its estimate is beyond its threshold in the direction of
-degradation (thresholds from :mod:`eha.detection`'s healthy-fleet calibration); the faults
+degradation (thresholds from :mod:`eha.health.detection`'s healthy-fleet calibration); the faults
 *isolated* are the degraded ones whose hypothesis is supported by the record.
 """
 
@@ -53,7 +53,7 @@ class FaultSpec:
     description : str
     healthy_std : float
         Spread of the value among healthy actuators (the fleet dispersion of
-        :data:`eha.detection.DISPERSION`, or a small tolerance): what a hypothesis that holds
+        :data:`eha.identification.healthy.DISPERSION`, or a small tolerance): what a hypothesis that holds
         the fault healthy says of it.
     """
 
