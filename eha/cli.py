@@ -1212,7 +1212,7 @@ def fleet_simulate(
 
     Example: eha fleet simulate examples/fleet-demo.toml --out results/fleet-demo
     """
-    from eha.fleet import FleetError, load_fleet, simulate_fleet
+    from eha.prognostics.fleet import FleetError, load_fleet, simulate_fleet
 
     check_out_dir(out, "--out")
     try:
@@ -1243,7 +1243,7 @@ def rul(
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.prognostics_jobs", "RUL_FIT",
+        ..., "--fit", default_factory=library_default("eha.prognostics.jobs", "RUL_FIT",
                                                       ",".join),
         help="Faults identified and tracked (comma-separated; limited faults are added). "
         "GM (motor gain) is tracked by default: its manufacturing dispersion would "
@@ -1280,9 +1280,9 @@ def rul(
     """
     from eha.identification.fdi import parse_bounds
     from eha.identification.problem import FDIError
-    from eha.manifest import ManifestError
-    from eha.prognostics import PrognosticsError
-    from eha.prognostics_jobs import parse_limits, run_rul
+    from eha.prognostics.manifest import ManifestError
+    from eha.prognostics.degradation import PrognosticsError
+    from eha.prognostics.jobs import parse_limits, run_rul
 
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(plots, "--plots")
@@ -1354,8 +1354,8 @@ def limits(
     Example: eha limits --fault FDJ --require "lag(mixed) > 0.02" --lo 200 --hi 20000
     """
     from eha.models.params import parse_assignments
-    from eha.prognostics import PrognosticsError
-    from eha.prognostics_limits import derive_limit
+    from eha.prognostics.degradation import PrognosticsError
+    from eha.prognostics.limits import derive_limit
 
     check_out_file(json_out, "--json", (".json",))
     check_seed(seed)

@@ -66,8 +66,8 @@ def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
                     "from eha.campaigns.jobs import job_kind\n"
                     "job_kind('fleet_record')\n"
                     "print(json.dumps(sorted(sys.modules)))")
-    assert "eha.fleet" in loaded
-    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics_jobs", "eha.models.batch"} & \
+    assert "eha.prognostics.fleet" in loaded
+    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics.jobs", "eha.models.batch"} & \
         set(loaded)
 
 

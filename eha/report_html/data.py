@@ -100,8 +100,8 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
 
 
 def _attach_truth(con, fleet: Fleet, truth: str | Path | None) -> None:
-    from eha.prognostics import PrognosticsError
-    from eha.prognostics_jobs import load_truth
+    from eha.prognostics.degradation import PrognosticsError
+    from eha.prognostics.jobs import load_truth
 
     actuators = set(fleet.predictions["actuator"])
     candidates: list[Path] = []

@@ -34,7 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from eha.prognostics import PrognosticsError
+from eha.prognostics.degradation import PrognosticsError
 
 METRICS = ("lag", "rmse_xu_com", "max_err_xu_com", "final_err_xu_com", "settling_time",
            "xs_abs_max", "p12_abs_max", "cor_abs_max", "xu_min", "xu_max", "p12_min",

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.prognostics import LAWS, fault_scale, fit_degradation
+from eha.prognostics.degradation import LAWS, fault_scale, fit_degradation
 
 UNITS = {"BKL": ("µm", 1e6), "FDJ": ("N", 1.0)}
 

@@ -7,10 +7,10 @@ runner, predict at every check, store, evaluate against a truth, plot.
    ``RESULTS/eha.duckdb`` (table ``health_checks``); a second run of the same or a longer
    manifest only assesses the new records (resume; ``replace``: runs no longer listed are
    dropped).
-2. :func:`eha.prognostics.predict_history` predicts, per actuator, at every check from the
+2. :func:`eha.prognostics.rul.predict_history` predicts, per actuator, at every check from the
    checks up to it.
 3. The predictions go to ``rul_predictions``, the JSON file (``--json``) and, with a truth,
-   the metrics of :mod:`eha.prognostic_metrics`; plots with ``plots=``.
+   the metrics of :mod:`eha.prognostics.metrics`; plots with ``plots=``.
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job
-from eha.prognostics import LAWS, PrognosticsError, histories_from_checks, predict_history
-from eha.prognostics import LIMIT_ERROR as PRED_LIMIT_ERROR
+from eha.prognostics.degradation import LAWS, PrognosticsError
+from eha.prognostics.rul import histories_from_checks, predict_history
+from eha.prognostics.rul import LIMIT_ERROR as PRED_LIMIT_ERROR
 
 #: Identification method of the health assessment (eha.identification.problem.METHODS).
 HEALTH_METHOD = "ga+ps"
@@ -258,7 +259,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     Parameters
     ----------
     manifest_path : path
-        Manifest CSV (:mod:`eha.manifest`).
+        Manifest CSV (:mod:`eha.prognostics.manifest`).
     limits : mapping
         ``{fault: limit}`` [SI units of the fault]: the faults that end life.
     fit : sequence of str, optional
@@ -281,17 +282,17 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Leave records whose identification is flagged out of the fits.
     limit_error : float, optional
         Relative std of the assessment's systematic error (default
-        :data:`eha.prognostics.LIMIT_ERROR`).
+        :data:`eha.prognostics.rul.LIMIT_ERROR`).
     base_model : str, optional
         LF base of the assessment (``eha.identification.problem.BASE_MODELS``, default that of ``eha fdi
         --data``).
 
     Raises
     ------
-    eha.manifest.ManifestError, PrognosticsError
+    eha.prognostics.manifest.ManifestError, PrognosticsError
         Bad input (nothing written).
     """
-    from eha.manifest import read_manifest
+    from eha.prognostics.manifest import read_manifest
     from eha.campaigns.runner import run_campaign
 
     t0 = time.perf_counter()
@@ -364,7 +365,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         json_out.write_text(json.dumps(output, indent=1, default=_json_default))
         res.paths["json"] = json_out
     if plots is not None:
-        from eha.prognostics_plots import write_plots
+        from eha.prognostics.plots import write_plots
 
         res.paths.update(write_plots(Path(plots), hist, preds_all, limits, truth_eol,
                                      metrics, seed=seed, laws=laws))
@@ -384,7 +385,7 @@ def _json_default(v):
 def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, float | None]
                          ) -> dict[str, Any]:
     """Metrics of every actuator with a known end of life, and the fleet summary."""
-    from eha.prognostic_metrics import Profile, evaluate, fleet_summary, public
+    from eha.prognostics.metrics import Profile, evaluate, fleet_summary, public
 
     per: dict[str, Any] = {}
     skipped = []

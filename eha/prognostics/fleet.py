@@ -427,7 +427,7 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
     Re-running resumes (records already written are kept). Raises :class:`FleetError` for a
     bad file (nothing written) and the runner's errors (database locked, ...).
     """
-    from eha.manifest import write_manifest
+    from eha.prognostics.manifest import write_manifest
     from eha.campaigns.runner import run_campaign
 
     fl = fleet if isinstance(fleet, Fleet) else load_fleet(fleet)
