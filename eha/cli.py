@@ -361,7 +361,7 @@ def simulate(
 
     write_trace(trace, out)
     if plot is not None:
-        from eha.plots import plot_traces
+        from eha.reports.plots import plot_traces
 
         plot_traces([trace], plot)
     console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
@@ -422,7 +422,7 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
 
     Example: eha reproduce --results results
     """
-    from eha.thesis_report import reproduce_thesis
+    from eha.reports.thesis import reproduce_thesis
 
     check_out_dir(results, "--results")
     try:
@@ -629,7 +629,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
     Example: eha plot thesis-matrix --results results
     """
-    from eha.plots import plot_campaign
+    from eha.reports.plots import plot_campaign
     from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
@@ -739,7 +739,7 @@ def fdi(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(run.to_dict(), indent=2))
     if plot is not None:
-        from eha.plots import plot_traces
+        from eha.reports.plots import plot_traces
 
         plot_traces([run.reference, run.fitted], plot,
                     title=f"Identification ({res.method}): reference vs identified LF")
@@ -973,7 +973,7 @@ def report_thesis(results: ResultsOption = RESULTS,
 
     Example: eha report thesis --results results --out results/reports/thesis
     """
-    from eha.thesis_report import thesis_report
+    from eha.reports.thesis import thesis_report
     from eha.campaigns.store import StoreError
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
@@ -1033,7 +1033,7 @@ def report_html(results: ResultsOption = RESULTS,
 
     Example: eha report html --results results --out report.html
     """
-    from eha.report_html import ReportError, build_report
+    from eha.reports.html import ReportError, build_report
     from eha.campaigns.store import StoreError
 
     out = out if out is not None else results / "reports" / "report.html"

@@ -1,5 +1,5 @@
 """The two things every figure module needs: matplotlib without a display, and saving a PNG
-into a folder that may not exist yet. One definition for eha.plots, eha.thesis_report,
+into a folder that may not exist yet. One definition for eha.reports.plots, eha.reports.thesis,
 eha.explain.outputs, eha.health.plots and the prognostics plots."""
 
 from __future__ import annotations

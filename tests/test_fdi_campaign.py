@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from eha.campaigns.files import CampaignError, load_campaign
-from eha.thesis_report import thesis_report
+from eha.reports.thesis import thesis_report
 from eha.campaigns.runner import run_campaign
 from eha.campaigns.query import query
 from eha.campaigns.store import StoreError

@@ -20,7 +20,7 @@ import pytest
 import report_data
 from browser import check_page
 from conftest import error_line, invoke_eha
-from eha.report_html import ReportError, build_report
+from eha.reports.html import ReportError, build_report
 from eha.campaigns.query import query
 from eha.campaigns.store import replace_rows
 
@@ -123,7 +123,7 @@ def test_fleet_table_equals_the_last_rul_prediction_of_each_actuator(canned):
 
 def test_fleet_verdicts_follow_the_limit_and_the_interval(tmp_path):
     """One actuator beyond its FDJ limit, one whose interval reaches it, one below."""
-    from eha.report_html.data import Fleet, fleet_table
+    from eha.reports.html.data import Fleet, fleet_table
 
     def pred(aid, cycle, fdj, rul):
         return {"actuator": aid, "cycle": cycle, "rul": rul, "rul_lo": rul and rul / 2,
@@ -156,7 +156,7 @@ def test_a_truth_given_with_truth_replaces_the_one_beside_the_records(canned, tm
 
 
 def test_thesis_table_equals_fdi_table_csv(canned, tmp_path, monkeypatch):
-    import eha.thesis_report as tr
+    import eha.reports.thesis as tr
 
     results, _, page = canned
     monkeypatch.setattr(tr, "plot_fdi_cases", lambda *a, **k: {})   # the CSV path unchanged

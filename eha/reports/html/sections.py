@@ -1,7 +1,7 @@
 """The sections of the HTML report: Fleet, Health, Identification, Residual loop, Campaigns.
 
-Each function takes what :mod:`eha.report_html.data` read and returns the section's HTML (the
-:class:`~eha.report_html.page.Page` keeps the figures' ids); the caller leaves out a section
+Each function takes what :mod:`eha.reports.html.data` read and returns the section's HTML (the
+:class:`~eha.reports.html.page.Page` keeps the figures' ids); the caller leaves out a section
 whose data is None.
 """
 
@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from eha.report_html import figures as F
-from eha.report_html.data import Fleet, Health, Identification, fleet_table, unit_of
-from eha.report_html.fits import fit_figures
-from eha.report_html.page import Column, Page, esc, fmt_int, fmt_num, tag
+from eha.reports.html import figures as F
+from eha.reports.html.data import Fleet, Health, Identification, fleet_table, unit_of
+from eha.reports.html.fits import fit_figures
+from eha.reports.html.page import Column, Page, esc, fmt_int, fmt_num, tag
 
 
 # =========================================================================== fleet

@@ -4,7 +4,7 @@
 with the figure as a JSON ``<script>``), a figure with a selector (several figures, one shown),
 and sortable, filterable tables (plain HTML; each cell carries its raw value in ``data-v`` for
 sorting and for the tests). The CSS and the small script of the page are package data
-(``eha/report_html/assets``); plotly's bundle comes from the plotly package itself.
+(``eha/reports/html/assets``); plotly's bundle comes from the plotly package itself.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Callable, Mapping, Sequence
 
-from eha.report_html.figures import figure_json, template_json
+from eha.reports.html.figures import figure_json, template_json
 
 #: The page allows no request: scripts and styles are inline, images data URLs only.
 CSP = ("default-src 'none'; script-src 'unsafe-inline'; "
@@ -29,8 +29,8 @@ def esc(text: Any) -> str:
 
 
 def asset(name: str) -> str:
-    """Text of a file of ``eha/report_html/assets`` (package data)."""
-    return resources.files("eha.report_html").joinpath("assets", name).read_text("utf-8")
+    """Text of a file of ``eha/reports/html/assets`` (package data)."""
+    return resources.files("eha.reports.html").joinpath("assets", name).read_text("utf-8")
 
 
 def plotly_js() -> str:

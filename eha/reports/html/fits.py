@@ -41,8 +41,8 @@ def fit_figures(rows: Sequence[Any], campaign) -> dict[str, dict]:
 
     from eha.identification.fdi import hf_reference
     from eha.models.params import resolve
-    from eha.report_html.data import unit_of
-    from eha.report_html.figures import _done
+    from eha.reports.html.data import unit_of
+    from eha.reports.html.figures import _done
     from eha.models.simulate import simulate
 
     base = resolve("lf", campaign.base)

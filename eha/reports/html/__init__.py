@@ -8,8 +8,8 @@ once; tables are plain HTML, sortable and filterable by a few lines of script. I
 disk with no server and makes no request (a Content-Security-Policy forbids any). Nothing is
 embedded per stored trace: every figure aggregates the database's rows.
 
-Modules: :mod:`~eha.report_html.data` (read), :mod:`~eha.report_html.figures` (plotly
-figures), :mod:`~eha.report_html.sections` (the sections' HTML), :mod:`~eha.report_html.page`
+Modules: :mod:`~eha.reports.html.data` (read), :mod:`~eha.reports.html.figures` (plotly
+figures), :mod:`~eha.reports.html.sections` (the sections' HTML), :mod:`~eha.reports.html.page`
 (the page).
 """
 
@@ -70,10 +70,10 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     eha.campaigns.store.StoreError
         The database cannot be read (locked by a running campaign, damaged).
     """
-    from eha.report_html import data as D
-    from eha.report_html import sections as S
-    from eha.report_html.figures import shared_template
-    from eha.report_html.page import Page, esc
+    from eha.reports.html import data as D
+    from eha.reports.html import sections as S
+    from eha.reports.html.figures import shared_template
+    from eha.reports.html.page import Page, esc
     from eha.models.simulate import MODEL_VERSION
     from eha.campaigns.store import connect, db_path
 

@@ -2,7 +2,7 @@
 
 Every figure aggregates what the database holds (no stored trace is embedded); hover labels
 carry the unit of each value. Built with :mod:`plotly.graph_objects` (validated), returned as
-``fig.to_plotly_json()`` dicts for :mod:`eha.report_html.page` to embed.
+``fig.to_plotly_json()`` dicts for :mod:`eha.reports.html.page` to embed.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.report_html.data import Fleet, fault_key, unit_of
+from eha.reports.html.data import Fleet, fault_key, unit_of
 
 #: Colours of the report (plotly's default sequence, named where one has a meaning).
 BLUE, ORANGE, GREEN, RED, GREY = "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#7f7f7f"
@@ -430,7 +430,7 @@ def hf_lf_figure(runs, campaign: str) -> dict:
     go = _go()
     from plotly.subplots import make_subplots
 
-    from eha.plots import fault_order, fault_text
+    from eha.reports.plots import fault_order, fault_text
 
     med = (runs.assign(key=runs["faults"].map(fault_key))
            .groupby(["command", "key"])["rmse_xu_hf_lf"].median())

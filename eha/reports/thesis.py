@@ -2,7 +2,7 @@
 identification table against the thesis' own values (``eha reproduce``,
 ``eha report thesis``).
 
-Reads what the runner stored in ``DIR/eha.duckdb``; draws with :mod:`eha.plots`.
+Reads what the runner stored in ``DIR/eha.duckdb``; draws with :mod:`eha.reports.plots`.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import numpy as np
 from eha.campaigns.files import campaigns_dir
 from eha.figures import pyplot as _pyplot
 from eha.figures import save as _save
-from eha.plots import campaign_report, campaign_runs, fault_order, fault_text, plot_campaign
-from eha.plots import plot_traces
+from eha.reports.plots import (campaign_report, campaign_runs, fault_order, fault_text,
+                               plot_campaign, plot_traces)
 
 if TYPE_CHECKING:      # for the annotations only: pandas is imported where a table is built
     import pandas as pd
@@ -54,7 +54,7 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     dict
         ``summaries`` (one :class:`eha.campaigns.runner.RunSummary` per campaign), ``nominal`` (rows:
         command, RMSE of xu HF vs LF [m], as % of the command peak), ``plots``, ``reports``,
-        ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.report_html.ReportResult`).
+        ``fdi`` (:func:`thesis_report`'s paths), ``html`` (:class:`eha.reports.html.ReportResult`).
     """
     from eha.campaigns.executors import LocalPoolExecutor
     from eha.campaigns.runner import run_campaign
@@ -88,7 +88,8 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     fdi = thesis_report(results)        # reports/thesis: fdi_table.csv, mean_error.png, summary
     plots.append(fdi["plot"])
     reports += [fdi["table"], fdi["summary"]]
-    from eha.report_html import build_report
+    # imported here: eha.reports.html.data reads this module's FDI table (a cycle at import)
+    from eha.reports.html import build_report
 
     html = build_report(results, results / "reports" / "report.html")   # one page of it all
     reports.append(html.path)

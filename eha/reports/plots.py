@@ -1,7 +1,7 @@
 """Figures and tables of simulations: traces overlaid (PNG), the figures of a simulation
 campaign (HF vs LF per fault set, the RMSE between them) and its table of runs (CSV).
 
-The thesis report (:mod:`eha.thesis_report`) and the CLI (``eha simulate --plot``, ``eha
+The thesis report (:mod:`eha.reports.thesis`) and the CLI (``eha simulate --plot``, ``eha
 plot``) draw with these.
 """
 

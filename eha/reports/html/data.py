@@ -247,7 +247,7 @@ def read_health(con) -> Health | None:
 # =========================================================================== identification
 @dataclass
 class Identification:
-    """FDI campaigns: per campaign its table (:func:`eha.thesis_report.fdi_table`), its rows
+    """FDI campaigns: per campaign its table (:func:`eha.reports.thesis.fdi_table`), its rows
     and definition, and the interval of each case (median over the seeds of each bound)."""
 
     tables: dict[str, Any] = field(default_factory=dict)
@@ -259,7 +259,7 @@ def read_identification(con) -> Identification | None:
     """Every FDI campaign with results (the augmented thesis campaign joins the thesis table
     as its ``aug_*`` columns, as in ``fdi_table.csv``); None when there is none."""
     from eha.identification.cases import parse_fdi_campaign, rows_from_results
-    from eha.thesis_report import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
+    from eha.reports.thesis import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
 
     if "fdi_results" not in _tables(con) or not _count(con, "fdi_results"):
         return None
