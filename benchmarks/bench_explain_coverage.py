@@ -2,27 +2,27 @@
 
 The loop's final model (`eha explain`) reports an interval for every fitted parameter (the
 declared faults and each added effect's): the HAC sandwich at the final estimate, widened
-when the residual is far above the noise (:mod:`eha.identification.intervals`). On the several-effects
-bench those intervals under-cover: the misses are 1-3 half-widths at a few tenths of a
-percent to a few percent of bias, the bias of a model (the LF with the effects) that is not
-the HF. This bench measures that bias where the truth is known and calibrates one relative
-floor, added in quadrature to every parameter of a model the loop built
+when the residual is far above the noise (:mod:`eha.identification.intervals`). On the
+several-effects bench those intervals under-cover: the misses are 1-3 half-widths at a few tenths
+of a percent to a few percent of bias, the bias of a model (the LF with the effects) that is not
+the HF. This bench measures that bias where the truth is known and calibrates one relative floor,
+added in quadrature to every parameter of a model the loop built
 (:data:`eha.identification.intervals.LOOP_MODEL_FORM`).
 
 ``--calibrate``: on the records of :mod:`bench_explain_multi` drawn with *other* seed blocks
 (``--seeds``, default 1,2; the bench's own records are block 0), the right model -- the HF's
 structure (orifice law, flapper dynamics) and the injected effects -- is fitted to the whole
-record by least squares (``eha.identification.fdi.identify(method="lm")``) from the truth (the flapper at
-its physical values). At that best fit of the right model the HAC standard deviations are
-taken (:func:`eha.identification.fdi.intervals_at`, no floor), and the smallest relative floor ``rel`` is
-found for which the 90 % intervals cover the truth on at least 90 % of the (record,
-parameter) pairs. What it measures is the model-form bias, not the loop's search (which the
-final least-squares estimates make small on explained records).
+record by least squares (``eha.identification.fdi.identify(method="lm")``) from the truth (the
+flapper at its physical values). At that best fit of the right model the HAC standard deviations
+are taken (:func:`eha.identification.fdi.intervals_at`, no floor), and the smallest relative floor
+``rel`` is found for which the 90 % intervals cover the truth on at least 90 % of the (record,
+parameter) pairs. What it measures is the model-form bias, not the loop's search (which the final
+least-squares estimates make small on explained records).
 
 ``--evaluate PATH``: re-scores a :mod:`bench_explain_multi` JSON (the loop's own runs): the
 intervals of every record's final model are recomputed at its estimates without and with the
-floor now in :data:`eha.identification.intervals.LOOP_MODEL_FORM`, and their coverage of the injected truth
-counted (all records; explained ones alone).
+floor now in :data:`eha.identification.intervals.LOOP_MODEL_FORM`, and their coverage of the
+injected truth counted (all records; explained ones alone).
 
     python benchmarks/bench_explain_coverage.py --calibrate --seeds 1,2 --json cal.json
     python benchmarks/bench_explain_coverage.py --evaluate benchmarks/results/explain_multi_revisit.json

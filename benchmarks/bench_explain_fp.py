@@ -5,11 +5,10 @@ manufacturing spread drawn per record (:func:`healthy_params`: GP, GQ, CJ, MJ, F
 +-3 %, GM +-1 %, FDJ ~ N(200, 20) N, Clk log-uniform 0.7e-13..1.4e-13, BKL uniform 0..30 µm) --
 plus white Gaussian noise on xu (1 µm) and on P12 (0.2 bar, ``--p12-noise``; -1 drops the
 P12 column), written to CSV, read back with
-:func:`eha.identification.measured.load` and given to :func:`eha.explain.explain` with its defaults (fit
-BKL,FDJ; population ``--pop``, GA seed ``--explain-seed``). The HF really has the orifice law
+:func:`eha.identification.measured.load` and given to :func:`eha.explain.explain` with its defaults
+(fit BKL,FDJ; population ``--pop``, GA seed ``--explain-seed``). The HF really has the orifice law
 and the flapper dynamics that the LF lacks: ``orifice_law`` and ``flapper_dynamics`` are
-*structural* and expected. A **false positive** is a record where the loop adds any other
-effect.
+*structural* and expected. A **false positive** is a record where the loop adds any other effect.
 
 Commands (1 s, ``test`` 0.6 s as in explain_no_prior.py): the presets sine, chirp_1mm,
 chirp_1cm, mixed, test, ramp, and two kinds of random step sequences held between 1 kHz

@@ -135,9 +135,10 @@ FLOOR_GRID = {
 
 
 def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
-    """The health rows re-scored with the current model-form floors (eha.identification.intervals.MODEL_FORM):
-    each hypothesis' std rebuilt from its stored HAC part, the mixture intervals recomputed with
-    the tool's own functions. For floors changed after a long run; the report says so."""
+    """The health rows re-scored with the current model-form floors
+    (eha.identification.intervals.MODEL_FORM): each hypothesis' std rebuilt from its stored HAC
+    part, the mixture intervals recomputed with the tool's own functions. For floors changed after
+    a long run; the report says so."""
     from eha.health.assessment import FAULTS, fault_components, mixture_interval
     from eha.identification.intervals import MODEL_FORM, ModelForm, inflation, total_std
 
@@ -162,8 +163,8 @@ def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
 def calibrate(rows: list[dict], level: float = 0.9) -> dict:
     """Smallest model-form floors that bring each fault's coverage on these records to
     ``level``: the health assessment's mixture intervals recomputed from each hypothesis'
-    HAC part with candidate floors (eha.identification.intervals.total_std, eha.health.assessment.fault_components: the
-    tool's own definitions)."""
+    HAC part with candidate floors (eha.identification.intervals.total_std,
+    eha.health.assessment.fault_components: the tool's own definitions)."""
     from eha.health.assessment import FAULTS, fault_components, mixture_interval
     from eha.identification.intervals import ModelForm, inflation, total_std
 

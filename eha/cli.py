@@ -187,7 +187,8 @@ CommandHoldOption = Annotated[str, typer.Option(
 
 
 def check_command_hold(value: str) -> None:
-    """One line and exit 2 for a --command-hold outside eha.identification.measured.COMMAND_HOLDS."""
+    """One line and exit 2 for a --command-hold outside
+    eha.identification.measured.COMMAND_HOLDS."""
     from eha.identification.measured import COMMAND_HOLDS
 
     if value not in COMMAND_HOLDS:
@@ -651,21 +652,22 @@ def fdi(
     data: Optional[Path] = typer.Option(None, "--data", help="Measured record instead of an "
                                         "HF reference: CSV/Parquet with t, com, xu (SI)."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.identification.fdi", "DEFAULT_FIT",
-                                                            ",".join),
+        ..., "--fit", default_factory=library_default("eha.identification.problem",
+                                                      "DEFAULT_FIT", ",".join),
         help="LF parameters to identify."),
     bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
                                      "(default BKL=0:1.25e-3, FDJ=200:4000, else the range)."),
     base: List[str] = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE "
                                    "(e.g. orifice_law=1)."),
     method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.identification.fdi", "DEFAULT_METHOD"),
+        ..., "--method", default_factory=library_default("eha.identification.problem",
+                                                         "DEFAULT_METHOD"),
         help="ga (the thesis), ga+ps "
                                "(GA + pattern-search polish), ps (pattern search from the "
                                "--base / nominal values) or lm (least squares from them)."),
     pop: int = typer.Option(
-        ..., "--pop", default_factory=signature_default("eha.identification.fdi", "identify_source",
-                                                              "pop"),
+        ..., "--pop", default_factory=signature_default("eha.identification.fdi",
+                                                        "identify_source", "pop"),
         help="GA population."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed)."),
     objective: str = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' "
@@ -675,7 +677,8 @@ def fdi(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="PNG: reference vs identified LF."),
     level: float = typer.Option(
-        ..., "--level", default_factory=library_default("eha.identification.fdi", "DEFAULT_LEVEL"),
+        ..., "--level", default_factory=library_default("eha.identification.problem",
+                                                        "DEFAULT_LEVEL"),
         help="Nominal coverage of the parameter intervals, in (0, 1)."),
     base_model: Optional[str] = typer.Option(
         None, "--base-model", help="LF model: plain (the thesis') or calibrated (by eha "
@@ -750,7 +753,8 @@ def explain(
     data: Path = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu "
                                 "(SI; aliases in docs/explain.md), optional p12, xs."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.identification.fdi", "DEFAULT_FIT", ",".join),
+        ..., "--fit", default_factory=library_default("eha.identification.problem",
+                                                      "DEFAULT_FIT", ",".join),
         help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated."),
     effects: Optional[str] = typer.Option(None, "--effects", help="Candidate effects, "
                                           "comma-separated names of docs/model.md's effect "
@@ -770,7 +774,8 @@ def explain(
                                        "RESULTS/explain/<file stem>)."),
     results: ResultsOption = RESULTS,
     method: str = typer.Option(
-        ..., "--method", default_factory=library_default("eha.identification.fdi", "DEFAULT_METHOD"),
+        ..., "--method", default_factory=library_default("eha.identification.problem",
+                                                         "DEFAULT_METHOD"),
         help="Optimizer of every fit (eha fdi)."),
     pop: int = typer.Option(
         ..., "--pop", default_factory=signature_default("eha.explain.api", "explain", "pop"),
@@ -1082,8 +1087,8 @@ def health_calibrate(
     """Run a healthy fleet (manufacturing dispersion, sensor noise, dither) through the
     campaign runner and set each fault's threshold for the false-alarm probability --alpha.
 
-    Dispersion (eha.identification.healthy.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
-    FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
+    Dispersion (eha.identification.healthy.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on
+    GM, FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """

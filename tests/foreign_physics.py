@@ -1,4 +1,5 @@
-"""Test-only "foreign physics": effects that eha's effect library (eha/explain/effects.py) does not have.
+"""Test-only "foreign physics": effects that eha's effect library (eha/explain/effects.py) does not
+have.
 
 The residual loop (``eha explain``) must not attribute a residual it cannot explain to a
 library effect with confidence. These records give it such residuals: HF records with
@@ -14,7 +15,8 @@ these three switches (the lines marked ``FOREIGN``); each switch is a branch tak
 is on, so with all three off the kernel computes exactly what ``run_hf`` computes
 (tests/test_foreign_physics.py checks it against ``simulate("hf", ...)``). Parameters, grid,
 command sampling, dither and sensor model are eha's own (:mod:`eha.models.simulate`), and
-:func:`foreign_record` makes a record the way :func:`eha.identification.measured.synthetic_record` does.
+:func:`foreign_record` makes a record the way :func:`eha.identification.measured.synthetic_record`
+does.
 
 If ``run_hf`` changes, copy it again and re-apply the three ``FOREIGN`` blocks.
 
@@ -223,9 +225,9 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
                    noise: float = 1e-6, seed: int = 0, command_hold: str = "auto"):
     """A measured-like record of the HF model with one foreign effect, plus noise.
 
-    Made as :func:`eha.identification.measured.synthetic_record` makes one (the HF driven by the 1 kHz samples
-    of the command, Gaussian noise on xu from ``seed``), so with ``magnitude=0`` it is the same
-    record.
+    Made as :func:`eha.identification.measured.synthetic_record` makes one (the HF driven by the 1
+    kHz samples of the command, Gaussian noise on xu from ``seed``), so with ``magnitude=0`` it is
+    the same record.
 
     Parameters
     ----------
@@ -245,7 +247,8 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
         Seed of the noise and of the dither.
     command_hold : {"auto", "zoh", "linear"}
         How the model is driven between the command's samples, as ``synthetic_record`` does
-        (``auto``: as the reader of the record will decide, ``eha.identification.measured.detect_hold``).
+        (``auto``: as the reader of the record will decide,
+        ``eha.identification.measured.detect_hold``).
 
     Returns
     -------

@@ -12,7 +12,7 @@ from eha.prognostics.manifest import ManifestError, read_manifest
 from eha.prognostics.degradation import fit_degradation
 from eha.prognostics.rul import FaultHistory, predict_history, sigma_from_interval
 from eha.prognostics.metrics import (Profile, alpha_lambda, cumulative_relative_accuracy,
-                                    prognostic_horizon, relative_accuracy)
+                                     prognostic_horizon, relative_accuracy)
 
 runner = CliRunner()
 

@@ -3,7 +3,8 @@
 A campaign is a named batch of simulations: models × commands × fault sets × seeds, all run
 for ``t_end`` seconds. Everything is validated before anything runs; every problem found is
 reported on its own line (:class:`CampaignError`), through the same validators the models use
-(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`, :func:`eha.models.commands.make_command`).
+(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
+:func:`eha.models.commands.make_command`).
 
 File format
 -----------
@@ -301,8 +302,8 @@ def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
 
     The estimate uses measured per-run costs on this project's reference machine: a job kind's
     own estimate where it registers one (simulations: HF about 5 ms and LF about 3 ms per
-    simulated second at DT = 1e-5 s, :data:`eha.models.batch.SIM_COST`, plus about 0.5 ms per run for
-    metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
+    simulated second at DT = 1e-5 s, :data:`eha.models.batch.SIM_COST`, plus about 0.5 ms per run
+    for metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
     and about 2 s to start the worker pool; it is a guide, not a promise.
     """
     from eha.campaigns.jobs import find_job_kind

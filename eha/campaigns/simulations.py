@@ -3,9 +3,10 @@
 :func:`_expand_simulations` validates the top-level keys ``models``, ``commands``, ``seeds``,
 ``t_end``, ``signals``, ``params`` and ``faults`` of a campaign file (the format:
 :mod:`eha.campaigns.files`) through the same validators the models use
-(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`, :func:`eha.models.commands.make_command`,
-:func:`eha.models.simulate.check_grid`) and returns the drafts of its ``simulate`` jobs, one per model,
-fault set, command and seed. Every problem is appended to ``problems``, one line each.
+(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
+:func:`eha.models.commands.make_command`, :func:`eha.models.simulate.check_grid`) and returns the
+drafts of its ``simulate`` jobs, one per model, fault set, command and seed. Every problem is
+appended to ``problems``, one line each.
 """
 
 from __future__ import annotations

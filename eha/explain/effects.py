@@ -3,9 +3,9 @@
 Every effect is one registered :class:`Effect`: a stable name (used in reports and JSON), the LF
 parameters it fits with their search bounds, the parameters it merely switches (``orifice_law``),
 a probe value used to compute its signature, and a one-line description. The LF kernel already
-carries every effect parameter with a neutral "off" value (:mod:`eha.models.params`), so switching an
-effect on is setting parameters on an :class:`~eha.models.params.LFParams`; any combination runs in the
-one compiled kernel.
+carries every effect parameter with a neutral "off" value (:mod:`eha.models.params`), so switching
+an effect on is setting parameters on an :class:`~eha.models.params.LFParams`; any combination runs
+in the one compiled kernel.
 
 Adding an effect is one :func:`register` call in this module (or in user code).
 

@@ -224,7 +224,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         """Does the current model leave the record unexplained: its position residual above
         what faults and structure leave on healthy actuators of this command
         (:meth:`eha.explain.null.Null.residual_limit`, at most
-        :data:`eha.identification.intervals.FLAG_RATIO` times the noise; without a null, that ratio)?"""
+        :data:`eha.identification.intervals.FLAG_RATIO` times the noise; without a null, that
+        ratio)?"""
         from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all > self.residual_limit * noise_reference(self.noise,
@@ -242,17 +243,17 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     def estimate(self) -> None:
         """(g) The final estimates: the model chosen, every fitted parameter (faults and the
         effects added) is refitted on the *whole* record by least squares (``"lm"``,
-        :func:`eha.identification.fdi.identify`) from the loop's fit. The hold-out serves the choice of
-        effects; once they are chosen the estimates use all the data. The loop's refits are on
-        the fitted part alone, and a GA or compass search there can stop in a valley's side
-        basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded
-        against jack friction and a load on ``mixed``); the least-squares step follows the
-        valley. The polish runs from the loop's model and from it with the structure's
-        parameters at their physical values (the flapper's probe); the better is kept, only
-        when it lowers the whole record's objective and leaves every added effect outside its
-        healthy band. A model without added effects keeps its fit (a
-        record to which nothing was added: ``after`` is ``before``). After it the "held-out"
-        RMSE of the final model is in-sample (reported as such in docs/explain.md)."""
+        :func:`eha.identification.fdi.identify`) from the loop's fit. The hold-out serves the
+        choice of effects; once they are chosen the estimates use all the data. The loop's refits
+        are on the fitted part alone, and a GA or compass search there can stop in a valley's side
+        basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded against
+        jack friction and a load on ``mixed``); the least-squares step follows the valley. The
+        polish runs from the loop's model and from it with the structure's parameters at their
+        physical values (the flapper's probe); the better is kept, only when it lowers the whole
+        record's objective and leaves every added effect outside its healthy band. A model without
+        added effects keeps its fit (a record to which nothing was added: ``after`` is ``before``).
+        After it the "held-out" RMSE of the final model is in-sample (reported as such in
+        docs/explain.md)."""
         if not self.steps:
             return
         free = dict(self.bounds)

@@ -21,14 +21,14 @@ never fits above a few hundred). The null is
    from its probe, the better fit); the statistic is the parameter's distance from its off value
    (:meth:`eha.explain.effects.Effect.shift`);
 3. per effect, the threshold of the shared detection engine
-   (:func:`eha.identification.healthy.tail_threshold`): a normal tail with probability ``alpha / m`` for
-   ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
+   (:func:`eha.identification.healthy.tail_threshold`): a normal tail with probability ``alpha /
+   m`` for ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
    most ``alpha`` (union bound) — the same rule as ``eha health calibrate``'s thresholds.
 
 Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
 sampling, the noise, the declared faults, the loop's fit settings and the model version
-(:data:`eha.models.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
-The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
+(:data:`eha.models.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses
+them. The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
 """
 
 from __future__ import annotations
@@ -142,9 +142,10 @@ class Null:
 
     def residual_limit(self, alpha: float) -> float:
         """The residual-to-noise ratio that faults and structure leave on a healthy record of
-        this command with probability ``alpha`` (:func:`eha.identification.healthy.tail_threshold`, spread
-        :data:`RATIO_SPREAD`), at most :data:`eha.identification.intervals.FLAG_RATIO`: a record whose final
-        model leaves more is unexplained. Without ratios (an older null): the flag ratio."""
+        this command with probability ``alpha`` (:func:`eha.identification.healthy.tail_threshold`,
+        spread :data:`RATIO_SPREAD`), at most :data:`eha.identification.intervals.FLAG_RATIO`: a
+        record whose final model leaves more is unexplained. Without ratios (an older null): the
+        flag ratio."""
         from eha.identification.intervals import FLAG_RATIO
 
         if len(self.residual_ratios) < 2:
@@ -267,10 +268,10 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
     """One simulated healthy record like ``data``: same command (its original samples and
     hold), sampling, length and noise (position; P12 when ``data`` has it).
 
-    The actuator is :func:`eha.identification.healthy.draw_actuator` ``(seed)`` with the declared faults
-    drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
-    dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test
-    conditions) are set on every actuator.
+    The actuator is :func:`eha.identification.healthy.draw_actuator` ``(seed)`` with the declared
+    faults drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
+    dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test conditions) are
+    set on every actuator.
     """
     from eha.identification.measured import from_arrays, noise_level
     from eha.models.simulate import simulate

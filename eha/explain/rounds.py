@@ -117,12 +117,12 @@ class Rounds:
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
-        combinations of :data:`~eha.explain.effects.COMBINATIONS`, alone and with each of the effects
-        that best explain the combination's residual (an effect is often only recognisable
-        once the structure it interacts with is in the model: with the orifice law a load and
-        a motor offset stop being equivalent). The combinations with other effects are
-        skipped when a candidate made only of the structure already qualifies: the structure
-        is then chosen first whatever they gain (:func:`choose`)."""
+        combinations of :data:`~eha.explain.effects.COMBINATIONS`, alone and with each of the
+        effects that best explain the combination's residual (an effect is often only recognisable
+        once the structure it interacts with is in the model: with the orifice law a load and a
+        motor offset stop being equivalent). The combinations with other effects are skipped when a
+        candidate made only of the structure already qualifies: the structure is then chosen first
+        whatever they gain (:func:`choose`)."""
         s = self.settings
         rnd = self.trace(self.cur, self.free, remaining)
         self.rounds.append(rnd)

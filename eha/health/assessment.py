@@ -6,7 +6,8 @@ assessment runs a **bank of fault hypotheses** (the multiple-model approach of f
 isolation): ``H0`` fits the thesis' two faults (backlash BKL, jack friction FDJ) and each
 ``H_f`` fits them together with one more fault ``f`` (motor gain GM, clogging Kintas, leakage
 Clk, offset Ofs, spool friction FSS). Each hypothesis is one identification with intervals
-(:func:`eha.identification.fdi.identify`, warm-started at ``H0``'s estimate so that it is never worse).
+(:func:`eha.identification.fdi.identify`, warm-started at ``H0``'s estimate so that it is never
+worse).
 
 Hypotheses are weighed by the Bayesian information criterion computed on the *effective*
 number of samples (``n / τ``, with ``τ`` the integrated autocorrelation time of the best
@@ -53,8 +54,8 @@ class FaultSpec:
     description : str
     healthy_std : float
         Spread of the value among healthy actuators (the fleet dispersion of
-        :data:`eha.identification.healthy.DISPERSION`, or a small tolerance): what a hypothesis that holds
-        the fault healthy says of it.
+        :data:`eha.identification.healthy.DISPERSION`, or a small tolerance): what a hypothesis
+        that holds the fault healthy says of it.
     """
 
     name: str
@@ -257,8 +258,8 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     command : Command or str
         Its position command.
     base : LFParams or mapping, optional
-        The LF model (default: :data:`eha.identification.problem.CALIBRATED_LF`, the LF calibrated by
-        ``eha explain``).
+        The LF model (default: :data:`eha.identification.problem.CALIBRATED_LF`, the LF calibrated
+        by ``eha explain``).
     faults : sequence of str
         Faults that get a hypothesis of their own (default all of :data:`EXTRA_FAULTS`).
     level : float

@@ -3,10 +3,10 @@
 Pipeline
 --------
 1. **Fleets** (:func:`health_jobs`, the ``[health]`` section of a campaign file): actuators
-   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`), optionally with one injected fault
-   at given levels, one HF record each (sensor noise, dither seed), each assessed by the
-   hypothesis bank (:func:`eha.health.assessment.assess_record`). Run by the campaign runner (2 workers,
-   resumable); rows in the DuckDB table ``health_assessments``.
+   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`), optionally
+   with one injected fault at given levels, one HF record each (sensor noise, dither seed), each
+   assessed by the hypothesis bank (:func:`eha.health.assessment.assess_record`). Run by the
+   campaign runner (2 workers, resumable); rows in the DuckDB table ``health_assessments``.
 2. **Thresholds** (:func:`calibrate_thresholds`): from a healthy fleet, per fault, the
    detection statistic (the estimate's deviation from healthy in the direction of
    degradation, :func:`statistic`) gets the threshold of a one-sided normal tail with

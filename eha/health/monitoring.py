@@ -1,6 +1,7 @@
 """Health workflows behind ``eha health``: calibrate on a healthy fleet, check a record, report
-detection performance. Each runs the library pieces (:mod:`eha.health.assessment`, :mod:`eha.health.detection`)
-through the campaign runner and the store, and is what one CLI command calls.
+detection performance. Each runs the library pieces (:mod:`eha.health.assessment`,
+:mod:`eha.health.detection`) through the campaign runner and the store, and is what one CLI command
+calls.
 """
 
 from __future__ import annotations

@@ -21,6 +21,6 @@ Modules, by concern:
   and the ``[fdi]`` campaign section).
 
 Above :mod:`eha.models`, below :mod:`eha.explain`, :mod:`eha.health.assessment` and
-:mod:`eha.prognostics`: nothing here imports them (``tests/test_campaigns_layering.py``).
+:mod:`eha.prognostics`: nothing here imports them (``tests/test_layering.py``).
 The package imports nothing itself, so that a job kind's worker loads only its module.
 """

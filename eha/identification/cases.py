@@ -1,10 +1,10 @@
 """The thesis' FDI cases and the campaign-runner glue of fault identification.
 
-The identification itself is :mod:`eha.identification.fdi`; this module holds what the thesis reproduction
-adds around it: FDI campaign files (``[fdi]`` sections, :class:`FDICampaign`), running a case
-(:func:`run_case`) into the one result type :class:`FDIRow`, and the runner's job functions
-(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), which it registers
-with the campaign runner (job kind and campaign section ``fdi``).
+The identification itself is :mod:`eha.identification.fdi`; this module holds what the thesis
+reproduction adds around it: FDI campaign files (``[fdi]`` sections, :class:`FDICampaign`), running
+a case (:func:`run_case`) into the one result type :class:`FDIRow`, and the runner's job functions
+(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), which it registers with the
+campaign runner (job kind and campaign section ``fdi``).
 """
 
 from __future__ import annotations
@@ -158,8 +158,8 @@ def load_fdi_campaign(path: str | Path) -> FDICampaign:
 @dataclass(frozen=True)
 class FDIRow:
     """One identification of an FDI case: THE result type of the thesis cases, built from a
-    :class:`eha.identification.problem.FitResult` (:meth:`from_fit`), stored as one ``fdi_results`` row
-    (:meth:`to_record`) and read back from it (:meth:`from_record`). Reports read fields by
+    :class:`eha.identification.problem.FitResult` (:meth:`from_fit`), stored as one ``fdi_results``
+    row (:meth:`to_record`) and read back from it (:meth:`from_record`). Reports read fields by
     name, also as ``row["case"]`` (read-only mapping access).
 
     Attributes

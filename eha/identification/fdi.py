@@ -112,7 +112,8 @@ def identify(reference_xu: np.ndarray, command: Command | str,
         residual loop's inner refits). Costs one batch of ``2k + 1`` LF runs.
     noise : float, optional
         Sensor noise of the record [m] (default: estimated from ``reference_xu``; give it when
-        the record was resampled, :func:`eha.identification.measured.noise_level` on the raw samples).
+        the record was resampled, :func:`eha.identification.measured.noise_level` on the raw
+        samples).
     model_form : str, optional
         Key of :data:`eha.identification.intervals.MODEL_FORM` (default: recognised from ``base``).
     reference_p12 : float64 array, optional
@@ -252,8 +253,8 @@ def intervals_at(reference_xu: np.ndarray, command: Command | str, params: LFPar
                  terms: Mapping[str, Any] | None = None):
     """Intervals of the parameters ``bounds`` names at the values in ``params`` (an estimate
     found elsewhere, e.g. the final model of the residual loop), without refitting: one batch
-    of ``2k + 1`` LF runs (:func:`eha.identification.intervals.estimate_intervals`; ``terms``: its model-form
-    terms, default those of ``model_form``)."""
+    of ``2k + 1`` LF runs (:func:`eha.identification.intervals.estimate_intervals`; ``terms``: its
+    model-form terms, default those of ``model_form``)."""
     bounds = check_bounds(bounds)
     names = tuple(bounds)
     reference = np.asarray(reference_xu, dtype=np.float64)
@@ -350,14 +351,16 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
                     level: float | None = DEFAULT_LEVEL, base_model: str | None = None,
                     command_hold: str = "auto", **options: float) -> Identification:
     """Identify ``fit`` against an HF reference (``command`` + injected ``faults``, dither seed
-    ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu; eha.identification.measured).
+    ``seed``) or a measured record (``data``: CSV/Parquet with t, com, xu;
+    eha.identification.measured).
 
     ``bounds`` overrides :func:`default_bounds` per name; ``base`` holds LF parameters fixed
     on top of ``base_model`` (:data:`BASE_MODELS`; default :data:`DEFAULT_BASE_MODEL`: the
     thesis' plain LF against an HF reference, the calibrated LF on a measured record, where the
     plain LF biases FDJ by 4-25 %); ``level`` is the intervals' nominal coverage;
     ``command_hold`` how a measured record's command is rebuilt between its samples
-    (:data:`eha.identification.measured.COMMAND_HOLDS`); ``on_generation`` is :func:`identify`'s progress hook.
+    (:data:`eha.identification.measured.COMMAND_HOLDS`); ``on_generation`` is :func:`identify`'s
+    progress hook.
     """
     if (command is None) == (data is None):
         raise FDIError("give either --command (HF reference) or --data FILE (measured record)")

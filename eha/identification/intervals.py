@@ -1,7 +1,7 @@
 """Intervals on identified parameters: how far the truth may be from an estimate.
 
-An identification (:func:`eha.identification.fdi.identify`) minimises the RMSE between the LF model and a
-record. Its estimate is wrong for three reasons, and the interval accounts for each:
+An identification (:func:`eha.identification.fdi.identify`) minimises the RMSE between the LF model
+and a record. Its estimate is wrong for three reasons, and the interval accounts for each:
 
 1. **Sensor noise** (white, estimated from the record's fourth differences,
    :func:`eha.identification.measured.noise_level`).

@@ -120,7 +120,8 @@ class FitResult:
     noise_rmse : float or None
         Sensor noise estimated from the record [m].
     model_form : str
-        Which measured model-form terms entered the intervals (eha.identification.intervals.MODEL_FORM).
+        Which measured model-form terms entered the intervals
+        (eha.identification.intervals.MODEL_FORM).
     notes : tuple of str
         Warnings of the interval estimate (flag, unconstrained parameters).
     """

@@ -110,8 +110,7 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
 
     from eha.campaigns.traces import write_chunk
     from eha.models.commands import make_command
-    from eha.models.run_metrics import (PAIR_METRICS, RUN_METRICS, batch_metrics,
-                                 batch_pair_metrics)
+    from eha.models.run_metrics import PAIR_METRICS, RUN_METRICS, batch_metrics, batch_pair_metrics
     from eha.models.simulate import simulate
 
     t_task = time.perf_counter()

@@ -74,8 +74,8 @@ RUL_FIT: tuple[str, ...] = ("BKL", "FDJ", "GM")
 def health_bounds(names: Sequence[str], limits: Mapping[str, float],
                   bounds: Mapping[str, Sequence[float]] | None = None
                   ) -> dict[str, tuple[float, float]]:
-    """Search bounds of the assessment: :func:`eha.identification.problem.default_bounds`, widened so that a
-    limited fault can be identified up to twice its limit (or down to half of it), then
+    """Search bounds of the assessment: :func:`eha.identification.problem.default_bounds`, widened
+    so that a limited fault can be identified up to twice its limit (or down to half of it), then
     ``bounds`` overrides."""
     from eha.identification.problem import default_bounds
     from eha.models.params import SPECS
@@ -113,8 +113,8 @@ def run_id_of(manifest_path: Path) -> str:
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
                     method: str = HEALTH_METHOD, base_model: str | None = None):
     """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
-    ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default the one
-    ``eha fdi --data`` uses)."""
+    ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default
+    the one ``eha fdi --data`` uses)."""
     from eha.campaigns.files import Campaign, Job
     from eha.models.simulate import MODEL_VERSION
 
@@ -284,8 +284,8 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         Relative std of the assessment's systematic error (default
         :data:`eha.prognostics.rul.LIMIT_ERROR`).
     base_model : str, optional
-        LF base of the assessment (``eha.identification.problem.BASE_MODELS``, default that of ``eha fdi
-        --data``).
+        LF base of the assessment (``eha.identification.problem.BASE_MODELS``, default that of
+        ``eha fdi --data``).
 
     Raises
     ------

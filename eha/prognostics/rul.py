@@ -12,10 +12,10 @@ RUL distribution
 :func:`predict_rul` draws ``n_samples`` models from the posterior (a grid point by weight,
 then ``(a, b)`` from its Gaussian), solves ``x(t*) = limit`` for each, and combines the faults
 with a limit sample by sample (the first to cross ends life, faults independent). A sample
-that never crosses (trend away from the limit, or beyond :data:`~eha.prognostics.degradation.HORIZON_FACTOR`·t_k) has
-RUL = inf. The median and the 5 % / 95 % quantiles are reported (``None`` when infinite);
-the driver is the fault that crosses first in most samples. Every draw uses a seed derived
-from (seed, actuator, check) and recorded.
+that never crosses (trend away from the limit, or beyond
+:data:`~eha.prognostics.degradation.HORIZON_FACTOR`·t_k) has RUL = inf. The median and the 5 % / 95
+% quantiles are reported (``None`` when infinite); the driver is the fault that crosses first in
+most samples. Every draw uses a seed derived from (seed, actuator, check) and recorded.
 """
 
 from __future__ import annotations

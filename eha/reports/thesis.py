@@ -134,8 +134,8 @@ def fdi_table(rows: Sequence[dict], campaign, augmented: Sequence[dict] | None =
     Parameters
     ----------
     rows : sequence of dict
-        FDI results (:class:`eha.identification.cases.FDIRow` rows, or rows of the ``fdi_results`` table
-        through :func:`fdi_results`), any number of seeds per case.
+        FDI results (:class:`eha.identification.cases.FDIRow` rows, or rows of the ``fdi_results``
+        table through :func:`fdi_results`), any number of seeds per case.
     campaign : eha.identification.cases.FDICampaign
         The cases: injected faults, bounds, population and the thesis' values.
 
@@ -318,8 +318,8 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
     Returns
     -------
     (list of dict, eha.identification.cases.FDICampaign)
-        Rows as :func:`eha.identification.cases.run_case` returns them; the campaign as it was run (its stored
-        definition, so the thesis' values travel with the results).
+        Rows as :func:`eha.identification.cases.run_case` returns them; the campaign as it was run
+        (its stored definition, so the thesis' values travel with the results).
 
     Raises
     ------

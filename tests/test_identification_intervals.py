@@ -1,4 +1,5 @@
-"""Identification intervals (eha.identification.intervals) and the health assessment's bank (eha.health.assessment).
+"""Identification intervals (eha.identification.intervals) and the health assessment's bank
+(eha.health.assessment).
 
 Statistical checks use fixed seeds and state their tolerance: a nominal-90 % interval on
 N independent repetitions covers the truth a Binomial(N, 0.9) number of times, so with
@@ -10,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eha.identification.intervals import (bandwidth, check_level, estimate_intervals, hac_covariance,
-                           normal_quantile)
+from eha.identification.intervals import (bandwidth, check_level, estimate_intervals,
+                                          hac_covariance, normal_quantile)
 
 
 def _ar1(rng, n, phi, sigma):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from eha.explain.effects import (EFFECTS, Effect, effects_on, get, missing_requirements, register,
-                         switch_on_with_requirements)
+                                 switch_on_with_requirements)
 from eha.models.params import SPECS, LFParams, ParameterError
 from eha.models.simulate import simulate
 

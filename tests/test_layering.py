@@ -1,5 +1,7 @@
-"""eha.campaigns is the infrastructure below the domain: it imports no domain module, and job
-kinds reach the runner through the registry (entry points), one module at a time."""
+"""Layering: eha.campaigns is the infrastructure below the domain (it imports no domain module
+but eha.models, and job kinds reach the runner through the registry, one module at a time);
+the domain's packages import one way, models -> identification -> explain -> health,
+prognostics -> reports -> cli (the import-graph tests at the end)."""
 
 import ast
 import json
@@ -67,8 +69,8 @@ def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
                     "job_kind('fleet_record')\n"
                     "print(json.dumps(sorted(sys.modules)))")
     assert "eha.prognostics.fleet" in loaded
-    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics.jobs", "eha.models.batch"} & \
-        set(loaded)
+    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics.jobs",
+                "eha.models.batch"} & set(loaded)
 
 
 def test_an_unregistered_kind_fails_its_job_with_one_line(tmp_path):
@@ -79,3 +81,68 @@ def test_an_unregistered_kind_fails_its_job_with_one_line(tmp_path):
                        "trace_path": "traces/x/x.parquet"})
     assert res["status"] == "failed" and res["rows"] == {}
     assert res["error"].startswith("UnknownJobKind: 'no-such-kind' is not registered")
+
+
+# --------------------------------------------------------------------------------------------
+# the import graph of the whole package: data flows one way (docs/decisions.md)
+
+ROOT = PACKAGE.parent
+#: Layer of each package (and of the flat modules): a module imports only from its own layer
+#: or below, at module level or inside a function. health and prognostics share a layer and
+#: do not import each other.
+LAYERS = {"models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
+          "prognostics": 3, "reports": 4, "cli": 5, "docgen": 6, "__main__": 6}
+
+
+def _eha_imports(path: Path) -> set[str]:
+    """The eha modules ``path`` imports (anywhere in it)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out |= {f"{node.module}.{a.name}" for a in node.names} | {node.module}
+        elif isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+    return {m for m in out if m.split(".")[0] == "eha"}
+
+
+def _part(module: str) -> str | None:
+    """The package (or flat module) right under eha of a dotted name (None for eha itself)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def _graph() -> dict[str, set[str]]:
+    """``eha/<part>/...py`` -> the parts under eha it imports."""
+    graph = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).with_suffix("")
+        graph["/".join(rel.parts)] = {p for p in map(_part, _eha_imports(path)) if p}
+    return graph
+
+
+def test_every_package_and_flat_module_has_a_layer():
+    parts = {p.name if p.is_dir() else p.stem for p in ROOT.iterdir()
+             if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"}
+    assert parts - {"__init__", "campaigns"} == set(LAYERS), sorted(parts)
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    """models -> identification -> explain -> health, prognostics -> reports -> cli: no arrow
+    back (health <-> prognostics neither), not even inside a function."""
+    backward = []
+    for module, parts in _graph().items():
+        own = module.split("/")[1]
+        if own in ("campaigns", "__init__"):
+            continue
+        backward += [f"{module} -> eha.{part}" for part in sorted(parts - {own, "campaigns"})
+                     if LAYERS[part] >= LAYERS[own]]
+    assert backward == [], backward
+
+
+def test_the_infrastructure_imports_only_the_models():
+    """eha.campaigns: the trace columns and, to validate and expand a campaign file's
+    simulations, eha.models' parameters, commands and model version."""
+    found = {f"{module} -> eha.{part}" for module, parts in _graph().items()
+             if module.startswith("eha/campaigns/") for part in parts - {"campaigns", "models"}}
+    assert found == set(), sorted(found)

@@ -7,8 +7,8 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.identification.measured import (MIN_SAMPLES, MeasuredDataError, from_arrays, load, match_columns,
-                          synthetic_record)
+from eha.identification.measured import (MIN_SAMPLES, MeasuredDataError, from_arrays, load,
+                                         match_columns, synthetic_record)
 
 
 def _frame(rate=1000.0, duration=0.3, t0=0.0, **rename):

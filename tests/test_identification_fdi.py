@@ -206,7 +206,8 @@ def test_combined_objective_adds_the_weighted_p12_residual():
     xu, ref = np.full((1, 10), 3.0), np.zeros(10)
     p12, ref_p = np.full((1, 10), -4.0), np.zeros(10)
     assert optimizers.combined_objective(xu, ref, p12, ref_p, 1.0)[0] == pytest.approx(5.0)
-    assert optimizers.combined_objective(xu, ref, p12, ref_p, 1.0, "objfcn")[0] == pytest.approx(7.0)
+    assert optimizers.combined_objective(xu, ref, p12, ref_p, 1.0, "objfcn")[0] == \
+        pytest.approx(7.0)
     assert optimizers.combined_objective(xu, ref, p12, ref_p, 0.5)[0] == pytest.approx(13 ** 0.5)
 
 
