@@ -952,10 +952,14 @@ def explain(
                       highlight=False)
         for line in res.undetectable():
             console.print(f"  {escape(line)}", highlight=False)
-    if res.unexplained:
+    if res.beyond_healthy:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "
                           "do not read the estimates as numbers", highlight=False)
+    elif res.unexplained:
+        err_console.print("warning: the residual is above the noise level: the effects added "
+                          "are tentative, and an effect below this command's healthy band may "
+                          "be missing", highlight=False)
     for kind, path in run["paths"].items():
         console.print(f"{kind}: {path}")
     if run["db_error"]:

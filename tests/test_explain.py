@@ -790,9 +790,9 @@ def test_healthy_flow_gain_is_fitted_where_the_valve_saturates(tmp_path):
     synthetic_record("sine", truth, t_end=1.0, noise=NOISE, seed=6001).to_csv(path, index=False)
     data = load(path)
     fitted = explain(data, flow_gain_spread=0.1, **FAST)
-    assert not fitted.unexplained, fitted.verdict
+    assert not fitted.beyond_healthy, fitted.verdict
     assert set(fitted.effects) <= {"orifice_law", "flapper_dynamics"}
     assert fitted.faults_after["GQ"] == pytest.approx(0.206, rel=0.015)
     assert fitted.faults_after["FDJ"] == pytest.approx(219.0, rel=0.10)
     nominal = explain(data, flow_gain_spread=0.0, **FAST)
-    assert nominal.unexplained or abs(nominal.faults_after["FDJ"] / 219.0 - 1) > 0.3
+    assert nominal.beyond_healthy or abs(nominal.faults_after["FDJ"] / 219.0 - 1) > 0.3

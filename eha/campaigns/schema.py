@@ -143,7 +143,11 @@ ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (("fdi_results", "level", "DOU
                                                    ("explain_runs", "unexplained", "BOOLEAN"),
                                                    ("explain_runs", "verdict", "VARCHAR"),
                                                    ("explain_runs", "command_hold", "VARCHAR"),
-                                                   ("explain_runs", "leads", "JSON"))
+                                                   ("explain_runs", "leads", "JSON"),
+                                                   # above the healthy band, not only the
+                                                   # noise (issue 24)
+                                                   ("explain_runs", "beyond_healthy",
+                                                    "BOOLEAN"))
 #: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
 RESULT_TABLES: tuple[str, ...] = ("metrics", "fdi_results")
 

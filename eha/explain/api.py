@@ -1,6 +1,6 @@
 """The residual loop's entry points: :func:`explain` (a record in, an :class:`ExplainResult`
-out: the healthy null, the loop's first pass and, when it leaves the record unexplained, its
-second pass from the structure pinned; the loop again with the flow gain at nominal when the
+out: the healthy null, the loop's first pass and, when it leaves a residual beyond what healthy
+actuators leave on the command, its second pass from the structure pinned; the loop again with the flow gain at nominal when the
 final model has it at the edge of its healthy spread) and :func:`healthy_null`.
 """
 
@@ -136,13 +136,14 @@ def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
             validate: MeasuredData | None, base: LFParams | None, settings: LoopSettings,
             fixed: Iterable[str], on_progress: Callable[[str], None] | None,
             fdi_options: Mapping[str, float], null: Any = None) -> ExplainResult:
-    """The loop's first pass and, when it leaves the record unexplained, its second pass from
+    """The loop's first pass and, when it leaves a residual beyond the healthy band
+    (``beyond_healthy``), its second pass from
     the structure pinned (:func:`better_pass` picks the result)."""
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
                          null=null, **fdi_options)
     result = first.run()
     structure = [e for e in first.pool if e.name in STRUCTURAL]
-    if not (result.unexplained and SECOND_PASS and structure
+    if not (result.beyond_healthy and SECOND_PASS and structure
             and len(structure) <= settings.max_steps):
         return result
     # a model still far from the noise may have been led astray in its first rounds: an

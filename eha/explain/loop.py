@@ -231,6 +231,16 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         return self.cur.rmse_all > self.residual_limit * noise_reference(self.noise,
                                                                           self.data.xu)
 
+    def at_noise_level(self) -> bool:
+        """Is the current model's position residual at the record's noise level (at most
+        ``noise_factor`` times it, the stop rule's factor)? Above it the record is not
+        explained, whatever healthy actuators leave on the command: a residual of 1.6× the
+        noise over a thousand samples is not noise (ExplainResult.verdict)."""
+        from eha.intervals import noise_reference
+
+        return self.cur.rmse_all <= self.settings.noise_factor * noise_reference(
+            self.noise, self.data.xu)
+
     @property
     def residual_limit(self) -> float:
         """Residual-to-noise ratio above which the record is unexplained."""
@@ -315,7 +325,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
             measured=data.xu.copy(), settings=settings,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
-            unexplained=flagged, interval_notes=notes, leads=self.leads(),
+            unexplained=flagged or not self.at_noise_level(), beyond_healthy=flagged,
+            interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
             null=self.null.summary(s.alpha) if self.null is not None else None)
 

@@ -154,8 +154,13 @@ class ExplainResult:
     #: intervals of the final model's fitted parameters (faults and effect parameters)
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     level: float | None = None
-    #: the residual after the best library model is still well above the noise
+    #: the residual is above the noise level (``noise_factor`` times the noise): the model
+    #: does not explain the record to its noise, and any effect added is tentative
     unexplained: bool = False
+    #: the residual is also beyond what faults and structure leave on *healthy* actuators of
+    #: this command (the null's residual limit, or the intervals' flag): the faults'
+    #: intervals are widened and the loop ran its second pass
+    beyond_healthy: bool = False
     interval_notes: tuple[str, ...] = ()
     #: the final residual's relation to signal features (:mod:`eha.explain.leads`)
     leads: LeadReport | None = None
@@ -187,21 +192,34 @@ class ExplainResult:
     def verdict(self) -> str:
         """One line: is the record explained by the library model, and if not, a lead.
 
-        ``"unexplained residual 12.3 µm (8.1× noise), correlated with position_cubed (61 % of
-        it)"`` when the residual after the best library model is still well above the noise
-        (the effects added may then stand in for physics the library lacks: tentative), else
-        ``"explained: residual 1.6 µm (1.6× noise)"``.
+        Three cases, by the residual after the best library model:
+
+        - at the noise level: ``"explained: residual 1.1 µm (1.1× noise)"``;
+        - above the noise but within what healthy actuators leave on this command (the
+          model's own accuracy there): ``"not explained to the noise: residual 1.6 µm (1.6×
+          noise), within what healthy actuators leave on this command (up to 3×): an effect
+          that small may be missing"``;
+        - beyond that: ``"unexplained residual 12.3 µm (8.1× noise), correlated with
+          position_cubed (61 % of it)"`` (the leads).
+
+        In the last two the effects added are tentative (they may stand in for physics the
+        library lacks, or share the residual with an effect it could not separate).
         """
-        if self.unexplained and self.leads is not None:
+        ratio = self.rmse_after / self.noise_rmse if self.noise_rmse > 0 else math.inf
+        limit = (self.null or {}).get("residual_limit")
+        tentative = ("; the effects added are tentative (they may stand in for physics "
+                     "the library lacks)") if self.steps else ""
+        if self.beyond_healthy and self.leads is not None:
             text = self.leads.describe()
-            limit = (self.null or {}).get("residual_limit")
             if limit is not None:
                 text += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
-            if self.steps:
-                text += ("; the effects added are tentative (they may stand in for physics "
-                         "the library lacks)")
-            return text
-        ratio = self.rmse_after / self.noise_rmse if self.noise_rmse > 0 else math.inf
+            return text + tentative
+        if self.unexplained:
+            band = (f"within what healthy actuators leave on this command (up to "
+                    f"{limit:.2g}×)" if limit is not None else "below the flag ratio")
+            return (f"not explained to the noise: residual {1e6 * self.rmse_after:.3g} µm "
+                    f"({ratio:.1f}× noise), {band}: an effect that small may be missing"
+                    + tentative)
         return f"explained: residual {1e6 * self.rmse_after:.3g} µm ({ratio:.1f}× noise)"
 
     @property
@@ -236,6 +254,7 @@ class ExplainResult:
             "faults_after": dict(self.faults_after),
             "intervals": {k: list(v) for k, v in self.intervals.items()},
             "level": self.level, "unexplained": self.unexplained,
+            "beyond_healthy": self.beyond_healthy,
             "interval_notes": list(self.interval_notes),
             "verdict": self.verdict, "noise_rmse": self.noise_rmse,
             "unexplained_rmse": self.unexplained_rmse,
@@ -306,7 +325,7 @@ class ExplainResult:
                 "faults_before": self.faults_before, "faults_after": self.faults_after,
                 "effects": self.effects, "stop_reason": self.stop_reason,
                 "seconds": self.seconds, "unexplained": bool(self.unexplained),
-                "verdict": self.verdict,
+                "beyond_healthy": bool(self.beyond_healthy), "verdict": self.verdict,
                 "command_hold": self.settings.get("command_hold"),
                 "leads": self.leads.to_json() if self.leads is not None else None}
 

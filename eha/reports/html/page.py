@@ -73,7 +73,7 @@ def fmt_int(v: Any) -> str:
 #: Tags of status words (CSS class): bad, warn, good.
 TAGS = {"end of life": "bad", "beyond limit": "bad", "degraded": "bad", "unexplained": "bad",
         "failed": "bad", "attention": "warn", "interval reaches limit": "warn",
-        "flagged": "warn", "tentative": "warn", "ok": "good", "below limit": "good",
+        "flagged": "warn", "tentative": "warn", "above noise": "warn", "ok": "good", "below limit": "good",
         "healthy": "good", "explained": "good", "done": "good", "yes": "good", "no": "warn"}
 
 

@@ -169,6 +169,17 @@ def identification_section(page: Page, ident: Identification) -> str:
 
 
 # =========================================================================== residual loop
+def _explain_state(run: dict[str, Any]) -> str:
+    """"explained" (at the noise level), "above noise" (within what healthy actuators leave
+    on the command) or "unexplained" (beyond it). A database from before the healthy band
+    (no ``beyond_healthy``) called only the last unexplained."""
+    if not run.get("unexplained"):
+        return "explained"
+    beyond = run.get("beyond_healthy")
+    known = beyond is not None and not (isinstance(beyond, float) and beyond != beyond)
+    return "above noise" if known and not bool(beyond) else "unexplained"
+
+
 def explain_section(page: Page, data: dict[str, Any]) -> str:
     runs, steps = data["runs"], data["steps"]
     rows = []
@@ -180,7 +191,7 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
                      "effects": ", ".join(r["effects"] or []) or "-",
                      "rmse_before": r["rmse_before"], "rmse_after": r["rmse_after"],
                      "noise_rmse": r["noise_rmse"],
-                     "state": "unexplained" if r.get("unexplained") else "explained",
+                     "state": _explain_state(r),
                      "verdict": verdict if isinstance(verdict, str) else "-",
                      "stop_reason": r.get("stop_reason") or "-"})
     cols = [Column("source", "record", text=True), Column("created_at", "run", text=True),
