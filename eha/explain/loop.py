@@ -236,7 +236,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         ``noise_factor`` times it, the stop rule's factor)? Above it the record is not
         explained, whatever healthy actuators leave on the command: a residual of 1.6× the
         noise over a thousand samples is not noise (ExplainResult.verdict)."""
-        from eha.intervals import noise_reference
+        from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all <= self.settings.noise_factor * noise_reference(
             self.noise, self.data.xu)
