@@ -110,28 +110,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     level = section.get("level", 0.9)
     if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 < level < 1:
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
-    faults = section.get("faults", {})
-    groups: list[tuple[str, dict[str, float]]] = [("healthy", {})]
-    if not isinstance(faults, Mapping):
-        problems.append("health.faults: a table NAME = [level, ...]")
-        faults = {}
-    from eha.models.params import ParameterError, check_value
-
-    for name, levels in faults.items():
-        if name not in FAULTS:
-            problems.append(f"health.faults.{name}: not a fault of the assessment; allowed "
-                            f"{', '.join(FAULTS)}")
-            continue
-        if not isinstance(levels, list) or not levels:
-            problems.append(f"health.faults.{name}: a non-empty list of levels")
-            continue
-        for v in levels:
-            try:
-                check_value(name, v, "hf")
-            except ParameterError as exc:
-                problems.append(f"health.faults.{name}: {exc}")
-                continue
-            groups.append((f"{name}={v:g}", {name: float(v)}))
+    groups = _fault_groups(section.get("faults", {}), problems)
     if problems:
         return []
     jobs = []
@@ -154,6 +133,33 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
+
+
+def _fault_groups(faults: Any, problems: list[str]) -> list[tuple[str, dict[str, float]]]:
+    """The groups of a ``[health]`` section's fleet: ``("healthy", {})`` and one
+    ``("NAME=level", {NAME: level})`` per level of ``faults``; its problems appended."""
+    from eha.models.params import ParameterError, check_value
+
+    groups: list[tuple[str, dict[str, float]]] = [("healthy", {})]
+    if not isinstance(faults, Mapping):
+        problems.append("health.faults: a table NAME = [level, ...]")
+        return groups
+    for name, levels in faults.items():
+        if name not in FAULTS:
+            problems.append(f"health.faults.{name}: not a fault of the assessment; allowed "
+                            f"{', '.join(FAULTS)}")
+            continue
+        if not isinstance(levels, list) or not levels:
+            problems.append(f"health.faults.{name}: a non-empty list of levels")
+            continue
+        for v in levels:
+            try:
+                check_value(name, v, "hf")
+            except ParameterError as exc:
+                problems.append(f"health.faults.{name}: {exc}")
+                continue
+            groups.append((f"{name}={v:g}", {name: float(v)}))
+    return groups
 
 
 def run_health_job(spec: Mapping[str, Any]):
