@@ -124,6 +124,7 @@ def run_ga(obj: BatchObjective, k: int, pop: int, seed: int, max_gen: int, stall
             ftol: float, max_evals: int, history: list[float],
             on_generation: Callable[[int, float], None] | None = None,
             x0: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    # pymoo is imported where a GA runs: the other methods and eha's start do without it
     from pymoo.algorithms.soo.nonconvex.ga import GA
     from pymoo.core.problem import Problem
     from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -189,6 +190,7 @@ def least_squares_polish(obj: BatchObjective, x: np.ndarray, f: float, fd_step: 
     the step; a solver error returns ``x``; the result is never worse than ``x``. At most
     ``max_evals`` runs in all (``max_evals // (k + 2)`` iterations).
     """
+    # scipy.optimize is imported where the polish runs (it is slow to import)
     from scipy.optimize import least_squares
 
     k = x.size
