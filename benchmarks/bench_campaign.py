@@ -72,7 +72,7 @@ def main() -> None:
     ap.add_argument("--skip-reproduce", action="store_true")
     args = ap.parse_args()
 
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     for model in ("hf", "lf"):  # warm (or build) the on-disk numba cache
         simulate(model, "mixed", t_end=0.01)

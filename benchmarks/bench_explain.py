@@ -11,7 +11,7 @@ import argparse
 import time
 
 from eha.explain import augmented_base, explain
-from eha.measured import from_arrays, synthetic_record
+from eha.identification.measured import from_arrays, synthetic_record
 
 PRIOR = [{"effect": "orifice_law", "params": {}},
          {"effect": "flapper_dynamics", "params": {"SNF": 2513.0, "ZF": 0.6}}]

@@ -2,27 +2,27 @@
 
 The loop's final model (`eha explain`) reports an interval for every fitted parameter (the
 declared faults and each added effect's): the HAC sandwich at the final estimate, widened
-when the residual is far above the noise (:mod:`eha.intervals`). On the several-effects
-bench those intervals under-cover: the misses are 1-3 half-widths at a few tenths of a
-percent to a few percent of bias, the bias of a model (the LF with the effects) that is not
-the HF. This bench measures that bias where the truth is known and calibrates one relative
-floor, added in quadrature to every parameter of a model the loop built
-(:data:`eha.intervals.LOOP_MODEL_FORM`).
+when the residual is far above the noise (:mod:`eha.identification.intervals`). On the
+several-effects bench those intervals under-cover: the misses are 1-3 half-widths at a few tenths
+of a percent to a few percent of bias, the bias of a model (the LF with the effects) that is not
+the HF. This bench measures that bias where the truth is known and calibrates one relative floor,
+added in quadrature to every parameter of a model the loop built
+(:data:`eha.identification.intervals.LOOP_MODEL_FORM`).
 
 ``--calibrate``: on the records of :mod:`bench_explain_multi` drawn with *other* seed blocks
 (``--seeds``, default 1,2; the bench's own records are block 0), the right model -- the HF's
 structure (orifice law, flapper dynamics) and the injected effects -- is fitted to the whole
-record by least squares (``eha.fdi.identify(method="lm")``) from the truth (the flapper at
-its physical values). At that best fit of the right model the HAC standard deviations are
-taken (:func:`eha.fdi.intervals_at`, no floor), and the smallest relative floor ``rel`` is
-found for which the 90 % intervals cover the truth on at least 90 % of the (record,
-parameter) pairs. What it measures is the model-form bias, not the loop's search (which the
-final least-squares estimates make small on explained records).
+record by least squares (``eha.identification.fdi.identify(method="lm")``) from the truth (the
+flapper at its physical values). At that best fit of the right model the HAC standard deviations
+are taken (:func:`eha.identification.fdi.intervals_at`, no floor), and the smallest relative floor
+``rel`` is found for which the 90 % intervals cover the truth on at least 90 % of the (record,
+parameter) pairs. What it measures is the model-form bias, not the loop's search (which the final
+least-squares estimates make small on explained records).
 
 ``--evaluate PATH``: re-scores a :mod:`bench_explain_multi` JSON (the loop's own runs): the
 intervals of every record's final model are recomputed at its estimates without and with the
-floor now in :data:`eha.intervals.LOOP_MODEL_FORM`, and their coverage of the injected truth
-counted (all records; explained ones alone).
+floor now in :data:`eha.identification.intervals.LOOP_MODEL_FORM`, and their coverage of the
+injected truth counted (all records; explained ones alone).
 
     python benchmarks/bench_explain_coverage.py --calibrate --seeds 1,2 --json cal.json
     python benchmarks/bench_explain_coverage.py --evaluate benchmarks/results/explain_multi_revisit.json
@@ -54,7 +54,7 @@ FLOOR_GRID = np.round(np.arange(0.0, 0.2001, 0.0025), 4)
 
 def build(i: int, block: int, tmp: Path):
     """Record ``i`` of bench_explain_multi drawn with seed block ``block``: (data, truth)."""
-    from eha.measured import load, synthetic_record
+    from eha.identification.measured import load, synthetic_record
 
     name, combo, command = RECORDS[i]
     seed = 1000 * block + i
@@ -72,7 +72,7 @@ def build(i: int, block: int, tmp: Path):
 def model_of(loop, effects: dict[str, dict[str, float]], values: dict[str, float]):
     """The loop's base with ``effects`` on at ``values`` (the structure at its probe) and the
     faults at ``values``: (params, bounds of every fitted parameter)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     params, bounds = loop.base, dict(loop.bounds)
     for name in effects:
@@ -86,8 +86,9 @@ def model_of(loop, effects: dict[str, dict[str, float]], values: dict[str, float
 def spreads(loop, params, bounds) -> dict[str, dict[str, float]]:
     """HAC std, widening and the base model-form term of every fitted parameter at ``params``
     (no floor of the loop)."""
-    from eha.fdi import intervals_at, model_form_of
-    from eha.intervals import MODEL_FORM, ModelForm, inflation, noise_reference
+    from eha.identification.fdi import intervals_at
+    from eha.identification.problem import model_form_of
+    from eha.identification.intervals import MODEL_FORM, ModelForm, inflation, noise_reference
 
     data = loop.data
     iv = intervals_at(data.xu, data.command, params, bounds, level=LEVEL, noise=loop.noise,
@@ -100,7 +101,7 @@ def spreads(loop, params, bounds) -> dict[str, dict[str, float]]:
 
 
 def covered(row: dict, truth: float, rel: float) -> bool:
-    from eha.intervals import ModelForm, loop_terms, normal_quantile, total_std
+    from eha.identification.intervals import ModelForm, loop_terms, normal_quantile, total_std
 
     term = loop_terms({"p": ModelForm(**row["base"])}, ["p"], ModelForm(rel=rel))["p"]
     s = total_std(row["hac"], row["value"], term, row["widen"])
@@ -145,7 +146,7 @@ def calibrate(args) -> dict:
 
 def evaluate(args) -> dict:
     from eha.explain import LoopSettings, ResidualLoop
-    from eha.intervals import LOOP_MODEL_FORM
+    from eha.identification.intervals import LOOP_MODEL_FORM
 
     doc = json.loads(Path(args.evaluate).read_text())
     rel = LOOP_MODEL_FORM.rel

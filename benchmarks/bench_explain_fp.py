@@ -5,11 +5,10 @@ manufacturing spread drawn per record (:func:`healthy_params`: GP, GQ, CJ, MJ, F
 +-3 %, GM +-1 %, FDJ ~ N(200, 20) N, Clk log-uniform 0.7e-13..1.4e-13, BKL uniform 0..30 µm) --
 plus white Gaussian noise on xu (1 µm) and on P12 (0.2 bar, ``--p12-noise``; -1 drops the
 P12 column), written to CSV, read back with
-:func:`eha.measured.load` and given to :func:`eha.explain.explain` with its defaults (fit
-BKL,FDJ; population ``--pop``, GA seed ``--explain-seed``). The HF really has the orifice law
+:func:`eha.identification.measured.load` and given to :func:`eha.explain.explain` with its defaults
+(fit BKL,FDJ; population ``--pop``, GA seed ``--explain-seed``). The HF really has the orifice law
 and the flapper dynamics that the LF lacks: ``orifice_law`` and ``flapper_dynamics`` are
-*structural* and expected. A **false positive** is a record where the loop adds any other
-effect.
+*structural* and expected. A **false positive** is a record where the loop adds any other effect.
 
 Commands (1 s, ``test`` 0.6 s as in explain_no_prior.py): the presets sine, chirp_1mm,
 chirp_1cm, mixed, test, ramp, and two kinds of random step sequences held between 1 kHz
@@ -31,7 +30,7 @@ stopping rule can be calibrated on offline) and the summary.
 Seeds: record ``k`` of command ``c`` (index in :data:`COMMANDS`) has seed
 ``1000*--seed + 50*c + k``; that one seed draws its healthy parameters and its step sequence
 (``numpy.random.default_rng([seed, 1])`` and ``[seed, 2]``) and is the noise/dither seed of
-the HF simulation (:func:`eha.measured.synthetic_record`). The loop's GA seed is
+the HF simulation (:func:`eha.identification.measured.synthetic_record`). The loop's GA seed is
 ``--explain-seed`` (default 0, like ``eha explain``).
 
     python benchmarks/bench_explain_fp.py                         # 8 commands x 4 records
@@ -85,7 +84,7 @@ def record_seed(seed: int, command: str, k: int) -> int:
 
 def healthy_params(seed: int) -> dict[str, float]:
     """HF overrides of a healthy actuator drawn with ``default_rng([seed, 1])``."""
-    from eha.params import HFParams
+    from eha.models.params import HFParams
 
     nominal = HFParams()
     rng = np.random.default_rng([seed, 1])
@@ -102,9 +101,9 @@ def step_sequence(kind: str, seed: int, t_end: float = 1.0):
 
     ``n`` steps (uniform in the kind's range) at distinct random sample instants in
     [20 ms, t_end - 50 ms], at least 40 ms apart, each to a level uniform within +-max; the
-    command starts at 0. Returns the :class:`~eha.commands.Command` and its step list.
+    command starts at 0. Returns the :class:`~eha.models.commands.Command` and its step list.
     """
-    from eha.commands import array_command
+    from eha.models.commands import array_command
 
     lo, hi, amp = STEP_KINDS[kind]
     rng = np.random.default_rng([seed, 2])
@@ -261,7 +260,7 @@ def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = 
     """Write the record, read it back and run the loop with its defaults (``fit``: the
     parameters fitted throughout, ``eha explain --fit``; None: its default, BKL and FDJ)."""
     from eha.explain import explain
-    from eha.measured import load
+    from eha.identification.measured import load
 
     df.to_csv(path, index=False)
     data = load(path)
@@ -273,7 +272,7 @@ def run_explain(df, path: Path, pop: int, seed: int, p12_weight: float | None = 
 
 def effects_on(result) -> list[str]:
     """Effects on in the final model and not in the starting one (the loop's doing)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     return [name for name, e in EFFECTS.items()
             if e.is_on(result.after.params) and not e.is_on(result.before.params)]
@@ -346,7 +345,7 @@ def provenance(argv: list[str]) -> dict:
 def warm_up() -> None:
     """Load the compiled kernels (numba cache) outside the timings."""
     from eha.explain import explain
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
 
     df = synthetic_record("mixed", {}, t_end=0.1, noise=1e-6, seed=0)
     explain(from_arrays(df.t.to_numpy(), df.com.to_numpy(), df.xu.to_numpy()), pop=4,
@@ -398,7 +397,7 @@ def main() -> None:
     if args.limit:
         plan = plan[:args.limit]
 
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     print(f"{len(plan)} healthy HF records, noise {1e6 * args.noise:g} µm, pop {args.pop}, "
           f"GA seed {args.explain_seed}; [structural] effects are expected", flush=True)

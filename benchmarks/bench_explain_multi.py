@@ -1,12 +1,12 @@
 """Several undeclared effects at once: does the residual loop (`eha explain`) find them all?
 
 HF records with the declared faults BKL = 0.1 mm and FDJ = 800 N and two or three undeclared
-effects of the library (:data:`eha.effects.EFFECTS`; the HF parameter has the LF parameter's
+effects of the library (:data:`eha.explain.effects.EFFECTS`; the HF parameter has the LF parameter's
 name) in combinations a PHM engineer meets (:data:`COMBOS`: a loaded actuator with worn seals,
 a motor offset with an aerodynamic hinge moment, ...), each on two of the commands mixed,
 test (0.6 s), chirp_1cm and a random step sequence held between 1 kHz samples (``steps``:
 4-8 steps within +-5 mm, bench_explain_fp.step_sequence). 1 µm white noise on xu and 0.2 bar on P12 (``--p12-noise``; -1: no P12 column); the record is
-written to CSV, read back with :func:`eha.measured.load` and given to
+written to CSV, read back with :func:`eha.identification.measured.load` and given to
 :func:`eha.explain.explain` with its defaults (fit BKL,FDJ).
 
 Score of a record:
@@ -27,7 +27,7 @@ RMSE before -> after, wall time) and the fractions at the end; ``--json PATH`` w
 record (truth, result, every refitted candidate of every round) and the summary.
 
 Seeds: record ``i`` (index in :data:`RECORDS`) has seed ``1000*--seed + i``: noise and HF
-dither of :func:`eha.measured.synthetic_record` and, on ``steps``, the step sequence
+dither of :func:`eha.identification.measured.synthetic_record` and, on ``steps``, the step sequence
 (``default_rng([seed, 2])``). The loop's GA seed is ``--explain-seed`` (default 0).
 
     python benchmarks/bench_explain_multi.py                      # 24 records
@@ -111,7 +111,7 @@ TOLERANCE_CLEARANCE = 1.25
 def injected(combo: str) -> dict[str, dict[str, float]]:
     """effect -> {HF/LF parameter: value} of a combination (names checked in the registry,
     values clear of the healthy tolerance)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     out = {}
     for effect, value in COMBOS[combo][0].items():
@@ -160,8 +160,8 @@ def hf_own(result) -> dict[str, dict[str, float]]:
     """Effects of the final model that the HF has at its nominal values (its parameter
     differs from the LF's off value) and that the loop estimated within PARAM_TOL of the HF's
     value: effect -> {parameter: relative error}. Not spurious: the record has them."""
-    from eha.effects import EFFECTS
-    from eha.params import HFParams
+    from eha.explain.effects import EFFECTS
+    from eha.models.params import HFParams
 
     hf, out = HFParams(), {}
     for name, effect in EFFECTS.items():
@@ -223,7 +223,7 @@ def main() -> None:
             print(f"{i:3d}  {name:34} {COMBOS[combo][0]}")
         return
 
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     print(f"{len(plan)} HF records with BKL={FAULTS['BKL']:g} m, FDJ={FAULTS['FDJ']:g} N and "
           f"2-3 undeclared effects, noise {1e6 * args.noise:g} µm, pop {args.pop}, GA seed "

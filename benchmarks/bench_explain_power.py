@@ -54,7 +54,7 @@ NOISE = 1e-6
 
 
 def command(name: str):
-    from eha.commands import array_command, make_command
+    from eha.models.commands import array_command, make_command
 
     if name != "held_steps":
         return make_command(name)
@@ -68,7 +68,7 @@ def command(name: str):
 def template(name: str):
     """A nominal HF record of the command (its samples, hold and noise are what the null
     and the test records copy)."""
-    from eha.measured import from_arrays, synthetic_record
+    from eha.identification.measured import from_arrays, synthetic_record
 
     hold = "zoh" if name == "held_steps" else "auto"
     df = synthetic_record(command(name), {}, t_end=1.0, noise=NOISE, seed=0,
@@ -78,7 +78,7 @@ def template(name: str):
 
 def _one(args):
     data, fit, effect, value, seed, settings = args
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain.null import healthy_record, healthy_statistics
 
     (param,) = EFFECTS[effect].params
@@ -96,7 +96,7 @@ def provenance() -> dict:
 
 
 def plot(rows, path: Path) -> None:
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.figures import pyplot, save
 
     plt = pyplot()
@@ -141,10 +141,10 @@ def main(argv=None) -> int:
                                                      "bench_explain_power.json"))
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.null import covered_effects, simulated_null
-    from eha.params import SPECS
+    from eha.models.params import SPECS
 
     names = covered_effects(a.effects.split(",") if a.effects else list(EFFECTS))
     settings = LoopSettings(alpha=a.alpha)

@@ -7,9 +7,10 @@ Two records, each an HF run (BKL 0.1 mm, FDJ 800 N, a 1500 N undeclared load, 1 
 ``mixed_2khz`` the 1 s ``mixed`` command logged at 2 kHz (the HF's 1 kHz output interpolated
                to 2 kHz before the noise is added; the command sampled at 2 kHz).
 
-Each is written to CSV and explained with the defaults through :func:`eha.measured.load`, as
-``eha explain`` does. Prints the wall time, the effects added, the load estimate, the number
-of fits and the machine's load average; ``--json PATH`` writes them.
+Each is written to CSV and explained with the defaults through
+:func:`eha.identification.measured.load`, as ``eha explain`` does. Prints the wall time, the
+effects added, the load estimate, the number of fits and the machine's load average; ``--json
+PATH`` writes them.
 
     python benchmarks/bench_explain_speed.py [--json benchmarks/results/explain_speed.json]
 """
@@ -24,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from eha.commands import array_command, as_command
+from eha.models.commands import array_command, as_command
 from eha.explain import explain
-from eha.measured import load, synthetic_record
+from eha.identification.measured import load, synthetic_record
 
 TRUTH = {"BKL": 1e-4, "FDJ": 800.0, "FRC": 1500.0}
 

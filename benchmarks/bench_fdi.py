@@ -27,11 +27,11 @@ def main() -> None:
     from rich.console import Console
     from rich.progress import Progress
 
-    from eha import fdi, fdi_cases
+    from eha.identification import cases as fdi_cases, problem
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--method", default=fdi.DEFAULT_METHOD, choices=fdi.METHODS)
-    ap.add_argument("--objective", default="rmse", choices=list(fdi.OBJECTIVES))
+    ap.add_argument("--method", default=problem.DEFAULT_METHOD, choices=problem.METHODS)
+    ap.add_argument("--objective", default="rmse", choices=list(problem.OBJECTIVES))
     ap.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1 per case")
     ap.add_argument("--cases", default="", help="comma-separated case numbers (default all)")
     ap.add_argument("--campaign", default=str(ROOT / "campaigns" / "thesis-fdi.toml"))
@@ -40,7 +40,7 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print figures as JSON only")
     args = ap.parse_args()
 
-    from eha.params import parse_assignments, resolve
+    from eha.models.params import parse_assignments, resolve
 
     camp = fdi_cases.load_fdi_campaign(args.campaign)
     base = resolve("lf", {**camp.base, **parse_assignments(args.base)})

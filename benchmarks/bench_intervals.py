@@ -50,10 +50,11 @@ def draw_record(i: int, seed_block: int, extra: bool = True) -> tuple[str, dict,
 
 
 def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
-    from eha.fdi import BASE_MODELS, identify
-    from eha.health import CORE_FAULTS, FAULTS, assess_record
-    from eha.measured import from_arrays, synthetic_record
-    from eha.params import resolve
+    from eha.identification.fdi import identify
+    from eha.identification.problem import BASE_MODELS
+    from eha.health.assessment import CORE_FAULTS, FAULTS, assess_record
+    from eha.identification.measured import from_arrays, synthetic_record
+    from eha.models.params import resolve
 
     command, faults, seed = draw_record(i, seed_block, extra)
     df = synthetic_record(command, faults, t_end=1.0, noise=1e-6, seed=seed)
@@ -134,11 +135,12 @@ FLOOR_GRID = {
 
 
 def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
-    """The health rows re-scored with the current model-form floors (eha.intervals.MODEL_FORM):
-    each hypothesis' std rebuilt from its stored HAC part, the mixture intervals recomputed with
-    the tool's own functions. For floors changed after a long run; the report says so."""
-    from eha.health import FAULTS, fault_components, mixture_interval
-    from eha.intervals import MODEL_FORM, ModelForm, inflation, total_std
+    """The health rows re-scored with the current model-form floors
+    (eha.identification.intervals.MODEL_FORM): each hypothesis' std rebuilt from its stored HAC
+    part, the mixture intervals recomputed with the tool's own functions. For floors changed after
+    a long run; the report says so."""
+    from eha.health.assessment import FAULTS, fault_components, mixture_interval
+    from eha.identification.intervals import MODEL_FORM, ModelForm, inflation, total_std
 
     terms = MODEL_FORM["calibrated"]
     out = []
@@ -161,10 +163,10 @@ def rescore(rows: list[dict], level: float = 0.9) -> list[dict]:
 def calibrate(rows: list[dict], level: float = 0.9) -> dict:
     """Smallest model-form floors that bring each fault's coverage on these records to
     ``level``: the health assessment's mixture intervals recomputed from each hypothesis'
-    HAC part with candidate floors (eha.intervals.total_std, eha.health.fault_components: the
-    tool's own definitions)."""
-    from eha.health import FAULTS, fault_components, mixture_interval
-    from eha.intervals import ModelForm, inflation, total_std
+    HAC part with candidate floors (eha.identification.intervals.total_std,
+    eha.health.assessment.fault_components: the tool's own definitions)."""
+    from eha.health.assessment import FAULTS, fault_components, mixture_interval
+    from eha.identification.intervals import ModelForm, inflation, total_std
 
     found = {}
     for name, (rels, abss) in FLOOR_GRID.items():
@@ -201,12 +203,14 @@ def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9
     """Coverage of three interval methods on the same fits (calibrated LF, BKL and FDJ, records
     without an extra fault): white-noise Laplace (sigma = noise), the HAC sandwich alone, and
     the tool's intervals (HAC + measured floors + widening)."""
-    from eha.fdi import CALIBRATED_LF, BatchObjective, identify
-    from eha.health import CORE_FAULTS, FAULTS
-    from eha.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
-    from eha.measured import from_arrays, synthetic_record
-    from eha.params import resolve
-    from eha.simulate import command_on_grid, grid
+    from eha.identification.fdi import identify
+    from eha.identification.optimizers import BatchObjective
+    from eha.identification.problem import CALIBRATED_LF
+    from eha.health.assessment import CORE_FAULTS, FAULTS
+    from eha.identification.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
+    from eha.identification.measured import from_arrays, synthetic_record
+    from eha.models.params import resolve
+    from eha.models.simulate import command_on_grid, grid
 
     z = normal_quantile(level)
     base = resolve("lf", CALIBRATED_LF)
@@ -274,7 +278,7 @@ def main() -> None:
         return
     from rich.progress import Progress
 
-    from eha.health import assess_record  # noqa: F401  (JIT warm-up below)
+    from eha.health.assessment import assess_record  # noqa: F401  (JIT warm-up below)
 
     run_record(0, 999_999, methods[:1], extra=False)   # numba cache load outside the timing
     rows = []

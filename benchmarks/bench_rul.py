@@ -47,8 +47,8 @@ def main(argv=None) -> int:
                     help="Relative std of the assessment's systematic error (default 0.02).")
     args = ap.parse_args(argv)
 
-    from eha.fleet import parse_fleet, simulate_fleet
-    from eha.prognostics_jobs import RUL_FIT, run_rul
+    from eha.prognostics.fleet import parse_fleet, simulate_fleet
+    from eha.prognostics.jobs import RUL_FIT, run_rul
 
     table = tomllib.loads(args.fleet.read_text())
     if args.actuators is not None:

@@ -24,12 +24,12 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from eha.commands import PRESETS  # noqa: E402
+from eha.models.commands import PRESETS  # noqa: E402
 from eha.models import OUTPUTS  # noqa: E402
 from eha.models.hf import dither_samples, run_hf  # noqa: E402
 from eha.models.lf import run_lf  # noqa: E402
-from eha.params import resolve  # noqa: E402
-from eha.simulate import command_on_grid, grid, simulate  # noqa: E402
+from eha.models.params import resolve  # noqa: E402
+from eha.models.simulate import command_on_grid, grid, simulate  # noqa: E402
 
 
 def _median_ms(fn, repeat):

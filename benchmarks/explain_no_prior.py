@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from eha.explain import explain
-from eha.measured import load, synthetic_record
+from eha.identification.measured import load, synthetic_record
 
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 CASES = {

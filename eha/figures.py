@@ -1,6 +1,6 @@
 """The two things every figure module needs: matplotlib without a display, and saving a PNG
-into a folder that may not exist yet. One definition for eha.plots, eha.thesis_report,
-eha.explain.outputs, eha.health_plots and the prognostics plots."""
+into a folder that may not exist yet. One definition for eha.reports.plots, eha.reports.thesis,
+eha.explain.outputs, eha.health.plots and the prognostics plots."""
 
 from __future__ import annotations
 

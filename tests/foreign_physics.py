@@ -1,4 +1,5 @@
-"""Test-only "foreign physics": effects that eha's effect library (eha/effects.py) does not have.
+"""Test-only "foreign physics": effects that eha's effect library (eha/explain/effects.py) does not
+have.
 
 The residual loop (``eha explain``) must not attribute a residual it cannot explain to a
 library effect with confidence. These records give it such residuals: HF records with
@@ -13,8 +14,9 @@ library effect with confidence. These records give it such residuals: HF records
 these three switches (the lines marked ``FOREIGN``); each switch is a branch taken only when it
 is on, so with all three off the kernel computes exactly what ``run_hf`` computes
 (tests/test_foreign_physics.py checks it against ``simulate("hf", ...)``). Parameters, grid,
-command sampling, dither and sensor model are eha's own (:mod:`eha.simulate`), and
-:func:`foreign_record` makes a record the way :func:`eha.measured.synthetic_record` does.
+command sampling, dither and sensor model are eha's own (:mod:`eha.models.simulate`), and
+:func:`foreign_record` makes a record the way :func:`eha.identification.measured.synthetic_record`
+does.
 
 If ``run_hf`` changes, copy it again and re-apply the three ``FOREIGN`` blocks.
 
@@ -29,13 +31,13 @@ from typing import Mapping
 import numpy as np
 from numba import njit
 
-from eha.commands import Command, array_command, as_command
+from eha.models.commands import Command, array_command, as_command
 from eha.models import O_T, O_XU, OUTPUTS
 from eha.models.friction import (borello_velocity, borello_velocity_first_order, clamp,
                                  end_stop, play, record)
 from eha.models.hf import dither_samples
-from eha.params import HF, resolve
-from eha.simulate import OUTPUT_DT, Trace, command_on_grid, grid, measure
+from eha.models.params import HF, resolve
+from eha.models.simulate import OUTPUT_DT, Trace, command_on_grid, grid, measure
 
 #: The foreign effects: name -> (kernel argument, unit, magnitude used by the tests, meaning).
 #: The magnitudes change xu by tens of µm on the 1 cm commands (measured in
@@ -55,7 +57,7 @@ def run_hf_foreign(p, com, dither, steps_per_out, out, k3, asym, overlap):
     Parameters
     ----------
     p : float64[:]
-        Parameter vector in :class:`eha.params.HFParams` order (index with ``HF``).
+        Parameter vector in :class:`eha.models.params.HFParams` order (index with ``HF``).
     com : float64[:]
         Command [m] at every step, ``len = n_out_intervals*steps_per_out + 1``.
     dither : float64[:]
@@ -165,7 +167,7 @@ def run_hf_foreign(p, com, dither, steps_per_out, out, k3, asym, overlap):
 def simulate_foreign(command: Command | str = "mixed", foreign: Mapping[str, float] | None = None,
                      params: Mapping[str, float] | None = None, t_end: float = 1.0,
                      seed: int = 0) -> Trace:
-    """:func:`eha.simulate.simulate` for the HF model, with foreign effects.
+    """:func:`eha.models.simulate.simulate` for the HF model, with foreign effects.
 
     Parameters
     ----------
@@ -209,7 +211,7 @@ def _sampled_command(cmd: Command, t: np.ndarray, command_hold: str) -> Command:
     values = cmd.sample(t)
     name = cmd.name or "array"
     try:  # eha with command holds (zero-order hold of a digital controller's command)
-        from eha.measured import resolve_hold
+        from eha.identification.measured import resolve_hold
     except ImportError:  # an eha that always interpolates between command samples
         if command_hold not in ("auto", "linear"):
             raise ValueError(f"command_hold {command_hold!r}: this eha only interpolates")
@@ -223,9 +225,9 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
                    noise: float = 1e-6, seed: int = 0, command_hold: str = "auto"):
     """A measured-like record of the HF model with one foreign effect, plus noise.
 
-    Made as :func:`eha.measured.synthetic_record` makes one (the HF driven by the 1 kHz samples
-    of the command, Gaussian noise on xu from ``seed``), so with ``magnitude=0`` it is the same
-    record.
+    Made as :func:`eha.identification.measured.synthetic_record` makes one (the HF driven by the 1
+    kHz samples of the command, Gaussian noise on xu from ``seed``), so with ``magnitude=0`` it is
+    the same record.
 
     Parameters
     ----------
@@ -245,7 +247,8 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
         Seed of the noise and of the dither.
     command_hold : {"auto", "zoh", "linear"}
         How the model is driven between the command's samples, as ``synthetic_record`` does
-        (``auto``: as the reader of the record will decide, ``eha.measured.detect_hold``).
+        (``auto``: as the reader of the record will decide,
+        ``eha.identification.measured.detect_hold``).
 
     Returns
     -------

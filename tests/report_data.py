@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from eha.campaigns.files import campaigns_dir
-from eha.health import FAULTS
+from eha.health.assessment import FAULTS
 from eha.campaigns.store import replace_rows, save_explain
 
 NOW = datetime(2026, 11, 1, 12, 0, 0)

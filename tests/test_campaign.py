@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-import eha.simulate
+import eha.models.simulate
 from eha.campaigns.files import CampaignError, build_campaign, load_campaign, plan
 from eha.cli import app
 
@@ -68,7 +68,7 @@ def test_run_key_is_stable_and_changes_with_spec_and_model_version(monkeypatch):
     assert not {j.run_key for j in a.jobs} & {j.run_key for j in b.jobs}
     c = build_campaign(base(params={"GAP": 2e4}))
     assert a.spec_hash != c.spec_hash
-    monkeypatch.setattr(eha.simulate, "MODEL_VERSION", "test-bump")
+    monkeypatch.setattr(eha.models.simulate, "MODEL_VERSION", "test-bump")
     d = build_campaign(base())
     assert a.spec_hash != d.spec_hash
 

@@ -87,8 +87,8 @@ def test_run_keys_are_those_of_the_full_identity_hash():
 
 
 def test_chunk_metrics_equal_those_of_one_run_at_a_time():
-    from eha.run_metrics import batch_metrics, trace_metrics
-    from eha.simulate import simulate
+    from eha.models.run_metrics import batch_metrics, trace_metrics
+    from eha.models.simulate import simulate
 
     traces = [simulate(m, c, {"BKL": 2e-4}, t_end=0.3, seed=1)
               for m in ("hf", "lf") for c in ("mixed", "step_1mm", "ramp")]
@@ -126,8 +126,8 @@ def test_many_runs_per_file_same_rows_and_traces(chunky):
         col = meta.row_group(0).column(3)  # xu
         assert col.compression == "ZSTD" and "BYTE_STREAM_SPLIT" in col.encodings
     # each run's trace is its simulation; its metrics are those of one run at a time
-    from eha.run_metrics import pair_metrics, trace_metrics
-    from eha.simulate import simulate
+    from eha.models.run_metrics import pair_metrics, trace_metrics
+    from eha.models.simulate import simulate
 
     for _, r in runs.iloc[::37].iterrows():
         tr = read_trace(results / r["trace_path"], r["run_key"])

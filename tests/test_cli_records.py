@@ -11,7 +11,7 @@ import pytest
 from conftest import error_line, files_under, invoke_eha, run_eha
 
 from eha.errors import EhaError, InputError
-from eha.measured import MeasuredDataError, RecordFile, load
+from eha.identification.measured import MeasuredDataError, RecordFile, load
 
 USER_HEADER = {"t": "time_s", "com": "command_mm", "xu": "position_mm"}
 COLUMNS = "t=time_s,com=command_mm,xu=position_mm"
@@ -130,15 +130,15 @@ def test_the_library_errors_derive_from_one_hierarchy():
     from eha.campaigns.files import CampaignError
     from eha.campaigns.runner import CampaignChanged
     from eha.campaigns.store import StoreError, StoreWriteError
-    from eha.commands import CommandError
-    from eha.detection import DetectionError
+    from eha.models.commands import CommandError
+    from eha.health.detection import DetectionError
     from eha.explain.settings import ExplainError
-    from eha.fdi import FDIError
-    from eha.fleet import FleetError
-    from eha.manifest import ManifestError
-    from eha.params import ParameterError
-    from eha.prognostics import PrognosticsError
-    from eha.report_html import ReportError
+    from eha.identification.problem import FDIError
+    from eha.prognostics.fleet import FleetError
+    from eha.prognostics.manifest import ManifestError
+    from eha.models.params import ParameterError
+    from eha.prognostics.degradation import PrognosticsError
+    from eha.reports.html import ReportError
 
     for cls in (CampaignError, CampaignChanged, CommandError, DetectionError, ExplainError,
                 FDIError, FleetError, ManifestError, MeasuredDataError, ParameterError,

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from eha.commands import array_command, as_command
-from eha.measured import detect_hold, from_arrays, load, synthetic_record
+from eha.models.commands import array_command, as_command
+from eha.identification.measured import detect_hold, from_arrays, load, synthetic_record
 
 from conftest import error_line, invoke_eha
 
@@ -62,7 +62,7 @@ def test_a_synthetic_record_is_driven_the_way_it_is_read_back(tmp_path):
     df = synthetic_record(cmd, {"BKL": 1e-4}, t_end=1.0, noise=0.0, seed=0)
     df.to_csv(tmp_path / "r.csv", index=False)
     rec = load(tmp_path / "r.csv")
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     again = simulate("hf", rec.command, {"BKL": 1e-4}, t_end=1.0, seed=0)
     assert rec.command.hold == "zoh"

@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 from eha.cli import app
 from eha.explain import (P12_NOISE_FLOOR, ExplainError, LoopSettings, augmented_base, explain,
                          noise_level, p12_objective_weight, parse_fit)
-from eha.measured import load, synthetic_record
-from eha.params import LFParams
+from eha.identification.measured import load, synthetic_record
+from eha.models.params import LFParams
 
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 NOISE = 1e-6
@@ -37,7 +37,7 @@ HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
 def assert_effects_are_the_model(res):
     """Every effect with parameters that is on in the final model is a reported step (or in
     the prior), and every reported step is on: what the user reads is what was fitted."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     for name, effect in EFFECTS.items():
         if effect.params and effect.is_on(res.after.params) and \
@@ -129,7 +129,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
 @pytest.mark.slow
 def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
     """On the step-rich 'test' command the orifice law and the flapper dynamics each explain
-    little alone; tried together (eha.effects.COMBINATIONS) they are added as two steps."""
+    little alone; tried together (eha.explain.effects.COMBINATIONS) they are added as two steps."""
     res = explain(load(_record(tmp_path, "nominal_test", "test", 0.6)), **FAST)
     assert res.effects[:2] == ["orifice_law", "flapper_dynamics"], res.stop_reason
     assert res.rmse_before >= 3 * res.rmse_after
@@ -304,9 +304,9 @@ def test_load_test_calibration_keeps_the_nominal_leakage_healthy_through_the_cli
 def test_batch_runs_start_at_the_recorded_position():
     """simulate_lf_batch(recorded_start=x0): every row's recorded xu starts at x0 whatever its
     sensor bias and gain (XJ0 = (x0 - bias)/gain); exact up to float rounding."""
-    from eha.params import LF, LFParams
-    from eha.simulate import command_on_grid, grid, simulate_lf_batch
-    from eha.commands import make_command
+    from eha.models.params import LF, LFParams
+    from eha.models.simulate import command_on_grid, grid, simulate_lf_batch
+    from eha.models.commands import make_command
 
     base = LFParams()
     spo, n_out, t_steps = grid(base, 0.02)
@@ -634,7 +634,7 @@ def test_final_check_far_from_the_noise_swaps_one_effect_for_two(tmp_path):
     viscous jack alone does not beat it without the leak). Far from the noise the swap also
     tries its rivals two at a time: the leak and the viscous jack together take the supply
     pressure's place (each within 10 %), and the model explains the record."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import ResidualLoop
 
     data = load(_record(tmp_path, "viscous_leak_lf", "test", 0.6,

@@ -245,7 +245,7 @@ def test_a_gain_bought_on_p12_with_a_worse_position_trades_the_position():
     from eha.explain.decide import trades_position
     from eha.explain.results import Evaluation
     from eha.explain.settings import POSITION_WORSENING
-    from eha.params import LFParams
+    from eha.models.params import LFParams
 
     def ev(fit, hold, p12):
         return Evaluation(LFParams(), None, fit * 1e-6, hold * 1e-6, fit * 1e-6,
@@ -394,7 +394,7 @@ def test_unspecific_below_the_specific_gain_lists_unrelated_rivals_within_the_ma
 def test_trades_position_compares_the_position_only_by_the_given_factor():
     from eha.explain.decide import trades_position
     from eha.explain.results import Evaluation
-    from eha.params import LFParams
+    from eha.models.params import LFParams
 
     def ev(fit, hold, p12=0.0):
         return Evaluation(LFParams(), None, fit, hold, fit, p12_fit=p12, p12_hold=p12)
@@ -424,10 +424,10 @@ def test_split_combination_keeps_the_members_that_pay_in_the_order_they_help():
     the supply pressure 3, a leak 2 and a delay 0.01 off 10 (µm). The delay does not pay its
     penalty (0.02 of the RMSE) and is dropped; the law (a switch) comes first, then the
     member that lowers the RMSE most."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain.decide import split_combination
     from eha.explain.results import Evaluation
-    from eha.params import LFParams
+    from eha.models.params import LFParams
 
     def evaluations(gains):
         def run(params_list):

@@ -14,13 +14,13 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 
-from eha.detection import DetectionError, tail_threshold
+from eha.identification.healthy import DetectionError, tail_threshold
 from eha.explain.null import (Null, NullError, covered_effects, load_null, noise_class, null_key,
                               records_null)
 
 
 def _null(stats: dict[str, list[float]], resolution: float = 0.0) -> Null:
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     return Null(source="canned", key="k", statistics=stats,
                 gains={k: [0.0] * len(v) for k, v in stats.items()},
@@ -49,8 +49,8 @@ def test_tail_threshold_is_mean_plus_z_scale():
 def test_health_calibration_thresholds_come_from_the_shared_engine():
     """eha health's per-fault thresholds are tail_threshold at alpha / m with the median
     spread: one definition for both."""
-    from eha.detection import calibrate_thresholds, statistic
-    from eha.health import FAULTS
+    from eha.health.detection import calibrate_thresholds, statistic
+    from eha.health.assessment import FAULTS
 
     rng = np.random.default_rng(3)
     rows = [{"means": {n: FAULTS[n].healthy + rng.normal(0, 0.01 * (abs(FAULTS[n].healthy)
@@ -101,7 +101,7 @@ def test_cache_key_follows_the_command_noise_and_settings():
     """Same record and settings, same key; another command, noise level or population, another
     key (a null belongs to one command, sampling, noise and fit)."""
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     t = np.arange(301) * 1e-3
     com = 1e-3 * np.sin(2 * np.pi * 3 * t)
@@ -128,9 +128,9 @@ def test_cache_key_follows_the_command_noise_and_settings():
 def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
     """An effect the null covers is refused while its shift is within the threshold; one it
     does not cover (the structure) only when its fit switched it off."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import LoopSettings, ResidualLoop
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     t = np.arange(401) * 1e-3
     com = 1e-3 * np.sin(2 * np.pi * 3 * t)
@@ -202,14 +202,14 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     gets five statistics; the second call reads the cache (same object, no new fit).
     Reproducible: the same seed gives the same statistics (two calibrations, the cache
     off)."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.null import healthy_record, healthy_statistics, simulated_null
 
     monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))
     t = np.arange(401) * 1e-3
     com = 2e-3 * np.sin(2 * np.pi * 4 * t)
-    from eha.measured import from_arrays
+    from eha.identification.measured import from_arrays
 
     data = from_arrays(t, com, com + np.random.default_rng(2).normal(0, 1e-6, t.size))
     settings = LoopSettings(pop=12)
@@ -239,7 +239,7 @@ def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
     with probability alpha (normal tail, spread RATIO_SPREAD), never above FLAG_RATIO; an older
     null without ratios falls back to FLAG_RATIO (exact arithmetic, tolerance 1e-12)."""
     from eha.explain.settings import RATIO_SPREAD
-    from eha.intervals import FLAG_RATIO
+    from eha.identification.intervals import FLAG_RATIO
 
     null = _null({"leakage": [0.0, 1e-13, 2e-13]})
     assert null.residual_limit(0.05) == FLAG_RATIO

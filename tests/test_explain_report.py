@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from eha.fdi_cases import load_fdi_campaign
-from eha.thesis_report import AUGMENTED_CAMPAIGN, fdi_table, write_thesis_report
+from eha.identification.cases import load_fdi_campaign
+from eha.reports.thesis import AUGMENTED_CAMPAIGN, fdi_table, write_thesis_report
 
 ROOT = Path(__file__).resolve().parents[1]
 

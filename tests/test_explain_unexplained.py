@@ -12,7 +12,7 @@ import json
 import pytest
 
 from eha.explain import explain
-from eha.measured import from_arrays
+from eha.identification.measured import from_arrays
 
 from foreign_physics import FOREIGN_EFFECTS, foreign_record
 

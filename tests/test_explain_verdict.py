@@ -14,7 +14,7 @@ import pytest
 
 from eha.explain.leads import LeadReport
 from eha.explain.results import Evaluation, ExplainResult, Step
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 NOISE = 1e-6
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eha.simulate import simulate
+from eha.models.simulate import simulate
 from foreign_physics import FOREIGN_EFFECTS, foreign_record, simulate_foreign
 
 
@@ -36,7 +36,7 @@ def test_switches_off_reproduce_simulate_hf(command, params):
 
 
 def test_foreign_record_is_synthetic_record_when_off():
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     for command in ("mixed", "test"):  # a smooth command and a stepping (held) one
         ours = foreign_record(command, "none", 0.0, t_end=0.5, seed=1)

@@ -1,4 +1,4 @@
-"""Detection and isolation (eha.detection), the health workflows (eha.monitoring) and
+"""Detection and isolation (eha.health.detection), the health workflows (eha.health.monitoring) and
 `eha health` / `eha report health` on real files, a real DuckDB and the campaign runner."""
 
 from __future__ import annotations
@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from conftest import error_line, files_under, invoke_eha
-from eha.detection import (Calibration, DetectionError, alarm_value, calibrate_thresholds,
-                           health_jobs, isolate_row, load_calibration, performance, statistic)
-from eha.health import FAULTS
+from eha.health.detection import (Calibration, alarm_value, calibrate_thresholds, health_jobs,
+                                  isolate_row, load_calibration, performance, statistic)
+from eha.identification.healthy import DetectionError
+from eha.health.assessment import FAULTS
 
 
 def _row(means, grp="healthy", command="chirp_1cm", weights=None, spread=None):
@@ -123,7 +124,7 @@ def test_calibration_file_checks(tmp_path):
 
 
 def _record(path, command="chirp_1cm", faults=None, t_end=0.3, seed=5):
-    from eha.measured import synthetic_record
+    from eha.identification.measured import synthetic_record
 
     synthetic_record(command, faults or {"BKL": 3e-4, "FDJ": 900.0}, t_end=t_end, noise=1e-6,
                      seed=seed).to_csv(path, index=False)
@@ -145,8 +146,8 @@ def test_health_check_bad_options_one_line_nothing_written(tmp_path, args, messa
 
 
 def test_health_check_refuses_a_calibration_of_another_command_or_length(tmp_path):
-    from eha.detection import command_signature
-    from eha.monitoring import _command_samples
+    from eha.identification.healthy import command_signature
+    from eha.health.monitoring import _command_samples
 
     cal = Calibration(command="chirp_1cm", command_sig=command_signature(
         _command_samples("chirp_1cm", 0.3)), t_end=0.3, model_version="1",
@@ -205,9 +206,9 @@ def test_calibrate_then_check_end_to_end(tmp_path):
 def test_fdi_fits_any_fault_with_an_interval(tmp_path):
     """`eha fdi --data --fit BKL,FDJ,GM`: the motor gain of an LF record (no model-form error)
     is found within 1 % and its interval, in the JSON, brackets the estimate; GM's default
-    search bounds are the health assessment's (eha.fdi.SEARCH_BOUNDS)."""
-    from eha.fdi import SEARCH_BOUNDS
-    from eha.measured import synthetic_record
+    search bounds are the health assessment's (eha.identification.problem.SEARCH_BOUNDS)."""
+    from eha.identification.problem import SEARCH_BOUNDS
+    from eha.identification.measured import synthetic_record
 
     rec = tmp_path / "gm.csv"
     synthetic_record("chirp_1cm", {"BKL": 2e-4, "FDJ": 600.0, "GM": 0.008}, t_end=0.5,
@@ -228,8 +229,8 @@ def test_fdi_fits_any_fault_with_an_interval(tmp_path):
 
 def test_report_pieces_on_canned_assessments(tmp_path):
     """The summary table and the two figures of `eha report health` from canned rows."""
-    from eha.health_plots import plot_confusion, plot_roc
-    from eha.monitoring import summary_markdown
+    from eha.health.plots import plot_confusion, plot_roc
+    from eha.health.monitoring import summary_markdown
 
     rng = np.random.default_rng(3)
     rows = [_row({"FDJ": 200 + rng.normal(0, 5)}) for _ in range(12)]

@@ -8,11 +8,11 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.manifest import ManifestError, read_manifest
-from eha.prognostics import (FaultHistory, fit_degradation, predict_history,
-                             sigma_from_interval)
-from eha.prognostic_metrics import (Profile, alpha_lambda, cumulative_relative_accuracy,
-                                    prognostic_horizon, relative_accuracy)
+from eha.prognostics.manifest import ManifestError, read_manifest
+from eha.prognostics.degradation import fit_degradation
+from eha.prognostics.rul import FaultHistory, predict_history, sigma_from_interval
+from eha.prognostics.metrics import (Profile, alpha_lambda, cumulative_relative_accuracy,
+                                     prognostic_horizon, relative_accuracy)
 
 runner = CliRunner()
 
@@ -255,7 +255,7 @@ rate = {median = 1.0, sigma = 0.0}
 
 
 def test_fleet_truth_is_exact_for_a_noiseless_linear_law(tmp_path):
-    from eha.fleet import draw_truth, parse_fleet
+    from eha.prognostics.fleet import draw_truth, parse_fleet
     import tomllib
 
     fl = parse_fleet(tomllib.loads(FLEET))
@@ -320,7 +320,7 @@ def test_fleet_simulate_then_rul_end_to_end(tmp_path):
 
 # ----------------------------------------------------------------------------- limits
 def test_limit_by_bisection_brackets_the_failure_and_is_reproducible():
-    from eha.prognostics_limits import derive_limit, metric_of, parse_requirement
+    from eha.prognostics.limits import derive_limit, metric_of, parse_requirement
 
     res = derive_limit("FDJ", "lag(mixed) > 0.02", 200, 20000, tol=1e-3, t_end=1.0)
     req = parse_requirement("lag(mixed) > 0.02")
@@ -343,7 +343,7 @@ def test_limit_input_errors_are_one_line():
 
 
 def test_flagged_checks_are_used_unless_skipped_and_failed_ones_dropped():
-    from eha.prognostics import histories_from_checks
+    from eha.prognostics.rul import histories_from_checks
 
     rows = [{"actuator": "A", "cycle": c, "estimates": {"F": 0.1 + c / 1000},
              "intervals": {"F": [0.09 + c / 1000, 0.11 + c / 1000]}, "level": 0.9,
@@ -360,7 +360,7 @@ def test_flagged_checks_are_used_unless_skipped_and_failed_ones_dropped():
 
 
 def test_long_histories_are_thinned_to_the_last_checks_and_spaced_earlier_ones():
-    from eha.prognostics import MAX_FIT_CHECKS, thin
+    from eha.prognostics.rul import MAX_FIT_CHECKS, thin
 
     assert list(thin(12)) == list(range(12))
     idx = thin(45)
@@ -373,9 +373,9 @@ def test_tracking_the_motor_gain_removes_the_fdj_bias_of_a_dispersed_actuator(tm
     """Why ``eha rul`` fits GM by default (RUL_FIT): a unit whose motor gain is 3.5 % low has
     its FDJ identified far off with GM fixed at nominal, within 5 % with GM fitted (fleet-demo:
     10-26 % against at most 3 %; docs/prognostics.md). HF record, chirp_1cm, 2 µm noise."""
-    from eha.fdi import identify_source
-    from eha.measured import synthetic_record
-    from eha.prognostics_jobs import RUL_FIT
+    from eha.identification.fdi import identify_source
+    from eha.identification.measured import synthetic_record
+    from eha.prognostics.jobs import RUL_FIT
 
     assert RUL_FIT == ("BKL", "FDJ", "GM")
     truth = {"BKL": 3e-4, "FDJ": 900.0, "GM": 0.01 * 0.965}

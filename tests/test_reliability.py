@@ -16,7 +16,7 @@ import pytest
 
 from conftest import (close, error_line, files_under, invoke_eha, run_eha,
                       write_campaign)
-from eha.measured import load
+from eha.identification.measured import load
 
 ROOT_IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 
@@ -393,7 +393,7 @@ def test_fdi_fit_named_twice(tmp_path):
 
 
 def test_one_name_value_parser():
-    from eha.params import ParameterError, parse_assignment, parse_name_value
+    from eha.models.params import ParameterError, parse_assignment, parse_name_value
 
     assert parse_assignment(" BKL =1e-4") == ("BKL", 1e-4)
     assert parse_name_value("BKL=0:1e-3", "--bounds", "LO:HI") == ("BKL", (0.0, 1e-3))

@@ -268,7 +268,7 @@ def test_damaged_trace_whose_partner_is_re_run(mini_done, tmp_path):
 
 
 def test_trace_intact_checks_size_rows_and_footer(tmp_path):
-    from eha.simulate import Trace
+    from eha.models.simulate import Trace
     import numpy as np
 
     path = write_trace(Trace(np.zeros((51, 9))), tmp_path / "t.parquet")

@@ -11,12 +11,12 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.batch import worker_info
+from eha.models.batch import worker_info
 from eha.campaigns.executors import LocalPoolExecutor
 from eha.campaigns.jobs import execute_job
 from eha.campaigns.runner import run_campaign
-from eha.run_metrics import lag, pair_metrics, settling_time
-from eha.simulate import simulate
+from eha.models.run_metrics import lag, pair_metrics, settling_time
+from eha.models.simulate import simulate
 from eha.campaigns.query import query
 from eha.campaigns.traces import read_trace
 

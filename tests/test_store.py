@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from eha.cli import app
 from eha.campaigns.runner import run_campaign
-from eha.simulate import simulate
+from eha.models.simulate import simulate
 from eha.campaigns.query import export_csv, query
 from eha.campaigns.schema import SCHEMA
 from eha.campaigns.store import ResultStore, StoreError

@@ -3,7 +3,8 @@
 A campaign is a named batch of simulations: models × commands × fault sets × seeds, all run
 for ``t_end`` seconds. Everything is validated before anything runs; every problem found is
 reported on its own line (:class:`CampaignError`), through the same validators the models use
-(:func:`eha.params.resolve`, :func:`eha.params.check_value`, :func:`eha.commands.make_command`).
+(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
+:func:`eha.models.commands.make_command`).
 
 File format
 -----------
@@ -35,9 +36,9 @@ kept once, in that order).
 Run keys
 --------
 Each job's ``run_key`` is the first 16 hex digits of the SHA-256 of its *resolved* spec: the
-campaign name, job kind, model, the full parameter set after :func:`eha.params.resolve` (so a
+campaign name, job kind, model, the full parameter set after :func:`eha.models.params.resolve` (so a
 change of a nominal value changes the key), the resolved command, seed, ``t_end``, stored
-signals, and :data:`eha.simulate.MODEL_VERSION`. A campaign's ``spec_hash`` is the hash of
+signals, and :data:`eha.models.simulate.MODEL_VERSION`. A campaign's ``spec_hash`` is the hash of
 its sorted run keys: a campaign file edited under the same name (or a model-version bump) gives
 a different ``spec_hash``, which the runner detects.
 
@@ -184,7 +185,7 @@ def _run_key(name: str, draft: "JobDraft", version: str, identity_text: str | No
 
 
 def _model_version() -> str:
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     return MODEL_VERSION
 
@@ -301,8 +302,8 @@ def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
 
     The estimate uses measured per-run costs on this project's reference machine: a job kind's
     own estimate where it registers one (simulations: HF about 5 ms and LF about 3 ms per
-    simulated second at DT = 1e-5 s, :data:`eha.batch.SIM_COST`, plus about 0.5 ms per run for
-    metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
+    simulated second at DT = 1e-5 s, :data:`eha.models.batch.SIM_COST`, plus about 0.5 ms per run
+    for metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
     and about 2 s to start the worker pool; it is a guide, not a promise.
     """
     from eha.campaigns.jobs import find_job_kind

@@ -5,11 +5,11 @@ imported (:func:`register_job`, :func:`register_section`), and the package metad
 module provides which kind: the entry points of ``pyproject.toml``::
 
     [project.entry-points."eha.jobs"]             # job kind -> module that registers it
-    simulate = "eha.batch"
+    simulate = "eha.models.batch"
     [project.entry-points."eha.campaign_sections"]  # [section] of a campaign file -> module
-    fdi = "eha.fdi_cases"
+    fdi = "eha.identification.cases"
     [project.entry-points."eha.worker_warm_up"]   # run once in every worker as it starts
-    simulate = "eha.batch:warm_up"
+    simulate = "eha.models.batch:warm_up"
 
 :func:`job_kind` imports the module of a kind the first time it meets the kind, in the parent
 and in every worker process (spawned pool, Dask), so a worker loads only the domain it runs.
@@ -63,7 +63,7 @@ class JobKind:
         so that a resume writes the same files. Without it, one run per task.
     run_chunk : callable, optional
         ``run_chunk(task) -> dict``, in the worker: runs a chunk task (see
-        :func:`eha.batch.run_chunk` for its fields and result).
+        :func:`eha.models.batch.run_chunk` for its fields and result).
     chunk_fields : callable, optional
         ``chunk_fields(jobs) -> dict``: extra fields of a chunk task.
     estimate_s : callable, optional

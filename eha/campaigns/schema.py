@@ -77,7 +77,7 @@ SCHEMA: dict[str, str] = {
             case_id        INTEGER,   -- case number (thesis Figure 6.17 numbering)
             command        VARCHAR,
             seed           BIGINT,    -- HF dither and optimizer seed
-            method         VARCHAR,   -- 'ga' (thesis) or 'ga+ps' (eha.fdi.METHODS)
+            method         VARCHAR,   -- eha.identification.problem.METHODS ('ga': thesis)
             objective_name VARCHAR,   -- 'rmse' or 'objfcn' (thesis' mean absolute error)
             fit            JSON,      -- fitted LF parameters, e.g. ["BKL", "FDJ"]
             truth          JSON,      -- injected values (SI)

@@ -3,9 +3,10 @@
 :func:`_expand_simulations` validates the top-level keys ``models``, ``commands``, ``seeds``,
 ``t_end``, ``signals``, ``params`` and ``faults`` of a campaign file (the format:
 :mod:`eha.campaigns.files`) through the same validators the models use
-(:func:`eha.params.resolve`, :func:`eha.params.check_value`, :func:`eha.commands.make_command`,
-:func:`eha.simulate.check_grid`) and returns the drafts of its ``simulate`` jobs, one per model,
-fault set, command and seed. Every problem is appended to ``problems``, one line each.
+(:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
+:func:`eha.models.commands.make_command`, :func:`eha.models.simulate.check_grid`) and returns the
+drafts of its ``simulate`` jobs, one per model, fault set, command and seed. Every problem is
+appended to ``problems``, one line each.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import json
 from typing import Any, Callable, Mapping
 
 from eha.campaigns.files import MAX_JOBS, JobDraft, _did_you_mean, _hash
-from eha.commands import Command, CommandError, make_command
-from eha.params import MODELS, ParameterError, check_value, resolve
+from eha.models.commands import Command, CommandError, make_command
+from eha.models.params import MODELS, ParameterError, check_value, resolve
 
 #: Columns a trace can store (docs/model.md §8); see :data:`eha.models.OUTPUTS`.
 from eha.models import OUTPUTS  # noqa: E402  (constant tuple; the package imports no kernels)
@@ -162,7 +163,7 @@ def _t_end(value: Any, models: list[str], problems: list[str],
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         problems.append(f"t_end: {value!r} is not a number of seconds")
         return 1.0
-    from eha.simulate import check_grid
+    from eha.models.simulate import check_grid
 
     fixed = fixed or {}
     for model in models or ["hf"]:

@@ -23,7 +23,7 @@ import re
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-# No simulation code at import time (eha.simulate loads numba): `eha query` starts fast.
+# No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
 from eha.campaigns.traces import DEEP_VERIFY_MAX, trace_intact
 from eha.errors import BAD_INPUT, FAILURE, EhaError

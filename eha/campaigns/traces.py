@@ -212,10 +212,10 @@ def write_trace(trace, path: str | Path, columns: Sequence[str] | None = None) -
 
 
 def read_trace(path: str | Path, run_key: str | None = None):
-    """Read one run's :class:`~eha.simulate.Trace` from a file of :func:`write_trace` or a
+    """Read one run's :class:`~eha.models.simulate.Trace` from a file of :func:`write_trace` or a
     chunk file (``run_key`` needed when it holds several runs); signals not stored come back
     as NaN."""
-    from eha.simulate import Trace
+    from eha.models.simulate import Trace
 
     data, meta = read_run(path, run_key)
     return Trace(data, meta)
@@ -262,7 +262,7 @@ def read_table_file(path: str | Path):
     """Read a measured-data table (CSV/TSV/TXT or Parquet) into a pandas DataFrame, as is.
 
     Text files: the separator is sniffed (comma, semicolon, tab, spaces); lines starting with
-    ``#`` are comments. Validation of the columns is :mod:`eha.measured`'s job.
+    ``#`` are comments. Validation of the columns is :mod:`eha.identification.measured`'s job.
     """
     import pandas as pd
 

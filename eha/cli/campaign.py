@@ -165,7 +165,7 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
     Example: eha plot thesis-matrix --results results
     """
-    from eha.plots import plot_campaign
+    from eha.reports.plots import plot_campaign
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     for p in plot_campaign(results, campaign, out):

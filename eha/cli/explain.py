@@ -31,7 +31,7 @@ def _setting(name: str, cast=float):
 # ---- the options, at module level so that the command stays short
 DATA = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu (SI; aliases "
                       "in docs/explain.md, or see --columns, --units), optional p12, xs.")
-FIT = typer.Option(..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+FIT = typer.Option(..., "--fit", default_factory=library_default("eha.identification.problem", "DEFAULT_FIT",
                                                                  ",".join),
                    help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated.")
 EFFECTS = typer.Option(None, "--effects", help="Candidate effects, comma-separated names of "
@@ -47,7 +47,7 @@ KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALU
 JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
                         "and the steps as JSON.")
 OUT = typer.Option(None, "--out", help="Output folder (default RESULTS/explain/<file stem>).")
-METHOD = typer.Option(..., "--method", default_factory=library_default("eha.fdi",
+METHOD = typer.Option(..., "--method", default_factory=library_default("eha.identification.problem",
                                                                        "DEFAULT_METHOD"),
                       help="Optimizer of every fit (eha fdi).")
 POP = typer.Option(..., "--pop", default_factory=signature_default("eha.explain.api",

@@ -32,7 +32,7 @@ def health_calibrate(
     actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
                                   help="Healthy actuators in the fleet."),
     alpha: float = typer.Option(
-        ..., "--alpha", default_factory=library_default("eha.detection", "DEFAULT_ALPHA"),
+        ..., "--alpha", default_factory=library_default("eha.health.detection", "DEFAULT_ALPHA"),
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
     t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
     noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),
@@ -52,7 +52,7 @@ def health_calibrate(
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """
-    from eha.monitoring import calibrate_fleet
+    from eha.health.monitoring import calibrate_fleet
 
     check_seed(seed)
     check_out_file(out, "--out", (".json",))
@@ -66,7 +66,7 @@ def health_calibrate(
 
 def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
                         results: Path) -> None:
-    from eha.detection import alarm_value
+    from eha.health.detection import alarm_value
 
     cal = res["calibration"]
     table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
@@ -108,7 +108,7 @@ def health_check(
     Example (a record in millimetres without units in its header): eha health check rec.csv
     --units mm
     """
-    from eha.monitoring import check_record
+    from eha.health.monitoring import check_record
 
     check_seed(seed)
     check_out_file(json_out, "--json", (".json",))
@@ -127,7 +127,7 @@ def health_check(
 
 def _render_check(run, record: Path) -> None:
     """The faults' table, the status line, the warnings and the files written."""
-    from eha.detection import alarm_value
+    from eha.health.detection import alarm_value
 
     a = run.assessment
     table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",

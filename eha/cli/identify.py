@@ -26,7 +26,7 @@ FAULTS = typer.Option([], "--set", help="Fault injected in the HF reference, NAM
                       "(repeatable).")
 DATA = typer.Option(None, "--data", help="Measured record instead of an HF reference: "
                     "CSV/Parquet with t, com, xu (SI, or see --columns, --units).")
-FIT = typer.Option(..., "--fit", default_factory=library_default("eha.fdi", "DEFAULT_FIT",
+FIT = typer.Option(..., "--fit", default_factory=library_default("eha.identification.problem", "DEFAULT_FIT",
                                                                  ",".join),
                    help="LF parameters to identify.")
 BOUNDS = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI (default BKL=0:1.25e-3, "
@@ -34,10 +34,10 @@ BOUNDS = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI (default BK
 BASE = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE (e.g. "
                     "orifice_law=1).")
 METHOD = typer.Option(
-    ..., "--method", default_factory=library_default("eha.fdi", "DEFAULT_METHOD"),
+    ..., "--method", default_factory=library_default("eha.identification.problem", "DEFAULT_METHOD"),
     help="ga (the thesis), ga+ps (GA + pattern-search polish), ps (pattern search from the "
          "--base / nominal values) or lm (least squares from them).")
-POP = typer.Option(..., "--pop", default_factory=signature_default("eha.fdi", "identify_source",
+POP = typer.Option(..., "--pop", default_factory=signature_default("eha.identification.fdi", "identify_source",
                                                                    "pop"),
                    help="GA population.")
 SEED = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed).")
@@ -46,7 +46,7 @@ OBJECTIVE = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis
 T_END = typer.Option(1.0, "--t-end", help="Simulated time of the HF reference, in seconds.")
 JSON_OUT = typer.Option(None, "--json", help="Write the result as JSON.")
 PLOT = typer.Option(None, "--plot", help="PNG: reference vs identified LF.")
-LEVEL = typer.Option(..., "--level", default_factory=library_default("eha.fdi",
+LEVEL = typer.Option(..., "--level", default_factory=library_default("eha.identification.problem",
                                                                      "DEFAULT_LEVEL"),
                      help="Nominal coverage of the parameter intervals, in (0, 1).")
 BASE_MODEL = typer.Option(None, "--base-model", help="LF model: plain (the thesis') or "
@@ -71,8 +71,8 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
     Example (a record in millimetres, headed time_s,command_mm,position_mm): eha fdi --data
     rec.csv --columns t=time_s,com=command_mm,xu=position_mm
     """
-    from eha.fdi import identify_source, parse_bounds
-    from eha.params import parse_assignments
+    from eha.identification.fdi import identify_source, parse_bounds
+    from eha.models.params import parse_assignments
 
     check_names(fit, "--fit")
     check_seed(seed)
@@ -95,7 +95,7 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
     _render(run)
     write_json(json_out, run.to_dict())
     if plot is not None:
-        from eha.plots import plot_traces
+        from eha.reports.plots import plot_traces
 
         plot_traces([run.reference, run.fitted], plot,
                     title=f"Identification ({run.result.method}): reference vs identified LF")

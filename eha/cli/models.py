@@ -31,8 +31,8 @@ def simulate(
     Example: eha simulate --model hf --command chirp_1cm --set BKL=1e-4 --set FDJ=800
     --out results/chirp.parquet --plot results/chirp.png
     """
-    from eha.params import parse_assignments
-    from eha.simulate import simulate as run
+    from eha.models.params import parse_assignments
+    from eha.models.simulate import simulate as run
 
     if out.suffix != ".parquet":
         fail(f"--out {out}: the trace file must end in .parquet")
@@ -44,7 +44,7 @@ def simulate(
 
     write_trace(trace, out)
     if plot is not None:
-        from eha.plots import plot_traces
+        from eha.reports.plots import plot_traces
 
         plot_traces([trace], plot)
     console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
@@ -57,7 +57,7 @@ def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or
 
     Example: eha params --model lf
     """
-    from eha.params import PARAMETERS, MODELS
+    from eha.models.params import PARAMETERS, MODELS
 
     if model is not None and model not in MODELS:
         fail(f"--model {model!r}: allowed hf, lf")
@@ -78,7 +78,7 @@ def commands():
 
     Example: eha commands
     """
-    from eha.commands import KINDS, PRESETS
+    from eha.models.commands import KINDS, PRESETS
 
     table = Table("name", "kind", "parameters", "description")
     for name, (kind, values, desc) in PRESETS.items():

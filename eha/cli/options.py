@@ -48,7 +48,7 @@ UnitsOption = Annotated[Optional[str], typer.Option(
 def record_file(path: Path, columns: Optional[str], units: Optional[str]):
     """The record ``path`` read with ``--columns`` and ``--units`` (checked by the library:
     an unknown signal or unit is one line naming the option, exit 2)."""
-    from eha.measured import RecordFile
+    from eha.identification.measured import RecordFile
 
     return RecordFile(path, columns, units)
 

@@ -37,7 +37,7 @@ def fleet_simulate(
 
     Example: eha fleet simulate examples/fleet-demo.toml --out results/fleet-demo
     """
-    from eha.fleet import load_fleet, simulate_fleet
+    from eha.prognostics.fleet import load_fleet, simulate_fleet
 
     check_out_dir(out, "--out")
     fleet = load_fleet(file)
@@ -58,7 +58,7 @@ def rul(
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.prognostics_jobs", "RUL_FIT",
+        ..., "--fit", default_factory=library_default("eha.prognostics.jobs", "RUL_FIT",
                                                       ",".join),
         help="Faults identified and tracked (comma-separated; limited faults are added). "
         "GM (motor gain) is tracked by default: its manufacturing dispersion would "
@@ -93,8 +93,8 @@ def rul(
     Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
     --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul
     """
-    from eha.fdi import parse_bounds
-    from eha.prognostics_jobs import parse_limits, run_rul
+    from eha.identification.fdi import parse_bounds
+    from eha.prognostics.jobs import parse_limits, run_rul
 
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(plots, "--plots")
@@ -157,8 +157,8 @@ def limits(
 
     Example: eha limits --fault FDJ --require "lag(mixed) > 0.02" --lo 200 --hi 20000
     """
-    from eha.params import parse_assignments
-    from eha.prognostics_limits import derive_limit
+    from eha.models.params import parse_assignments
+    from eha.prognostics.limits import derive_limit
 
     check_out_file(json_out, "--json", (".json",))
     check_seed(seed)

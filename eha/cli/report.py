@@ -45,7 +45,7 @@ def report_thesis(results: ResultsOption = RESULTS,
 
     Example: eha report thesis --results results --out results/reports/thesis
     """
-    from eha.thesis_report import thesis_report
+    from eha.reports.thesis import thesis_report
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
     with _store_failure():
@@ -57,7 +57,7 @@ def report_health(results: ResultsOption = RESULTS,
                   campaign: str = typer.Option("health-detection", "--campaign",
                                                help="Detection campaign (as in the database)."),
                   alpha: float = typer.Option(
-                      ..., "--alpha", default_factory=library_default("eha.detection",
+                      ..., "--alpha", default_factory=library_default("eha.health.detection",
                                                                       "DEFAULT_ALPHA"),
                       help="Probability that a healthy check raises any alarm, in (0, 1)."),
                   out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
@@ -69,7 +69,7 @@ def report_health(results: ResultsOption = RESULTS,
 
     Example: eha report health --campaign health-detection --results results
     """
-    from eha.monitoring import health_report
+    from eha.health.monitoring import health_report
 
     check_out_dir(out if out is not None else results / "reports" / "health", "--out")
     print_paths(health_report(results, campaign, out, alpha))
@@ -91,7 +91,7 @@ def report_html(results: ResultsOption = RESULTS,
 
     Example: eha report html --results results --out report.html
     """
-    from eha.report_html import build_report
+    from eha.reports.html import build_report
 
     out = out if out is not None else results / "reports" / "report.html"
     check_out_file(out, "--out", (".html", ".htm"))
@@ -116,7 +116,7 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
 
     Example: eha reproduce --results results
     """
-    from eha.thesis_report import reproduce_thesis
+    from eha.reports.thesis import reproduce_thesis
 
     check_out_dir(results, "--results")
     _render_reproduce(reproduce_thesis(results, workers=workers), results)

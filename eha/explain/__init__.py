@@ -1,15 +1,15 @@
 """The residual loop: fit the declared faults, trace the residual to a missing effect, add it.
 
-Given a measured record (:mod:`eha.measured`), :func:`explain`
+Given a measured record (:mod:`eha.identification.measured`), :func:`explain`
 
-a. fits the declared fault parameters of the LF model (:func:`eha.fdi.identify`) on the fitted
-   part of the record: the baseline and its residual ``r = y_measured - y_LF``;
+a. fits the declared fault parameters of the LF model (:func:`eha.identification.fdi.identify`) on
+   the fitted part of the record: the baseline and its residual ``r = y_measured - y_LF``;
 b. traces the residual: its correlation with the *signature* of every effect of
-   :data:`eha.effects.EFFECTS` (the change of the LF output xu when the effect is switched on at
-   its probe value, a secant sensitivity computed by finite differences, all in one parallel
-   batch) and with signals (position, sign of the jack velocity, command, tracking error, P12);
-   the linearised fit ``r ~ J_faults*d_faults + a*signature`` gives the fraction of the residual
-   each effect could explain, which ranks the candidates;
+   :data:`eha.explain.effects.EFFECTS` (the change of the LF output xu when the effect is switched
+   on at its probe value, a secant sensitivity computed by finite differences, all in one parallel
+   batch) and with signals (position, sign of the jack velocity, command, tracking error, P12); the
+   linearised fit ``r ~ J_faults*d_faults + a*signature`` gives the fraction of the residual each
+   effect could explain, which ranks the candidates;
 c. refits the faults together with each of the best-ranked candidates (its parameters free
    within their bounds) and scores it by the relative reduction of the RMSE (fitted and
    *held-out* parts weighted equally, :attr:`Evaluation.rmse_score`) minus a
@@ -62,7 +62,7 @@ from eha.explain.settings import (ALTERNATIVE_MARGIN, CONFIRM_FRACTION, DEFAULT_
                                   START_TOLERANCE, STRUCTURAL, SWAP_CANDIDATES, ExplainError,
                                   LoopSettings, parse_fit)
 from eha.explain.tracing import SIGNALS, signatures, trace_residual
-from eha.measured import noise_level
+from eha.identification.measured import noise_level
 
 __all__ = [
     # running the loop

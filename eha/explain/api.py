@@ -14,9 +14,9 @@ from eha.explain.loop import ResidualLoop
 from eha.explain.null import Null, NullError, records_null, simulated_null
 from eha.explain.results import ExplainResult
 from eha.explain.settings import SECOND_PASS, STRUCTURAL, ExplainError, LoopSettings
-from eha.fdi import DEFAULT_METHOD
-from eha.measured import MeasuredData
-from eha.params import LFParams
+from eha.identification.problem import DEFAULT_METHOD
+from eha.identification.measured import MeasuredData
+from eha.models.params import LFParams
 
 
 def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
@@ -35,12 +35,12 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     Parameters
     ----------
     data : MeasuredData
-        The record (:func:`eha.measured.load`).
+        The record (:func:`eha.identification.measured.load`).
     fit : str or mapping, optional
         Declared fault parameters and bounds (:func:`parse_fit`); default BKL, FDJ.
     effects : names, optional
         Candidate effects (names of docs/model.md's effect table); default all of
-        :data:`eha.effects.EFFECTS`.
+        :data:`eha.explain.effects.EFFECTS`.
     holdout : float, optional
         Fraction of the record (at its end) held out for scoring, in [0, 0.8]; default 0.3.
     validate : MeasuredData, optional
@@ -48,7 +48,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
     base : LFParams, optional
         Starting LF parameters (nominal by default; XJ0 is set from the record's command).
     method, pop, seed, **fdi_options
-        Passed to :func:`eha.fdi.identify` for every fit (same seed for all fits).
+        Passed to :func:`eha.identification.fdi.identify` for every fit (same seed for all fits).
     min_gain, penalty, alpha, max_steps, candidates, noise_factor, joint
         The stop and choice rules (:class:`LoopSettings`, where their defaults are).
     p12_weight : float, optional

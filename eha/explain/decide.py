@@ -18,21 +18,22 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from eha.effects import EFFECTS, Effect
+from eha.explain.effects import EFFECTS, Effect
 from eha.explain.results import Candidate, Evaluation, ExplainResult
 from eha.explain.settings import (ALTERNATIVE_MARGIN, CONFIRM_FRACTION, FLOW_GAIN_EDGE,
                                   POSITION_WORSENING, RIVAL_MARGIN, SPECIFIC_GAIN, STRUCTURAL,
                                   LoopSettings)
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 def significance(before: float, after: float, added: int, n_eff: float) -> float:
     """p-value of the RMSE reduction an added effect brings (an F test on effective samples).
 
     The residual of a model that lacks structure is correlated over many samples, so a record of
-    n samples carries only ``n_eff`` independent ones (:func:`eha.intervals.effective_samples`):
-    a gain that would be overwhelming on white noise is often chance on a correlated residual.
-    ``F = ((before**2 - after**2) / added) / (after**2 / (n_eff - added))``.
+    n samples carries only ``n_eff`` independent ones
+    (:func:`eha.identification.intervals.effective_samples`): a gain that would be overwhelming on
+    white noise is often chance on a correlated residual. ``F = ((before**2 - after**2) / added) /
+    (after**2 / (n_eff - added))``.
 
     Parameters
     ----------

@@ -14,13 +14,13 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from eha.effects import EFFECTS, Effect, missing_requirements
+from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.decide import keeps_effect
 from eha.explain.record import corr
 from eha.explain.results import Dismissal, Evaluation, Step
 from eha.explain.settings import STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import signatures
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 class FinalCheck:

@@ -8,13 +8,13 @@ from typing import Mapping
 
 import numpy as np
 
-from eha.effects import Effect
+from eha.explain.effects import Effect
 from eha.explain.record import rmse
 from eha.explain.results import Evaluation
 from eha.explain.settings import (GLOBAL_METHODS, LEAST_SQUARES_FINISH, MULTISTART,
                                   MULTISTART_PARAMS, SWITCHED_OFF, ExplainError)
-from eha.intervals import effective_samples
-from eha.params import LFParams
+from eha.identification.intervals import effective_samples
+from eha.models.params import LFParams
 
 
 class Fitting:
@@ -84,7 +84,8 @@ class Fitting:
                       whole: bool = False, starts: int | None = None
                       ) -> tuple[LFParams, float]:
         """:meth:`refit`, and the objective it reached (the fit's cost, to compare fits)."""
-        from eha.fdi import METHOD_DEFAULTS, FDIError, identify
+        from eha.identification.fdi import identify
+        from eha.identification.problem import METHOD_DEFAULTS, FDIError
 
         s = self.settings
         method = method or s.method

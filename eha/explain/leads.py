@@ -1,6 +1,6 @@
 """Leads for a residual no library effect explains: its relation to candidate signal features.
 
-When the residual of the best library model (:mod:`eha.effects`) is still well above the
+When the residual of the best library model (:mod:`eha.explain.effects`) is still well above the
 measurement noise, ``eha explain`` says so and gives the user a lead: which simple functions
 of the model's signals the residual follows, e.g. ``unexplained residual 12.3 µm (8.1× noise),
 correlated with position_cubed (61 % of it), velocity_sign (9 %)``. A cubic position term points

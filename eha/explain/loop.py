@@ -11,7 +11,7 @@ import time
 from dataclasses import fields, replace
 from typing import Any, Callable, Iterable
 
-from eha.effects import EFFECTS, Effect, get as get_effects
+from eha.explain.effects import EFFECTS, Effect, get as get_effects
 from eha.explain.decide import edge_of_spread
 from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitting
@@ -20,8 +20,8 @@ from eha.explain.record import Record, initial_position, p12_objective_weight
 from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
-from eha.measured import MeasuredData, noise_level
-from eha.params import LFParams, ParameterError, resolve
+from eha.identification.measured import MeasuredData, noise_level
+from eha.models.params import LFParams, ParameterError, resolve
 
 
 class ResidualLoop(Rounds, FinalCheck, Fitting):
@@ -224,8 +224,9 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         """Does the current model leave the record unexplained: its position residual above
         what faults and structure leave on healthy actuators of this command
         (:meth:`eha.explain.null.Null.residual_limit`, at most
-        :data:`eha.intervals.FLAG_RATIO` times the noise; without a null, that ratio)?"""
-        from eha.intervals import noise_reference
+        :data:`eha.identification.intervals.FLAG_RATIO` times the noise; without a null, that
+        ratio)?"""
+        from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all > self.residual_limit * noise_reference(self.noise,
                                                                           self.data.xu)
@@ -235,7 +236,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         ``noise_factor`` times it, the stop rule's factor)? Above it the record is not
         explained, whatever healthy actuators leave on the command: a residual of 1.6× the
         noise over a thousand samples is not noise (ExplainResult.verdict)."""
-        from eha.intervals import noise_reference
+        from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all <= self.settings.noise_factor * noise_reference(
             self.noise, self.data.xu)
@@ -243,7 +244,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     @property
     def residual_limit(self) -> float:
         """Residual-to-noise ratio above which the record is unexplained."""
-        from eha.intervals import FLAG_RATIO
+        from eha.identification.intervals import FLAG_RATIO
 
         if self.null is None:
             return FLAG_RATIO
@@ -252,17 +253,17 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     def estimate(self) -> None:
         """(g) The final estimates: the model chosen, every fitted parameter (faults and the
         effects added) is refitted on the *whole* record by least squares (``"lm"``,
-        :func:`eha.fdi.identify`) from the loop's fit. The hold-out serves the choice of
-        effects; once they are chosen the estimates use all the data. The loop's refits are on
-        the fitted part alone, and a GA or compass search there can stop in a valley's side
-        basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded
-        against jack friction and a load on ``mixed``); the least-squares step follows the
-        valley. The polish runs from the loop's model and from it with the structure's
-        parameters at their physical values (the flapper's probe); the better is kept, only
-        when it lowers the whole record's objective and leaves every added effect outside its
-        healthy band. A model without added effects keeps its fit (a
-        record to which nothing was added: ``after`` is ``before``). After it the "held-out"
-        RMSE of the final model is in-sample (reported as such in docs/explain.md)."""
+        :func:`eha.identification.fdi.identify`) from the loop's fit. The hold-out serves the
+        choice of effects; once they are chosen the estimates use all the data. The loop's refits
+        are on the fitted part alone, and a GA or compass search there can stop in a valley's side
+        basin that the held-out part would have ruled out (an offset of 0.21 for 0.3 traded against
+        jack friction and a load on ``mixed``); the least-squares step follows the valley. The
+        polish runs from the loop's model and from it with the structure's parameters at their
+        physical values (the flapper's probe); the better is kept, only when it lowers the whole
+        record's objective and leaves every added effect outside its healthy band. A model without
+        added effects keeps its fit (a record to which nothing was added: ``after`` is ``before``).
+        After it the "held-out" RMSE of the final model is in-sample (reported as such in
+        docs/explain.md)."""
         if not self.steps:
             return
         free = dict(self.bounds)
@@ -335,8 +336,9 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         their notes and level, and whether the record is left unexplained (flagged by the
         intervals, or :meth:`unexplained`); then the faults' intervals also span their
         estimates without the tentative effects (:meth:`faults_without_tentative`)."""
-        from eha.fdi import DEFAULT_LEVEL, intervals_at, model_form_of
-        from eha.intervals import MODEL_FORM, loop_terms
+        from eha.identification.fdi import intervals_at
+        from eha.identification.problem import DEFAULT_LEVEL, model_form_of
+        from eha.identification.intervals import MODEL_FORM, loop_terms
 
         final_bounds = dict(self.bounds)
         for step in self.steps:

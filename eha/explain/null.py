@@ -9,7 +9,7 @@ never fits above a few hundred). The null is
 
 1. a **healthy fleet simulated** on the record's command (:func:`simulated_null`): HF
    actuators with the manufacturing scatter of ``eha health calibrate``
-   (:data:`eha.detection.DISPERSION`), the declared faults drawn over a typical range
+   (:data:`eha.identification.healthy.DISPERSION`), the declared faults drawn over a typical range
    (:data:`DECLARED_DRAW`), the HF's dither, the record's noise level (position and, when the
    record has one, P12), sampling and command hold; or the user's own **healthy records**
    (:func:`records_null`, ``eha explain --healthy DIR``: commissioning tests of their
@@ -19,16 +19,16 @@ never fits above a few hundred). The null is
    added the structure), then each library effect refitted on top by the loop's local test
    (:meth:`eha.explain.loop.ResidualLoop.local_test`: least squares from the effect off and
    from its probe, the better fit); the statistic is the parameter's distance from its off value
-   (:meth:`eha.effects.Effect.shift`);
+   (:meth:`eha.explain.effects.Effect.shift`);
 3. per effect, the threshold of the shared detection engine
-   (:func:`eha.detection.tail_threshold`): a normal tail with probability ``alpha / m`` for
-   ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
+   (:func:`eha.identification.healthy.tail_threshold`): a normal tail with probability ``alpha /
+   m`` for ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
    most ``alpha`` (union bound) — the same rule as ``eha health calibrate``'s thresholds.
 
 Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
 sampling, the noise, the declared faults, the loop's fit settings and the model version
-(:data:`eha.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses them.
-The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
+(:data:`eha.models.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses
+them. The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_PO
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
 from eha.errors import InputError
+from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
 NULL_FORMAT = 2
@@ -90,7 +91,7 @@ class Null:
     key : str
         Cache key (empty for user records).
     statistics : dict of str to list of float
-        Per effect, its :meth:`~eha.effects.Effect.shift` on each healthy record (the
+        Per effect, its :meth:`~eha.explain.effects.Effect.shift` on each healthy record (the
         parameter's unit).
     gains : dict of str to list of float
         Per effect, the relative RMSE reduction its refit brought on each healthy record.
@@ -120,9 +121,7 @@ class Null:
 
     def thresholds(self, alpha: float) -> dict[str, float]:
         """Per effect, the statistic a healthy record exceeds with probability ``alpha / m``
-        (``m`` effects; :func:`eha.detection.tail_threshold`)."""
-        from eha.detection import tail_threshold
-
+        (``m`` effects; :func:`eha.identification.healthy.tail_threshold`)."""
         m = max(len(self.statistics), 1)
         return {name: tail_threshold(values, alpha / m, self.resolution.get(name, 0.0))[0]
                 for name, values in self.statistics.items()}
@@ -133,8 +132,6 @@ class Null:
         threshold plus the ``power`` quantile of the healthy spread. An estimate of the
         loop's minimum detectable effect on this command; ``benchmarks/bench_explain_power.py``
         measures it."""
-        from eha.detection import tail_threshold
-
         z = NormalDist().inv_cdf(power)
         m = max(len(self.statistics), 1)
         out = {}
@@ -146,11 +143,11 @@ class Null:
 
     def residual_limit(self, alpha: float) -> float:
         """The residual-to-noise ratio that faults and structure leave on a healthy record of
-        this command with probability ``alpha`` (:func:`eha.detection.tail_threshold`, spread
-        :data:`RATIO_SPREAD`), at most :data:`eha.intervals.FLAG_RATIO`: a record whose final
-        model leaves more is unexplained. Without ratios (an older null): the flag ratio."""
-        from eha.detection import tail_threshold
-        from eha.intervals import FLAG_RATIO
+        this command with probability ``alpha`` (:func:`eha.identification.healthy.tail_threshold`,
+        spread :data:`RATIO_SPREAD`), at most :data:`eha.identification.intervals.FLAG_RATIO`: a
+        record whose final model leaves more is unexplained. Without ratios (an older null): the
+        flag ratio."""
+        from eha.identification.intervals import FLAG_RATIO
 
         if len(self.residual_ratios) < 2:
             return FLAG_RATIO
@@ -181,7 +178,7 @@ class Null:
 
 def load_null(path: str | Path) -> Null | None:
     """A cached null, or None when the file is missing, damaged or of another format."""
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -215,7 +212,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         The residual of faults and structure over the record's noise (what the verdict
         compares with the flag ratio).
     """
-    from eha.effects import COMBINATIONS, EFFECTS, missing_requirements
+    from eha.explain.effects import COMBINATIONS, EFFECTS, missing_requirements
     from eha.explain.loop import ResidualLoop
 
     STRUCTURAL_ORDER = [name for combo in COMBINATIONS for name in combo]
@@ -235,7 +232,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     loop.current = loop.refit(start, free, "healthy record: the declared faults", starts=1)
     loop.cur = loop.evaluate([loop.current])[0]
     loop.free = free
-    from eha.intervals import noise_reference
+    from eha.identification.intervals import noise_reference
     ratio = loop.cur.rmse_all / noise_reference(loop.noise, data.xu)
     shifts, gains = {}, {}
     for effect in loop.pool:
@@ -272,14 +269,13 @@ def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
     """One simulated healthy record like ``data``: same command (its original samples and
     hold), sampling, length and noise (position; P12 when ``data`` has it).
 
-    The actuator is :func:`eha.detection.draw_actuator` ``(seed)`` with the declared faults
-    drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
-    dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test
-    conditions) are set on every actuator.
+    The actuator is :func:`eha.identification.healthy.draw_actuator` ``(seed)`` with the declared
+    faults drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
+    dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test conditions) are
+    set on every actuator.
     """
-    from eha.detection import draw_actuator
-    from eha.measured import from_arrays, noise_level
-    from eha.simulate import simulate
+    from eha.identification.measured import from_arrays, noise_level
+    from eha.models.simulate import simulate
 
     overrides = draw_actuator(seed)
     overrides.update(_declared_values(np.random.default_rng([seed, 3]), fit))
@@ -305,7 +301,7 @@ def _fleet_member(args):
     data, fit, effects, settings, seed, base, fixed, fdi_options = args
     known = {}
     if base is not None and fixed:
-        from eha.params import SPECS
+        from eha.models.params import SPECS
         # a known test condition (a test load) is the healthy fleet's too
         known = {n: getattr(base, n) for n in fixed if "hf" in SPECS[n].models}
     record, _ = healthy_record(data, fit, seed, known)
@@ -316,9 +312,8 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
              actuators: int, seed: int, base=None, fixed: Sequence[str] = (),
              fdi_options: Mapping[str, float] | None = None) -> str:
     """Cache key of a simulated null for ``data``'s command, sampling and noise."""
-    from eha.detection import command_signature
-    from eha.measured import noise_level
-    from eha.simulate import MODEL_VERSION
+    from eha.identification.measured import noise_level
+    from eha.models.simulate import MODEL_VERSION
 
     noise = noise_class(float(data.info.get("noise_m", noise_level(data.xu))))
     parts = {
@@ -349,7 +344,7 @@ def _changed(base) -> dict[str, float]:
         return {}
     from dataclasses import fields as dc_fields
 
-    from eha.params import LFParams
+    from eha.models.params import LFParams
 
     nominal = LFParams()
     return {f.name: getattr(base, f.name) for f in dc_fields(base)
@@ -357,7 +352,7 @@ def _changed(base) -> dict[str, float]:
 
 
 def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     units, resolution = {}, {}
     for name in effects:
@@ -371,7 +366,7 @@ def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
 def covered_effects(effects: Sequence[str]) -> list[str]:
     """The effects a null covers: those with exactly one fitted parameter that are not the
     model's known structure."""
-    from eha.effects import EFFECTS
+    from eha.explain.effects import EFFECTS
 
     return [n for n in effects if n not in STRUCTURAL and len(EFFECTS[n].params) == 1]
 
@@ -398,7 +393,7 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
     workers : int, optional
         Processes (default: the machine's cores, at most 2 per calibration).
     """
-    from eha.simulate import MODEL_VERSION
+    from eha.models.simulate import MODEL_VERSION
 
     names = covered_effects(effects)
     if actuators < MIN_RECORDS:
@@ -465,8 +460,8 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
     Not cached (the files are the user's). A :class:`eha.measured.RecordFile` folder reads
     its records with its columns and units."""
-    from eha.measured import FILE_TYPES, MeasuredDataError, load, same_format
-    from eha.simulate import MODEL_VERSION
+    from eha.identification.measured import FILE_TYPES, MeasuredDataError, load, same_format
+    from eha.models.simulate import MODEL_VERSION
 
     spec, folder = folder, Path(folder)
     if not folder.is_dir():

@@ -136,8 +136,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     ``known`` holds LF parameters fixed at known values (test conditions such as a test load
     ``{"FRC": 4000}``, or ``--set`` items ``["FRC=4000"]``), on top of the ``prior``'s effects;
     they are not candidates. ``command_hold`` says how the records' commands are rebuilt
-    between their samples (:data:`eha.measured.COMMAND_HOLDS`). ``data`` and ``validate`` may
-    be :class:`eha.measured.RecordFile` (a record's columns and units); ``options`` go to
+    between their samples (:data:`eha.identification.measured.COMMAND_HOLDS`). ``data`` and ``validate`` may
+    be :class:`eha.identification.measured.RecordFile` (a record's columns and units); ``options`` go to
     :func:`eha.explain.api.explain` (``settings``: a :class:`LoopSettings`).
 
     Returns
@@ -154,10 +154,10 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.explain.api import explain
     from eha.explain.record import augmented_base
     from eha.explain.settings import ExplainError
-    from eha.measured import load
+    from eha.identification.measured import load
     from eha.campaigns.store import StoreError, save_explain
 
-    from eha.params import ParameterError, parse_assignments, resolve
+    from eha.models.params import ParameterError, parse_assignments, resolve
 
     if known is not None and not isinstance(known, Mapping):
         try:

@@ -10,12 +10,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.effects import get as get_effects
+from eha.explain.effects import get as get_effects
 from eha.explain.settings import P12_NOISE_FLOOR, START_TOLERANCE, ExplainError
-from eha.measured import MeasuredData, noise_level
-from eha.params import LFParams, ParameterError
-from eha.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
-                          xj0_for_recorded)
+from eha.identification.measured import MeasuredData, noise_level
+from eha.models.params import LFParams, ParameterError
+from eha.models.simulate import (OUTPUT_DT, command_on_grid, grid, simulate, simulate_lf_batch,
+                                 xj0_for_recorded)
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:
@@ -79,9 +79,9 @@ def p12_objective_weight(noise_xu: float, p12: np.ndarray | None, weight: float 
     """Metres of position per pascal of P12 residual in the fits, and the P12 noise [Pa].
 
     Each signal is measured in its own noise (``noise_xu`` [m], the P12 noise from
-    :func:`eha.measured.noise_level`): ``weight * noise_xu / noise_p12``, the P12 noise
-    floored at :data:`P12_NOISE_FLOOR` of its standard deviation. ``(0, nan)`` when the record has no P12, ``weight`` is 0, or either signal is
-    noise-free and flat.
+    :func:`eha.identification.measured.noise_level`): ``weight * noise_xu / noise_p12``, the P12
+    noise floored at :data:`P12_NOISE_FLOOR` of its standard deviation. ``(0, nan)`` when the
+    record has no P12, ``weight`` is 0, or either signal is noise-free and flat.
     """
     if p12 is None or weight <= 0:
         return 0.0, math.nan

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from eha.effects import EFFECTS
+from eha.explain.effects import EFFECTS
 from eha.explain.leads import LeadReport
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 @dataclass

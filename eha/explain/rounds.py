@@ -9,13 +9,13 @@ import math
 import time
 from typing import Mapping, Sequence
 
-from eha.effects import COMBINATIONS, EFFECTS, Effect, missing_requirements
+from eha.explain.effects import COMBINATIONS, EFFECTS, Effect, missing_requirements
 from eha.explain.decide import (Choice, choose, keeps_effect, significance, split_combination,
                                 trades_position)
 from eha.explain.results import Candidate, Dismissal, Evaluation, Round, Step
 from eha.explain.settings import LOOK_AHEAD, SPECIFIC_GAIN, STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import trace_residual
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 
 class Rounds:
@@ -117,12 +117,12 @@ class Rounds:
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
-        combinations of :data:`~eha.effects.COMBINATIONS`, alone and with each of the effects
-        that best explain the combination's residual (an effect is often only recognisable
-        once the structure it interacts with is in the model: with the orifice law a load and
-        a motor offset stop being equivalent). The combinations with other effects are
-        skipped when a candidate made only of the structure already qualifies: the structure
-        is then chosen first whatever they gain (:func:`choose`)."""
+        combinations of :data:`~eha.explain.effects.COMBINATIONS`, alone and with each of the
+        effects that best explain the combination's residual (an effect is often only recognisable
+        once the structure it interacts with is in the model: with the orifice law a load and a
+        motor offset stop being equivalent). The combinations with other effects are skipped when a
+        candidate made only of the structure already qualifies: the structure is then chosen first
+        whatever they gain (:func:`choose`)."""
         s = self.settings
         rnd = self.trace(self.cur, self.free, remaining)
         self.rounds.append(rnd)

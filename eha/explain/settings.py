@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Iterable, Mapping, Sequence
 
-from eha.effects import COMBINATIONS
-from eha.fdi import DEFAULT_METHOD
-from eha.params import ParameterError, parse_name_value
+from eha.explain.effects import COMBINATIONS
+from eha.identification.problem import DEFAULT_METHOD
+from eha.models.params import ParameterError, parse_name_value
 from eha.errors import InputError
 
 
@@ -186,20 +186,19 @@ class LoopSettings:
     flow_gain_spread : float
         The valve flow gain GQ is fitted with the declared faults, within +- this fraction
         of the base's value, in [0, 0.5] (0: held at the base's). Default 0.04: the healthy
-        fleet's +-3 % (:data:`eha.detection.DISPERSION`, what the healthy null draws) and a
-        third more, so that a healthy actuator's flow gain is fitted inside the spread and
-        never at its edge. A healthy actuator's flow gain is its own, and where the valve
-        saturates it sets the jack's velocity: held at nominal, a 3 % spread leaves a healthy
-        1 cm `sine` at 25x the noise, and viscous friction, leakage and clogging stand in for
-        it. Fitted, it also absorbs what reduces the flow alike (a weak torque motor, a leak):
-        the spread is therefore no wider than a healthy actuator's, and a GQ at its edge
-        (:func:`edge_of_spread`) is read as a flow loss beyond a healthy actuator's and GQ
-        goes back to the base's value, after the declared faults' fit
-        (:meth:`ResidualLoop.baseline`) or, at the end, by running the loop again
-        (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a
+        fleet's +-3 % (:data:`eha.identification.healthy.DISPERSION`, what the healthy null draws)
+        and a third more, so that a healthy actuator's flow gain is fitted inside the spread and
+        never at its edge. A healthy actuator's flow gain is its own, and where the valve saturates
+        it sets the jack's velocity: held at nominal, a 3 % spread leaves a healthy 1 cm `sine` at
+        25x the noise, and viscous friction, leakage and clogging stand in for it. Fitted, it also
+        absorbs what reduces the flow alike (a weak torque motor, a leak): the spread is therefore
+        no wider than a healthy actuator's, and a GQ at its edge (:func:`edge_of_spread`) is read
+        as a flow loss beyond a healthy actuator's and GQ goes back to the base's value, after the
+        declared faults' fit (:meth:`ResidualLoop.baseline`) or, at the end, by running the loop
+        again (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a
         declared fault or known (``fixed``).
     method, pop, seed
-        Optimizer of every fit (:func:`eha.fdi.identify`), same seed for all fits.
+        Optimizer of every fit (:func:`eha.identification.fdi.identify`), same seed for all fits.
     """
 
     holdout: float = 0.3
@@ -268,9 +267,10 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
               ) -> dict[str, tuple[float, float]]:
     """Fault parameters to fit: ``"BKL,FDJ"`` or ``"BKL=0:1e-3,FDJ=200:4000"`` or a mapping.
 
-    Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or :func:`eha.fdi.default_bounds`.
+    Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or
+    :func:`eha.identification.problem.default_bounds`.
     """
-    from eha.fdi import DEFAULT_FIT, FDIError, check_bounds, default_bounds
+    from eha.identification.problem import DEFAULT_FIT, FDIError, check_bounds, default_bounds
 
     if spec is None:
         spec = DEFAULT_FIT

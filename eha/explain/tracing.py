@@ -9,10 +9,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from eha.effects import Effect, switch_on_with_requirements
+from eha.explain.effects import Effect, switch_on_with_requirements
 from eha.explain.record import Record, corr, rmse
 from eha.explain.results import Candidate, Evaluation, Round
-from eha.params import LFParams
+from eha.models.params import LFParams
 
 #: Signals the residual is correlated with (name -> meaning).
 SIGNALS = {

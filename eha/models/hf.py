@@ -14,7 +14,7 @@ from numba import njit
 from eha.models import OUTPUTS
 from eha.models.friction import (borello_velocity, borello_velocity_first_order, clamp,
                                  end_stop, play, record)
-from eha.params import HF
+from eha.models.params import HF
 
 #: State variables of the HF model (SI; cor in mA; ierr in m*s).
 STATES = ("xu", "xj", "dxj", "xs", "dxs", "xf", "dxf", "xsb", "cor", "ierr", "er_prev")
@@ -29,7 +29,7 @@ def run_hf(p, com, dither, steps_per_out, out):
     Parameters
     ----------
     p : float64[:]
-        Parameter vector in :class:`eha.params.HFParams` order (index with ``HF``).
+        Parameter vector in :class:`eha.models.params.HFParams` order (index with ``HF``).
     com : float64[:]
         Command [m] at every step, ``len = n_out_intervals*steps_per_out + 1``.
     dither : float64[:]

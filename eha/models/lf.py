@@ -13,7 +13,7 @@ from numba import njit, prange
 
 from eha.models.friction import (clamp, dithered_play, end_stop, karnopp_velocity,
                                  karnopp_velocity_first_order, play, record)
-from eha.params import LF
+from eha.models.params import LF
 
 #: State variables of the LF model (SI; cor in mA).
 STATES = ("xu", "xj", "dxj", "xs", "dxs", "xf", "dxf", "xsb", "cor")
@@ -30,7 +30,7 @@ def run_lf(p, com, steps_per_out, out):
     Parameters
     ----------
     p : float64[:]
-        Parameter vector in :class:`eha.params.LFParams` order (index with ``LF``).
+        Parameter vector in :class:`eha.models.params.LFParams` order (index with ``LF``).
     com : float64[:]
         Command [m] at every step, ``len = (out.shape[0] - 1)*steps_per_out + 1``.
     steps_per_out : int

@@ -1,4 +1,4 @@
-"""Numba kernel of the run metrics (:mod:`eha.run_metrics`): the lag search.
+"""Numba kernel of the run metrics (:mod:`eha.models.run_metrics`): the lag search.
 
 The lag of a run is the shift of the command that best matches the position, searched over
 up to 200 shifts; as numpy calls that was 100-200 calls per run (1.7 ms per 0.2-s run, more

@@ -1,0 +1,219 @@
+"""Python API of the models: :func:`simulate` returns a :class:`Trace` at 1 kHz
+(docs/model.md §8)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from eha.models.commands import Command, as_command
+from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
+from eha.models.hf import dither_samples, run_hf
+from eha.models.lf import run_lf, run_lf_batch
+from eha.models.params import ModelParams, ParameterError, resolve
+
+#: Recorded sample period [s] (thesis: 100*DT).
+OUTPUT_DT = 1e-3
+#: Bumped whenever a kernel's equations change; part of every campaign run key.
+MODEL_VERSION = "1"
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Recorded outputs of one simulation.
+
+    Attributes
+    ----------
+    data : float64 array, shape (n, 9)
+        Columns :data:`eha.models.OUTPUTS` (t [s], com [m], xu [m], xj [m], dxj [m/s],
+        xs [m], xf [m], p12 [Pa], cor [mA]).
+    meta : dict
+        Model, command, parameters that differ from nominal, seed, t_end.
+    """
+
+    data: np.ndarray
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.data.ndim != 2 or self.data.shape[1] != len(OUTPUTS):
+            raise ValueError(f"Trace.data must have shape (n, {len(OUTPUTS)}), got "
+                             f"{self.data.shape}")
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[:, OUTPUTS.index(name)]
+
+    def __len__(self) -> int:
+        return self.data.shape[0]
+
+    @property
+    def t(self) -> np.ndarray:
+        return self["t"]
+
+    @property
+    def xu(self) -> np.ndarray:
+        return self["xu"]
+
+    def to_pandas(self):
+        import pandas as pd
+
+        return pd.DataFrame(self.data, columns=list(OUTPUTS))
+
+    def to_arrow(self):
+        import pyarrow as pa
+
+        schema = pa.schema(
+            [pa.field(n, pa.float64(), metadata={"unit": OUTPUT_UNITS[n]}) for n in OUTPUTS],
+            metadata={"eha": json.dumps(self.meta, default=float)},
+        )
+        return pa.Table.from_arrays([pa.array(self.data[:, i]) for i in range(len(OUTPUTS))],
+                                    schema=schema)
+
+
+def check_grid(params: ModelParams, t_end: float) -> tuple[int, int, int]:
+    """``(steps_per_out, n_out, n_steps)`` of a run, checked but not allocated (a campaign
+    validates t_end = 3600 s without building its 3.6e8-step grid)."""
+    if not np.isfinite(t_end) or not 1e-3 <= t_end <= 3600.0:
+        raise ParameterError(f"t_end={t_end:g} is out of range; allowed range [0.001, 3600] s")
+    steps_per_out = int(round(OUTPUT_DT / params.DT))
+    n_intervals = int(round(t_end / OUTPUT_DT))
+    return steps_per_out, n_intervals + 1, n_intervals * steps_per_out + 1
+
+
+def _grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
+    steps_per_out, n_out, n_steps = check_grid(params, t_end)
+    return steps_per_out, n_out, np.arange(n_steps) * params.DT
+
+
+def measure(t: np.ndarray, xu: np.ndarray, params: ModelParams) -> np.ndarray:
+    """Recorded position: ``gain*XU(t - delay) + bias`` (sensor effects, docs/model.md §6)."""
+    y = xu
+    if params.sensor_delay > 0.0:
+        y = np.interp(t - params.sensor_delay, t, xu, left=xu[0])
+    if params.sensor_gain != 1.0:
+        y = params.sensor_gain * y
+    if params.sensor_bias != 0.0:
+        y = y + params.sensor_bias
+    return y
+
+
+def _params(model: str, params: ModelParams | Mapping[str, float] | None) -> ModelParams:
+    if isinstance(params, ModelParams):
+        if params.model != model:
+            raise ParameterError(f"params: a {params.model.upper()} parameter set was given to "
+                                 f"the {model.upper()} model")
+        return params
+    return resolve(model, params or {})
+
+
+def command_on_grid(command: Command | str, t_steps: np.ndarray) -> np.ndarray:
+    """The command sampled at every integration step (contiguous float64)."""
+    return np.ascontiguousarray(as_command(command).sample(t_steps, uniform=True),
+                                dtype=np.float64)
+
+
+def simulate(model: str, command: Command | str = "mixed",
+             params: ModelParams | Mapping[str, float] | None = None,
+             t_end: float = 1.0, seed: int = 0) -> Trace:
+    """Simulate the HF or LF model.
+
+    Parameters
+    ----------
+    model : {"hf", "lf"}
+    command : Command or str
+        A :class:`~eha.models.commands.Command` or a preset name (``eha commands``).
+    params : ModelParams or mapping, optional
+        Parameter set, or overrides of the nominal one by name (``{"BKL": 1e-4}``).
+    t_end : float
+        Simulated time [s]; the trace has ``round(t_end/1e-3) + 1`` samples.
+    seed : int
+        Seed of the HF dither (the only random input); recorded in ``Trace.meta``.
+
+    Returns
+    -------
+    Trace
+    """
+    p = _params(model, params)
+    cmd = as_command(command)
+    steps_per_out, n_out, t_steps = _grid(p, t_end)
+    com = command_on_grid(cmd, t_steps)
+    out = np.empty((n_out, len(OUTPUTS)))
+    vec = p.to_array()
+    if model == "hf":
+        run_hf(vec, com, dither_samples(p.dither_ma, n_out - 1, seed), steps_per_out, out)
+    else:
+        run_lf(vec, com, steps_per_out, out)
+    out[:, O_XU] = measure(out[:, O_T], out[:, O_XU], p)
+    nominal = type(p)()
+    changed = {k: v for k, v in p.as_dict().items() if getattr(nominal, k) != v}
+    meta = {"model": model, "command": cmd.describe(), "params": changed, "seed": int(seed),
+            "t_end": float(t_end), "model_version": MODEL_VERSION}
+    return Trace(out, meta)
+
+
+def xj0_for_recorded(recorded_start: float, sensor_bias, sensor_gain, XJM):
+    """Initial jack position [m] at which the *recorded* position (``gain*XU + bias``) equals
+    ``recorded_start``, within the stroke ``±XJM`` (scalars or arrays)."""
+    return np.clip((recorded_start - np.asarray(sensor_bias)) / np.asarray(sensor_gain),
+                   -np.asarray(XJM), np.asarray(XJM))
+
+
+def simulate_lf_batch(param_rows: np.ndarray, com: np.ndarray, steps_per_out: int,
+                      n_out: int, base: ModelParams,
+                      recorded_start: float | None = None, with_p12: bool = False):
+    """Recorded LF position for many parameter vectors in one parallel numba call.
+
+    Parameters
+    ----------
+    param_rows : float64 array, shape (n, n_par)
+        LF parameter vectors (``LFParams.to_array`` order).
+    com : float64 array
+        Command on the step grid (:func:`command_on_grid`).
+    base : LFParams
+        Source of the sensor parameters when they are not varied (they are read per row).
+    recorded_start : float, optional
+        Start each row at rest where its recorded position is this value [m] (XJ0 from the
+        row's sensor bias and gain, :func:`xj0_for_recorded`) instead of at its XJ0: a record
+        that starts away from its command starts at its measured position.
+
+    with_p12 : bool
+        Also return the load pressure P12 of each row (the sensor does not touch it).
+
+    Returns
+    -------
+    float64 array, shape (n, n_out): recorded xu of each row; with ``with_p12`` the pair
+    ``(xu, p12)``, P12 in Pa.
+    """
+    from eha.models.params import LF
+
+    out = np.empty((param_rows.shape[0], n_out, len(OUTPUTS)))
+    if recorded_start is not None:
+        param_rows = np.array(param_rows, dtype=np.float64)
+        param_rows[:, LF.XJ0] = xj0_for_recorded(recorded_start, param_rows[:, LF.sensor_bias],
+                                                 param_rows[:, LF.sensor_gain],
+                                                 param_rows[:, LF.XJM])
+    run_lf_batch(np.ascontiguousarray(param_rows), com, steps_per_out, out)
+
+    xu = out[:, :, O_XU]
+    t = out[0, :, O_T]
+    for j in range(param_rows.shape[0]):
+        row = param_rows[j]
+        if row[LF.sensor_delay] or row[LF.sensor_gain] != 1.0 or row[LF.sensor_bias]:
+            xu[j] = measure(t, xu[j], base.replace(
+                sensor_delay=row[LF.sensor_delay], sensor_gain=row[LF.sensor_gain],
+                sensor_bias=row[LF.sensor_bias]))
+    if with_p12:
+        return np.ascontiguousarray(xu), np.ascontiguousarray(out[:, :, O_P12])
+    return np.ascontiguousarray(xu)
+
+
+def grid(params: ModelParams, t_end: float) -> tuple[int, int, np.ndarray]:
+    """``(steps_per_out, n_out, t_steps)`` of a run: the step grid for :func:`command_on_grid`."""
+    return _grid(params, t_end)
+
+
+__all__ = ["Trace", "simulate", "simulate_lf_batch", "command_on_grid", "grid", "measure",
+           "xj0_for_recorded",
+           "OUTPUT_DT", "MODEL_VERSION", "O_COM"]

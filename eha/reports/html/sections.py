@@ -1,0 +1,258 @@
+"""The sections of the HTML report: Fleet, Health, Identification, Residual loop, Campaigns.
+
+Each function takes what :mod:`eha.reports.html.data` read and returns the section's HTML (the
+:class:`~eha.reports.html.page.Page` keeps the figures' ids); the caller leaves out a section
+whose data is None.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from eha.reports.html import figures as F
+from eha.reports.html.data import Fleet, Health, Identification, fleet_table, unit_of
+from eha.reports.html.fits import fit_figures
+from eha.reports.html.page import Column, Page, esc, fmt_int, fmt_num, tag
+
+
+# =========================================================================== fleet
+def fleet_section(page: Page, fleets: list[Fleet]) -> str:
+    """Per ``eha rul`` run: the RUL overview, the actuator table (click a row: its figure),
+    the actuator figure with a selector, the α-λ plot with a truth."""
+    parts = []
+    for fleet in fleets:
+        rows = fleet_table(fleet)
+        for r in rows:                       # estimate and interval in one cell, as shown
+            for name in fleet.faults:
+                unit, f = unit_of(name)
+                est, lo, hi = r.get(name), r.get(f"{name}_lo"), r.get(f"{name}_hi")
+                r[f"{name}_text"] = "-" if est is None else (
+                    f"{f * est:.4g} [{fmt_num()(lo and f * lo)}, {fmt_num()(hi and f * hi)}]")
+        order = {"end of life": 0, "attention": 1, "no trend": 2, "ok": 3}
+        rows.sort(key=lambda r: (order.get(r["status"], 9), r["rul"] if r["rul"] is not None
+                                 else np.inf, r["actuator"]))
+        cols = [Column("actuator", "actuator", text=True), Column("status", "status", tag),
+                Column("checks", "checks", fmt_int), Column("last_cycle", "last check", fmt_int)]
+        for name in fleet.faults:
+            unit, _ = unit_of(name)
+            cols += [Column(name, f"{name} [{unit}] (90 % interval)", show=f"{name}_text"),
+                     Column(f"{name}_verdict", f"{name} verdict", tag)]
+        cols += [Column("rul", "RUL median", fmt_int), Column("rul_lo", "RUL 5 %", fmt_int),
+                 Column("rul_hi", "RUL 95 %", fmt_int), Column("driver", "driver", text=True),
+                 Column("predicted_eol", "predicted end of life", fmt_int),
+                 Column("flagged", "last check flagged", lambda v: tag("flagged") if v else "")]
+        if fleet.truth is not None:
+            cols.append(Column("true_eol", "true end of life", fmt_int))
+        by_aid = {r["actuator"]: r for r in rows}
+        figs = {aid: F.actuator_figure(fleet, aid) for aid in by_aid}
+        choice_html, pid = page.choice("Actuator:", figs, selected=rows[0]["actuator"])
+        limits = ", ".join(f"{n} = {unit_of(n)[1] * v:.4g} {unit_of(n)[0]}"
+                           for n, v in fleet.limits.items())
+        parts.append(
+            f"<h3>{esc(fleet.run_id)}</h3>"
+            f'<p class="note">{len(rows)} actuators, limits {esc(limits)}; units: cycles of '
+            "the manifest. Status: <i>end of life</i> a fault beyond its limit, <i>attention"
+            "</i> the 5 % RUL within two check spacings, <i>no trend</i> no predicted "
+            "crossing. Click a row to show its actuator below."
+            + (f" Truth: {esc(fleet.truth_source)}." if fleet.truth_source else "") + "</p>"
+            + page.plot(F.fleet_overview(rows))
+            + page.table(cols, rows, f"fleet {fleet.run_id}", choice=(pid, "actuator"))
+            + choice_html)
+        al = F.alpha_lambda_figure(fleet)
+        if al is not None:
+            parts.append(page.plot(al))
+    return "".join(parts)
+
+
+# =========================================================================== health
+def health_section(page: Page, health: Health) -> str:
+    parts = []
+    if health.verdicts is not None:
+        v = health.verdicts
+        rows = []
+        for cid, grp in v.groupby("check_id", sort=False):
+            first = grp.iloc[0]
+            degraded = [r.fault for r in grp.itertuples() if r.degraded is True]
+            isolated = [r.fault for r in grp.itertuples() if r.isolated]
+            calibrated = grp["degraded"].notna().any()
+            rows.append({"record": str(first["record"]), "check_id": cid,
+                         "created_at": str(first["created_at"])[:19],
+                         "verdict": ("degraded" if degraded else "healthy") if calibrated
+                         else "no calibration",
+                         "degraded": ", ".join(degraded) or "-",
+                         "isolated": ", ".join(isolated) or "-",
+                         "flagged": bool(grp["flagged"].fillna(False).any())})
+        cols = [Column("record", "record", text=True), Column("created_at", "checked",
+                                                               text=True),
+                Column("verdict", "verdict", tag), Column("degraded", "degraded faults",
+                                                          text=True),
+                Column("isolated", "isolated fault", text=True),
+                Column("flagged", "flagged", lambda x: tag("flagged") if x else "")]
+        parts.append("<h3>Health checks (eha health check)</h3>"
+                     + page.table(cols, rows, "health checks") + page.plot(F.verdict_figure(v)))
+    for camp, perf in health.campaigns.items():
+        parts.append(f"<h3>Detection campaign {esc(camp)}</h3>"
+                     f'<p class="note">Thresholds from each command\'s healthy group for a '
+                     f"false-alarm probability α = {health.alpha:g} (as eha report health).</p>")
+        for command, c in perf.items():
+            rows = []
+            for name, f in c["faults"].items():
+                unit, k = unit_of(name)
+                md = f.get("min_detectable_deviation")
+                rows.append({"fault": name, "unit": unit, "threshold": f["threshold"],
+                             "min_detectable": None if md is None else k * md,
+                             "levels": ", ".join(f"{k * lev['value']:.3g}: "
+                                                 f"{lev['p_detect']:.2f}"
+                                                 for lev in f["levels"])})
+            fa = c["false_alarms"]
+            cols = [Column("fault", "fault", text=True), Column("unit", "unit", text=True),
+                    Column("min_detectable", "minimum detectable deviation (P_D ≥ 0.95)",
+                           fmt_num(3)),
+                    Column("levels", "injected value: detection probability", text=True)]
+            parts.append(f"<h3>{esc(command)}</h3>"
+                         f'<p class="note">{fa.get("n", "-")} healthy checks, any alarm on '
+                         f'{fmt_num(3)(fa.get("any"))} of them (in sample).</p>'
+                         + page.table(cols, rows, f"detection {camp} {command}",
+                                      filter_box=False)
+                         + '<div class="row"><div>' + page.plot(F.roc_figure(c, command,
+                                                                           health.alpha))
+                         + "</div><div>" + page.plot(F.confusion_figure(c["confusion"],
+                                                                         command))
+                         + "</div></div>")
+    return "".join(parts)
+
+
+# =========================================================================== identification
+def identification_section(page: Page, ident: Identification) -> str:
+    parts = []
+    for name, table in ident.tables.items():
+        camp = ident.campaigns[name]
+        rows = table.to_dict("records")
+        fits = list(camp.fit)
+        cols = [Column("case", "case", fmt_int), Column("command", "command", text=True)]
+        for n in fits:
+            unit, k = unit_of(n)
+            ln = n.lower()
+            cols += [Column(f"{ln}_in", f"{n} in [{unit}]", fmt_num(4, k)),
+                     Column(f"{ln}_out", f"{n} out [{unit}]", fmt_num(4, k)),
+                     Column(f"{ln}_int_lo", f"{n} 90 % lo [{unit}]", fmt_num(4, k)),
+                     Column(f"{ln}_int_hi", f"{n} 90 % hi [{unit}]", fmt_num(4, k)),
+                     Column(f"err_{ln}_pct", f"{n} err [%]", fmt_num(3))]
+        cols += [Column("mean_err_pct", "mean err [%]", fmt_num(3)),
+                 Column("mean_err_pct_min", "min [%]", fmt_num(3)),
+                 Column("mean_err_pct_max", "max [%]", fmt_num(3)),
+                 Column("seeds", "seeds", fmt_int), Column("seconds", "time [s]", fmt_num(3))]
+        has_thesis = bool(table["thesis_mean_err_pct"].notna().any())
+        if has_thesis:
+            cols += [Column("thesis_mean_err_pct", "thesis mean err [%]", fmt_num(3)),
+                     Column("at_least_as_accurate", "≤ thesis",
+                            lambda v: tag("yes" if v else "no"))]
+        if "aug_mean_err_pct" in table:
+            cols += [Column("aug_mean_err_pct", "augmented LF mean err [%]", fmt_num(3))]
+        better = int(table["at_least_as_accurate"].sum()) if has_thesis else None
+        note = (f"Method {esc(table['method'].iloc[0])}, objective "
+                f"{esc(table['objective'].iloc[0])}; medians over the seeds (the intervals: "
+                "median of each bound)."
+                + (f" At least as accurate as the thesis on <b>{better}/{len(table)}</b> "
+                   "cases." if has_thesis else ""))
+        parts.append(f"<h3>{esc(name)}</h3><p class=\"note\">{note}</p>"
+                     + page.table(cols, rows, f"fdi {name}")
+                     + page.plot(F.mean_error_figure(table, name)))
+        fits = fit_figures(ident.rows[name], camp)
+        if fits:
+            parts.append('<p class="note">Fit of record vs model: the HF reference of a case '
+                         "against the LF model with the identified faults (lowest seed, "
+                         "re-simulated).</p>" + page.choice("Case:", fits)[0])
+    return "".join(parts)
+
+
+# =========================================================================== residual loop
+def _explain_state(run: dict[str, Any]) -> str:
+    """"explained" (at the noise level), "above noise" (within what healthy actuators leave
+    on the command) or "unexplained" (beyond it). A database from before the healthy band
+    (no ``beyond_healthy``) called only the last unexplained."""
+    if not run.get("unexplained"):
+        return "explained"
+    beyond = run.get("beyond_healthy")
+    known = beyond is not None and not (isinstance(beyond, float) and beyond != beyond)
+    return "above noise" if known and not bool(beyond) else "unexplained"
+
+
+def explain_section(page: Page, data: dict[str, Any]) -> str:
+    runs, steps = data["runs"], data["steps"]
+    rows = []
+    for r in runs.to_dict("records"):
+        verdict = r.get("verdict")
+        rows.append({"source": str(r["source"]).replace("\\", "/").rsplit("/", 1)[-1],
+                     "run_id": r["run_id"], "created_at": str(r["created_at"])[:19],
+                     "fit": ", ".join(r["fit"] or {}),
+                     "effects": ", ".join(r["effects"] or []) or "-",
+                     "rmse_before": r["rmse_before"], "rmse_after": r["rmse_after"],
+                     "noise_rmse": r["noise_rmse"],
+                     "state": _explain_state(r),
+                     "verdict": verdict if isinstance(verdict, str) else "-",
+                     "stop_reason": r.get("stop_reason") or "-"})
+    cols = [Column("source", "record", text=True), Column("created_at", "run", text=True),
+            Column("fit", "declared faults", text=True),
+            Column("effects", "added effects", text=True),
+            Column("rmse_before", "RMSE before [µm]", fmt_num(3, 1e6)),
+            Column("rmse_after", "RMSE after [µm]", fmt_num(3, 1e6)),
+            Column("noise_rmse", "noise [µm]", fmt_num(3, 1e6)),
+            Column("state", "state", tag), Column("verdict", "verdict", text=True)]
+    key = lambda r: f"{r['source']} ({r['run_id'][:6]})"  # noqa: E731
+    figs = {}
+    step_tables = []
+    for r in runs.to_dict("records"):
+        mine = steps[steps["run_id"] == r["run_id"]]
+        figs[key(r)] = F.steps_figure(mine, r)
+        srows = [{"step": s["step"], "effect": s["effect"],
+                  "params": ", ".join(f"{k}={v:.4g}" for k, v in (s["params"] or {}).items()),
+                  "rmse_before": s["rmse_before"], "rmse_after": s["rmse_after"],
+                  "rmse_hold_before": s["rmse_hold_before"],
+                  "rmse_hold_after": s["rmse_hold_after"], "gain": s["gain"],
+                  "score": s["score"]} for s in mine.to_dict("records")]
+        scols = [Column("step", "step", fmt_int), Column("effect", "effect", text=True),
+                 Column("params", "parameters (SI)", text=True),
+                 Column("rmse_before", "RMSE before [µm]", fmt_num(3, 1e6)),
+                 Column("rmse_after", "RMSE after [µm]", fmt_num(3, 1e6)),
+                 Column("rmse_hold_before", "held-out before [µm]", fmt_num(3, 1e6)),
+                 Column("rmse_hold_after", "held-out after [µm]", fmt_num(3, 1e6)),
+                 Column("gain", "gain", fmt_num(3)), Column("score", "score", fmt_num(3))]
+        body = (page.table(scols, srows, f"steps {r['run_id']}", filter_box=False) if srows
+                else '<p class="note">no effect added</p>')
+        step_tables.append(f"<details><summary>{esc(key(r))}: {len(srows)} steps — "
+                           f"{esc(r.get('verdict') or r.get('stop_reason') or '')}</summary>"
+                           f"{body}</details>")
+    for r in rows:
+        r["key"] = f"{r['source']} ({r['run_id'][:6]})"
+    choice_html, pid = page.choice("Record:", figs)
+    return ('<p class="note">Every eha explain run in the database: the error of the LF model '
+            "with the declared faults only, then with the effects the loop added (whole "
+            "record), against the record's noise. Click a row to show its steps.</p>"
+            + page.plot(F.explain_figure(runs))
+            + page.table(cols, rows, "explain runs", choice=(pid, "key"))
+            + choice_html + "<h3>Steps</h3>" + "".join(step_tables))
+
+
+# =========================================================================== campaigns
+def campaigns_section(page: Page, data: dict[str, Any]) -> str:
+    status = data["status"]
+    rows = []
+    for camp, grp in status.groupby("campaign", sort=True):
+        n = {s: int(grp[grp["status"] == s]["n"].sum()) for s in ("done", "failed",
+                                                                  "pending")}
+        rows.append({"campaign": camp, "kind": ", ".join(sorted(set(grp["kind"]))),
+                     "runs": int(grp["n"].sum()), **n,
+                     "description": grp["description"].dropna().iloc[0]
+                     if grp["description"].notna().any() else "-"})
+    cols = [Column("campaign", "campaign", text=True), Column("kind", "kind", text=True),
+            Column("runs", "runs", fmt_int), Column("done", "done", fmt_int),
+            Column("failed", "failed", fmt_int), Column("pending", "pending", fmt_int),
+            Column("description", "description", text=True)]
+    parts = [page.table(cols, rows, "campaigns"), page.plot(F.status_figure(status))]
+    hf_lf = data["hf_lf"]
+    for camp, grp in hf_lf.groupby("campaign", sort=True):
+        parts.append(page.plot(F.hf_lf_figure(grp, str(camp))))
+    return "".join(parts)

@@ -1,0 +1,151 @@
+"""Layering: eha.campaigns is the infrastructure below the domain (it imports no domain module
+but eha.models, and job kinds reach the runner through the registry, one module at a time);
+the domain's packages import one way, models -> identification -> explain -> health,
+prognostics -> reports -> cli (the import-graph tests at the end)."""
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
+INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files")
+#: Job kinds and campaign sections the domain registers (what the runner once imported itself).
+KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
+SECTIONS = {"fdi", "health"}
+
+
+def _fresh(code: str) -> dict:
+    """Run ``code`` in a new interpreter; it prints one JSON value."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
+    loaded = _fresh("import json, sys\n"
+                    + "".join(f"import eha.campaigns.{m}\n" for m in INFRA)
+                    + "print(json.dumps(sorted(sys.modules)))")
+    eha = [m for m in loaded if m == "eha" or m.startswith("eha.")]
+    # eha.models: the output columns of a trace (constants; the package imports no kernels);
+    # eha.errors: the error hierarchy every layer derives its errors from (imports nothing)
+    foreign = [m for m in eha if m not in ("eha", "eha.campaigns", "eha.models", "eha.errors")
+               and not m.startswith("eha.campaigns.")]
+    assert foreign == [], foreign
+    assert "numba" not in loaded and "eha.models.simulate" not in loaded
+
+
+@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
+def test_infrastructure_modules_name_no_domain_module(module):
+    """No import of a module outside eha.campaigns, not even inside a function, but the
+    trace columns (eha.models.OUTPUTS, constants) and the error hierarchy (eha.errors): the runner and its workers reach a job
+    kind's module through the registry only."""
+    tree = ast.parse((PACKAGE / f"{module}.py").read_text(encoding="utf-8"))
+    named = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
+    named += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    domain = [m for m in named if m.split(".")[0] == "eha"
+              and not (m in ("eha.campaigns", "eha.models", "eha.errors")
+                       or m.startswith("eha.campaigns."))]
+    assert domain == [], f"eha/campaigns/{module}.py imports {domain}"
+
+
+def test_job_kinds_and_sections_register_through_the_entry_points():
+    from eha.campaigns import jobs
+
+    assert KINDS <= set(jobs._entry_points(jobs.JOB_GROUP))
+    assert SECTIONS <= set(jobs.section_names())
+    for kind in KINDS:
+        assert jobs.job_kind(kind).name == kind
+    for name in SECTIONS:
+        assert callable(jobs.section(name))
+    assert jobs.job_kind("simulate").run_chunk is not None
+    assert all(callable(f) for f in jobs.warm_ups())
+
+
+def test_a_worker_imports_only_the_module_of_the_kind_it_runs():
+    loaded = _fresh("import json, sys\n"
+                    "from eha.campaigns.jobs import job_kind\n"
+                    "job_kind('fleet_record')\n"
+                    "print(json.dumps(sorted(sys.modules)))")
+    assert "eha.prognostics.fleet" in loaded
+    assert not {"eha.identification.cases", "eha.health.detection", "eha.prognostics.jobs",
+                "eha.models.batch"} & set(loaded)
+
+
+def test_an_unregistered_kind_fails_its_job_with_one_line(tmp_path):
+    from eha.campaigns.jobs import execute_job
+
+    res = execute_job({"kind": "no-such-kind", "spec": {}, "run_key": "0" * 16,
+                       "campaign": "x", "trace_file": str(tmp_path / "x.parquet"),
+                       "trace_path": "traces/x/x.parquet"})
+    assert res["status"] == "failed" and res["rows"] == {}
+    assert res["error"].startswith("UnknownJobKind: 'no-such-kind' is not registered")
+
+
+# --------------------------------------------------------------------------------------------
+# the import graph of the whole package: data flows one way (docs/decisions.md)
+
+ROOT = PACKAGE.parent
+#: Layer of each package (and of the flat modules): a module imports only from its own layer
+#: or below, at module level or inside a function. health and prognostics share a layer and
+#: do not import each other.
+LAYERS = {"errors": -1, "models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
+          "prognostics": 3, "reports": 4, "cli": 5, "docgen": 6, "__main__": 6}
+
+
+def _eha_imports(path: Path) -> set[str]:
+    """The eha modules ``path`` imports (anywhere in it)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out |= {f"{node.module}.{a.name}" for a in node.names} | {node.module}
+        elif isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+    return {m for m in out if m.split(".")[0] == "eha"}
+
+
+def _part(module: str) -> str | None:
+    """The package (or flat module) right under eha of a dotted name (None for eha itself)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+def _graph() -> dict[str, set[str]]:
+    """``eha/<part>/...py`` -> the parts under eha it imports."""
+    graph = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).with_suffix("")
+        graph["/".join(rel.parts)] = {p for p in map(_part, _eha_imports(path)) if p}
+    return graph
+
+
+def test_every_package_and_flat_module_has_a_layer():
+    parts = {p.name if p.is_dir() else p.stem for p in ROOT.iterdir()
+             if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"}
+    assert parts - {"__init__", "campaigns"} == set(LAYERS), sorted(parts)
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    """models -> identification -> explain -> health, prognostics -> reports -> cli: no arrow
+    back (health <-> prognostics neither), not even inside a function."""
+    backward = []
+    for module, parts in _graph().items():
+        own = module.split("/")[1]
+        if own in ("campaigns", "__init__"):
+            continue
+        backward += [f"{module} -> eha.{part}" for part in sorted(parts - {own, "campaigns"})
+                     if LAYERS[part] >= LAYERS[own]]
+    assert backward == [], backward
+
+
+def test_the_infrastructure_imports_only_the_models():
+    """eha.campaigns: the trace columns and, to validate and expand a campaign file's
+    simulations, eha.models' parameters, commands and model version."""
+    found = {f"{module} -> eha.{part}" for module, parts in _graph().items()
+             if module.startswith("eha/campaigns/")
+             for part in parts - {"campaigns", "models", "errors"}}
+    assert found == set(), sorted(found)
