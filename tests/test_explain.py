@@ -81,9 +81,11 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     # issue 5's contract, plus the final model's intervals and the unexplained flag (issue 9)
     # and the verdict, its lead, the noise, the command's hold, the effects chosen but
     # dismissed, whether the measured P12 was fitted and the intervals' notes (issue 11); the
-    # healthy null the decisions rested on and what the command could not show (issue 24)
+    # healthy null the decisions rested on, what the command could not show and whether the
+    # residual is beyond the healthy band (issue 24)
     assert set(doc) == {"rmse_before", "rmse_after", "faults_before", "faults_after", "steps",
-                        "intervals", "level", "unexplained", "verdict", "noise_rmse",
+                        "intervals", "level", "unexplained", "beyond_healthy", "verdict",
+                        "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
                         "undetectable"}
