@@ -241,7 +241,7 @@ def test_kill_minus_9_during_a_chunk_write_then_resume_equals_uninterrupted(tmp_
 
 
 @pytest.mark.slow
-def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
+def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path, monkeypatch):
     """The same campaign on 2 single-threaded Dask worker processes and on the local pool of
     2: wall times within 15 % (best of two alternating rounds each, warm workers)."""
     distributed = pytest.importorskip("distributed")
@@ -252,7 +252,9 @@ def test_dask_local_cluster_within_15_percent_of_the_pool(tmp_path):
              "seeds": list(range(160)), "t_end": 1.0,
              "faults": {"nominal": True, "single": {"BKL": [1e-4, 5e-4]}}}   # 480 runs
     camp = build_campaign(table)
-    os.environ["NUMBA_NUM_THREADS"] = "1"   # inherited by the Dask worker processes
+    # inherited by the Dask worker processes; restored after the test (a parent whose numba
+    # threading layer starts while it is set would fail on the next compile once it is gone)
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")
     walls: dict[str, list[float]] = {"pool": [], "dask": []}
     with LocalPoolExecutor(2) as pool, \
             distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,

@@ -52,6 +52,7 @@ from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_PO
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
 from eha.errors import InputError
+from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
@@ -416,20 +417,15 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
             say(f"healthy null: actuator {k + 1} of {actuators}")
             results.append(_fleet_member(job))
     else:
-        # spawned workers with one numba thread each: the LF batch kernel is parallel, and a
-        # forked copy of an initialised threading layer is not safe
-        previous = os.environ.get("NUMBA_NUM_THREADS")
-        os.environ["NUMBA_NUM_THREADS"] = "1"
-        try:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-                for k, res in enumerate(pool.map(_fleet_member, jobs)):
-                    say(f"healthy null: actuator {k + 1} of {actuators}")
-                    results.append(res)
-        finally:
-            if previous is None:
-                os.environ.pop("NUMBA_NUM_THREADS", None)
-            else:
-                os.environ["NUMBA_NUM_THREADS"] = previous
+        # spawned workers with one numba thread each (the LF batch kernel is parallel, and a
+        # forked copy of an initialised threading layer is not safe), set in each worker
+        # before numba is imported there: the parent's environment is not touched, so a
+        # parent whose threading layer is already up never sees the variable change
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
+                                 initializer=use_one_numba_thread) as pool:
+            for k, res in enumerate(pool.map(_fleet_member, jobs)):
+                say(f"healthy null: actuator {k + 1} of {actuators}")
+                results.append(res)
     null = _assemble(f"simulated healthy fleet ({actuators} actuators, seed {seed})", key,
                      names, results, time.perf_counter() - t0)
     null.settings = {"actuators": actuators, "seed": seed, "seeds": seeds,

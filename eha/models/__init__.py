@@ -62,3 +62,10 @@ O_T, O_COM, O_XU, O_XJ, O_DXJ, O_XS, O_XF, O_P12, O_COR = range(len(OUTPUTS))
 
 # eha.models.friction.record writes the columns in this order.
 assert OUTPUTS.index("t") == 0 and OUTPUTS.index("cor") == 8
+
+
+def use_one_numba_thread() -> None:
+    """Initialiser of a worker process: one numba thread (the LF batch kernel is parallel and
+    the workers already fill the cores). Defined here, in a module that imports no numba, so
+    that unpickling it in a spawned worker sets the variable before numba is first imported."""
+    os.environ["NUMBA_NUM_THREADS"] = "1"
