@@ -263,7 +263,13 @@ class DaskExecutor(Executor):
                                   self.client.scheduler_info()["workers"].values()))
 
     def warm_up(self) -> None:
-        self.client.run(warm_worker)
+        # once per worker (the pool's workers also warm up once): a campaign reusing this
+        # executor only warms the workers that joined since
+        warmed = getattr(self, "_warmed", set())
+        new = [w for w in self.client.scheduler_info()["workers"] if w not in warmed]
+        if new:
+            self.client.run(warm_worker, workers=new)
+        self._warmed = warmed | set(new)
 
     def _submit(self, fn, payload):
         return self.client.submit(fn, payload, pure=False)
