@@ -5,15 +5,18 @@ Traces are Parquet files written atomically: a temporary name in the same direct
 many runs per file, in *chunk files* (issue 25): one file per task of the runner, holding every
 run of the task, a ``run_key`` column first (dictionary-encoded, rows sorted by run key, then
 time), the stored signals as float64 columns with the ``BYTE_STREAM_SPLIT`` encoding and zstd
-compression (lossless; 41-42 kB per 1-s run with all nine signals instead of 74 kB), and one row
-group per file up to :data:`ROW_GROUP_ROWS` rows. Query engines read a few large files much
+compression in one data page per column (lossless; about 39-40 kB per 1-s run with all nine
+signals instead of 74 kB; ``xu`` only where it differs from ``xj``, :data:`COPY_OF`), and one
+row group per file up to :data:`ROW_GROUP_ROWS` rows. Query engines read a few large files much
 faster than many small ones (DuckDB's advice: row groups of 100k rows or more). A single trace
 (:func:`write_trace`) and a campaign run before issue 25 have one file per run, whose run key is
 in its name and its metadata (key ``eha``). Both layouts are read alike (:func:`read_run`).
 
-Each run's metadata (model, command, parameters, seed, ...) is in the file metadata under
-``eha_runs`` (JSON ``{run_key: meta}``); a file of one run also carries it under ``eha``, the
-key of the one-file-per-run layout, so tools written for that layout still read it.
+Each run's metadata (model, command, parameters, seed, ...) is in the footer's key-value
+metadata under ``eha_runs`` (JSON ``{run_key: meta}``; not in the Arrow schema that pyarrow
+also stores there, so ``pq.read_metadata(path).metadata``, not ``pq.read_schema``); a file of
+one run also carries it under ``eha`` in its schema metadata, the key of the one-file-per-run
+layout, so tools written for that layout still read it.
 
 A chunk is written under a temporary name and renamed into place (:func:`write_chunk`). The
 runner records for each run the file, its size and the run's own row count; a file is intact
@@ -53,10 +56,11 @@ ROW_GROUP_ROWS = 1_048_576
 #: ``BYTE_STREAM_SPLIT`` compress better in one long page: 40.2 kB instead of 41.7 kB per
 #: 1-s run with nine signals (the time column 35 B instead of 180 B).
 PAGE_BYTES = 1 << 30
-#: zstd level: 1 and 3 give 41.7 kB per 1-s run (0.4 and 0.5 ms), 9 gives 41.4 kB in 1.2 ms,
-#: 19 gives 40.5 kB in 13 ms (measured on 50 HF runs of `mixed`; without byte-stream-split
-#: 49.8 kB, snappy 58.5 kB): the low bits of simulated signals are noise, so higher levels buy
-#: almost nothing.
+#: zstd level: with the 20 000-row pages of Parquet C++'s default, 1 and 3 gave 41.7 kB per
+#: 1-s run (0.4 and 0.5 ms), 9 gave 41.4 kB in 1.2 ms, 19 40.5 kB in 13 ms (50 HF runs of
+#: `mixed`; without byte-stream-split 49.8 kB, snappy 58.5 kB); in one page, 3 saves 1 % for
+#: 1.6x the time: the low bits of simulated signals are noise, higher levels buy almost
+#: nothing.
 ZSTD_LEVEL = 1
 
 
