@@ -19,7 +19,9 @@ For each size (``--runs``) and run length (``--t-end``), on one set of warm work
 Also the parent's throughput with jobs that do nothing (a fake executor in this process returns
 finished chunks at once: validation, database, commits and progress only; runs/s), and, with
 ``--dask``, the first size on a Dask ``LocalCluster`` of the same number of single-threaded
-worker processes against the pool (wall ratio).
+worker processes against the pool: both kept open, the bare loop and the campaign on the pool
+and on Dask alternately, ``--rounds`` times (the best of each; a shared machine's load drifts
+within minutes, so only walls taken side by side are compared).
 
 Campaigns: HF runs of the ``mixed`` command, five fault sets (nominal and BKL in {1, 2, 5,
 10} x 1e-4 m) x N/5 seeds, all nine signals.
@@ -198,13 +200,14 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--noop-runs", type=int, default=20000)
     ap.add_argument("--dask", action="store_true", help="also the first size on Dask")
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="alternating pool/Dask rounds of the Dask comparison")
     ap.add_argument("--no-queries", action="store_true")
     ap.add_argument("--json", action="store_true", help="write the result file")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_scale.json"))
     args = ap.parse_args(argv)
     os.environ["NUMBA_NUM_THREADS"] = "1"   # Dask worker processes inherit it
-    from eha.campaigns.files import build_campaign
-    from eha.campaigns.executors import DaskExecutor, LocalPoolExecutor
+    from eha.campaigns.executors import LocalPoolExecutor
 
     load_start = os.getloadavg()
     sizes = [int(x) for x in args.runs.split(",")]
@@ -216,40 +219,69 @@ def main(argv=None) -> int:
         print(f"no-op parent: {out['noop']}", flush=True)
         with LocalPoolExecutor(args.workers) as pool:
             pool.warm_up()
-            for n in sizes:
-                for t_end in lengths:
-                    camp = build_campaign(campaign_table(n, t_end))
-                    row = {"t_end": t_end, **campaign_run(camp, pool, tmp),
-                           "loadavg": round(os.getloadavg()[0], 2)}
-                    if not args.no_queries:
-                        row["queries"] = {k: round(v, 3) for k, v in
-                                          query_times(Path(row["results"]), FAULTS[1]).items()}
-                    del row["results"]
-                    out["pool"].append(row)
-                    print(f"pool: {row}", flush=True)
-        if args.dask:
-            from distributed import Client, LocalCluster
-
-            with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                              dashboard_address=None) as cluster, Client(cluster) as client:
-                ex = DaskExecutor(client)
-                ex.warm_up()
-                for t_end in lengths:
-                    camp = build_campaign(campaign_table(sizes[0], t_end))
-                    row = {"t_end": t_end, **campaign_run(camp, ex, tmp),
-                           "loadavg": round(os.getloadavg()[0], 2)}
-                    del row["results"]
-                    pool_row = next(r for r in out["pool"]
-                                    if r["runs"] == row["runs"] and r["t_end"] == t_end)
-                    row["wall_vs_pool"] = round(row["wall_s"] / pool_row["wall_s"], 3)
-                    out["dask"].append(row)
-                    print(f"dask: {row}", flush=True)
+            run_pool_rows(args, sizes, lengths, pool, tmp, out)
+            if args.dask:
+                run_dask_rows(args, sizes[0], lengths, pool, tmp, out)
     out["provenance"] = provenance(load_start)
     if args.json:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
         print(f"wrote {args.out}")
     return 0
+
+
+def run_pool_rows(args, sizes, lengths, pool, tmp: Path, out: dict) -> None:
+    from eha.campaigns.files import build_campaign
+
+    for n in sizes:
+        for t_end in lengths:
+            camp = build_campaign(campaign_table(n, t_end))
+            row = {"t_end": t_end, **campaign_run(camp, pool, tmp),
+                   "loadavg": round(os.getloadavg()[0], 2)}
+            if not args.no_queries:
+                row["queries"] = {k: round(v, 3) for k, v in
+                                  query_times(Path(row["results"]), FAULTS[1]).items()}
+            del row["results"]
+            out["pool"].append(row)
+            print(f"pool: {row}", flush=True)
+
+
+def run_dask_rows(args, n: int, lengths, pool, tmp: Path, out: dict) -> None:
+    """Dask against the pool, side by side: per round, the bare loop on the pool then on
+    Dask, the campaign on the pool then on Dask; the best of ``--rounds`` of each."""
+    from distributed import Client, LocalCluster
+
+    from eha.campaigns.executors import DaskExecutor
+    from eha.campaigns.files import build_campaign
+    from eha.campaigns.runner import run_campaign
+
+    with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        dask = DaskExecutor(client)
+        dask.warm_up()
+        for t_end in lengths:
+            camp = build_campaign(campaign_table(n, t_end))
+            bare: dict[str, list[float]] = {"pool": [], "dask": []}
+            wall: dict[str, list[float]] = {"pool": [], "dask": []}
+            load = []
+            for _ in range(args.rounds):
+                for name, ex in (("pool", pool), ("dask", dask)):
+                    bare[name].append(ideal_seconds(camp, ex))
+                for name, ex in (("pool", pool), ("dask", dask)):
+                    t0 = time.perf_counter()
+                    s = run_campaign(camp, Path(tempfile.mkdtemp(dir=tmp)), executor=ex,
+                                     progress=False)
+                    wall[name].append(time.perf_counter() - t0)
+                    assert s.done == s.total and s.failed == 0, s
+                load.append(round(os.getloadavg()[0], 2))
+            row = {"t_end": t_end, "runs": len(camp.jobs),
+                   "bare_s": {k: [round(x, 3) for x in v] for k, v in bare.items()},
+                   "wall_s": {k: [round(x, 3) for x in v] for k, v in wall.items()},
+                   "bare_vs_pool": round(min(bare["dask"]) / min(bare["pool"]), 3),
+                   "wall_vs_pool": round(min(wall["dask"]) / min(wall["pool"]), 3),
+                   "loadavg": load}
+            out["dask"].append(row)
+            print(f"dask: {row}", flush=True)
 
 
 if __name__ == "__main__":

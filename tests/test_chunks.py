@@ -109,6 +109,33 @@ def test_chunk_metrics_equal_those_of_one_run_at_a_time():
             assert one["lag"] == pytest.approx(np.argmin(errs) * 1e-3)
 
 
+def test_lag_errors_are_bit_for_bit_those_of_the_plain_loop():
+    """The lag kernel sums eight shifts side by side; each sum keeps the sample order, so
+    every error equals the plain one-shift-at-a-time loop's exactly."""
+    from numba import njit
+
+    from eha.models.metrics import lag_errors
+
+    @njit
+    def plain(xu, com, kmax, errs):
+        runs, n = xu.shape
+        for r in range(runs):
+            for k in range(kmax + 1):
+                s = 0.0
+                for i in range(n - k):
+                    d = xu[r, i + k] - com[r, i]
+                    s += d * d
+                errs[r, k] = s / (n - k)
+
+    rng = np.random.default_rng(1)
+    for n, kmax in ((1001, 200), (61, 30), (40, 7), (40, 8), (9, 4), (3, 0)):
+        xu, com = rng.normal(size=(3, n)), rng.normal(size=(3, n)).cumsum(axis=1)
+        got, want = np.empty((3, kmax + 1)), np.empty((3, kmax + 1))
+        lag_errors(xu, com, kmax, got)
+        plain(xu, com, kmax, want)
+        assert got.view(np.int64).tolist() == want.view(np.int64).tolist(), (n, kmax)
+
+
 def test_many_runs_per_file_same_rows_and_traces(chunky):
     camp, results = chunky
     runs = state(results)
@@ -201,6 +228,97 @@ def test_results_folder_of_one_file_per_run_is_still_read(tmp_path):
     assert got.iloc[0].tolist() == [256, 256 * 21]
     names = [p.name for p in (results / "traces" / "chunky").glob("*.parquet")]
     assert sum(n.startswith("chunk-") for n in names) > 0 and len(names) > 32
+
+
+def test_xu_is_stored_only_where_it_differs_from_xj_and_read_back_bit_for_bit(tmp_path):
+    """A chunk leaves xu out (NULL, flag column true) where it equals xj bit for bit; read_run
+    and the traces view give back the exact values, -0.0 and NaN included, beside a chunk of
+    the first layout (every xu stored, eha_runs also in the Arrow schema) and one without xu."""
+    import duckdb
+    import pyarrow as pa
+
+    from eha.campaigns.query import _create_traces_view
+    from eha.campaigns.traces import (COPY_FLAG, chunk_table, read_run, write_chunk,
+                                      write_table_atomic)
+    from eha.models import OUTPUTS
+    from eha.simulate import simulate
+
+    xu, xj = OUTPUTS.index("xu"), OUTPUTS.index("xj")
+    nominal = simulate("hf", "ramp", t_end=0.05).data             # xu is xj: no backlash
+    backlash = simulate("hf", "ramp", {"BKL": 5e-4}, t_end=0.05).data
+    odd = backlash.copy()
+    odd[1, xu], odd[1, xj] = -0.0, 0.0     # equal as numbers, not as bits: both kept
+    odd[2, xu] = odd[2, xj] = np.nan
+    runs = [("a" * 16, nominal, {"seed": 0}), ("b" * 16, backlash, {"seed": 1}),
+            ("c" * 16, odd, {"seed": 2})]
+    folder = tmp_path / "traces" / "camp"
+    write_chunk(runs, folder / "chunk-new.parquet")
+    f = pq.ParquetFile(folder / "chunk-new.parquet")
+    table = f.read()
+    same = [int((d[:, xu].view(np.int64) == d[:, xj].view(np.int64)).sum()) for _, d, _ in runs]
+    assert same[0] == len(nominal) and same[1] < len(backlash) / 2 and same[2] == same[1] - 1
+    assert table.column("xu").null_count == sum(same)
+    assert COPY_FLAG in table.column_names
+    assert b"eha_runs" in f.metadata.metadata and f.schema_arrow.metadata is None
+    for key, data, meta in runs:
+        got, got_meta = read_run(folder / "chunk-new.parquet", key)
+        assert got.view(np.int64).tolist() == data.view(np.int64).tolist() and got_meta == meta
+    # the first chunk layout: every xu stored, eha_runs in the schema metadata too
+    old = chunk_table([("d" * 16, backlash, {})]).remove_column(0)
+    old = old.add_column(0, "run_key", pa.array(["d" * 16] * len(backlash)).dictionary_encode())
+    old = old.replace_schema_metadata({"eha_runs": json.dumps({"d" * 16: {"seed": 3}})})
+    pq.write_table(old.drop_columns([COPY_FLAG]) if COPY_FLAG in old.column_names else old,
+                   folder / "chunk-old.parquet")
+    assert read_run(folder / "chunk-old.parquet", "d" * 16)[1] == {"seed": 3}
+    # xj not stored: xu stored whole
+    write_chunk([("e" * 16, nominal, {})], folder / "chunk-sub.parquet", ["t", "xu"])
+    assert COPY_FLAG not in pq.read_schema(folder / "chunk-sub.parquet").names
+    write_table_atomic(chunk_table([("f" * 16, nominal, {})], ["t", "xj"]),
+                       folder / "chunk-noxu.parquet")
+    con = duckdb.connect()
+    _create_traces_view(con, tmp_path)
+    view = con.execute("SELECT run_key, xu, xj FROM traces ORDER BY run_key, t").fetchnumpy()
+    expect = {"a": nominal, "b": backlash, "c": odd, "d": backlash, "e": nominal}
+    for k, data in expect.items():
+        sel = view["run_key"] == k * 16
+        assert view["xu"][sel].data.view(np.int64).tolist() == data[:, xu].view(
+            np.int64).tolist(), k
+    sel = view["run_key"] == "f" * 16
+    assert view["xu"][sel].mask.all() and not view["xj"][sel].mask.any()
+    assert con.execute("SELECT count(xu) FROM traces WHERE run_key = ?",
+                       ["e" * 16]).fetchone()[0] == len(nominal)
+
+
+def test_workers_fix_the_malloc_thresholds_that_dask_sets():
+    """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which turns glibc's
+    dynamic mmap threshold off: every large array of a run is mapped and unmapped, with page
+    faults on every run. tune_malloc (run by warm_worker and every task) stops them."""
+    import platform
+
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        pytest.skip("glibc only")
+    code = textwrap.dedent("""
+        import resource
+        from eha.campaigns.executors import tune_malloc
+        from eha.simulate import simulate
+
+        def faults():
+            simulate("hf", "mixed", t_end=0.3)
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            for seed in range(10):
+                simulate("hf", "mixed", t_end=0.3, seed=seed)
+            return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+
+        before = faults()
+        assert tune_malloc()
+        print(before, faults())
+    """)
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    before, after = map(int, out.stdout.split())
+    assert before > 1000 and after < before / 10, (before, after)
 
 
 @pytest.mark.slow

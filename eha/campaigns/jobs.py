@@ -218,6 +218,9 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
 def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
     """Run one task in a worker: a chunk of runs of one kind (its ``run_chunk``) or a single
     job (:func:`execute_job`)."""
+    from eha.campaigns.executors import tune_malloc
+
+    tune_malloc()  # once per process: also a Dask worker restarted without the warm-up
     if task["kind"] == "chunk":
         return job_kind(task["job_kind"]).run_chunk(task)
     return execute_job(task)

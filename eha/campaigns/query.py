@@ -10,7 +10,7 @@ from typing import Any, Mapping, Sequence
 
 from eha.campaigns.schema import TRACES
 from eha.campaigns.store import StoreError, connect
-from eha.campaigns.traces import FILE_MODE, TEMP_SUFFIX
+from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
 from eha.models import OUTPUTS
 
 
@@ -23,7 +23,11 @@ def _create_traces_view(con, results: Path) -> None:
             CREATE OR REPLACE TEMP VIEW _traces_raw AS
             SELECT * FROM read_parquet('{pattern}', filename = true, union_by_name = true)""")
         present = {r[0] for r in con.execute("DESCRIBE _traces_raw").fetchall()}
-        signals = ", ".join(c if c in present else f"NULL::DOUBLE AS {c}" for c in OUTPUTS)
+        cols = {c: c if c in present else "NULL::DOUBLE" for c in OUTPUTS}
+        if COPY_FLAG in present:  # chunks store xu only where it differs from xj
+            xu, xj = COPY_OF
+            cols[xu] = f"CASE WHEN {COPY_FLAG} THEN {xj} ELSE {cols[xu]} END"
+        signals = ", ".join(c if v == c else f"{v} AS {c}" for c, v in cols.items())
         # chunk files carry the run key in a column; a file of the one-file-per-run layout
         # (a campaign run before issue 25) only in its name
         by_name = "regexp_extract(filename, '([0-9a-f]{16})\\.parquet$', 1)"

@@ -5,15 +5,18 @@ Traces are Parquet files written atomically: a temporary name in the same direct
 many runs per file, in *chunk files* (issue 25): one file per task of the runner, holding every
 run of the task, a ``run_key`` column first (dictionary-encoded, rows sorted by run key, then
 time), the stored signals as float64 columns with the ``BYTE_STREAM_SPLIT`` encoding and zstd
-compression (lossless; 41-42 kB per 1-s run with all nine signals instead of 74 kB), and one row
-group per file up to :data:`ROW_GROUP_ROWS` rows. Query engines read a few large files much
+compression in one data page per column (lossless; about 39-40 kB per 1-s run with all nine
+signals instead of 74 kB; ``xu`` only where it differs from ``xj``, :data:`COPY_OF`), and one
+row group per file up to :data:`ROW_GROUP_ROWS` rows. Query engines read a few large files much
 faster than many small ones (DuckDB's advice: row groups of 100k rows or more). A single trace
 (:func:`write_trace`) and a campaign run before issue 25 have one file per run, whose run key is
 in its name and its metadata (key ``eha``). Both layouts are read alike (:func:`read_run`).
 
-Each run's metadata (model, command, parameters, seed, ...) is in the file metadata under
-``eha_runs`` (JSON ``{run_key: meta}``); a file of one run also carries it under ``eha``, the
-key of the one-file-per-run layout, so tools written for that layout still read it.
+Each run's metadata (model, command, parameters, seed, ...) is in the footer's key-value
+metadata under ``eha_runs`` (JSON ``{run_key: meta}``; not in the Arrow schema that pyarrow
+also stores there, so ``pq.read_metadata(path).metadata``, not ``pq.read_schema``); a file of
+one run also carries it under ``eha`` in its schema metadata, the key of the one-file-per-run
+layout, so tools written for that layout still read it.
 
 A chunk is written under a temporary name and renamed into place (:func:`write_chunk`). The
 runner records for each run the file, its size and the run's own row count; a file is intact
@@ -39,12 +42,25 @@ from eha.models import OUTPUT_UNITS, OUTPUTS
 
 #: Suffix of temporary files (removed by :func:`clean_temp_files`).
 TEMP_SUFFIX = ".tmp"
+#: A chunk stores the position ``xu`` only where it differs from the jack's ``xj``: without
+#: output backlash or sensor effects it is ``xj`` bit for bit (5 kB of a run's 40 kB). Where
+#: they are equal (bitwise) ``xu`` is NULL and the boolean column :data:`COPY_FLAG` is true;
+#: readers (:func:`read_run`, the ``traces`` view) take ``xj`` there. Only when both are stored.
+COPY_OF = ("xu", "xj")
+COPY_FLAG = "xu_is_xj"
 #: Largest row group [rows]; a chunk of more rows gets several.
 ROW_GROUP_ROWS = 1_048_576
-#: zstd level: 1 and 3 give 41.7 kB per 1-s run (0.4 and 0.5 ms), 9 gives 41.4 kB in 1.2 ms,
-#: 19 gives 40.5 kB in 13 ms (measured on 50 HF runs of `mixed`; without byte-stream-split
-#: 49.8 kB, snappy 58.5 kB): the low bits of simulated signals are noise, so higher levels buy
-#: almost nothing.
+#: Largest data page [bytes, before compression]: one page per column and row group (8 MiB
+#: for a full row group). Parquet C++ otherwise cuts a page every 20 000 rows (its
+#: ``max_rows_per_page``) or 1 MiB; each page is compressed on its own, and the byte streams of
+#: ``BYTE_STREAM_SPLIT`` compress better in one long page: 40.2 kB instead of 41.7 kB per
+#: 1-s run with nine signals (the time column 35 B instead of 180 B).
+PAGE_BYTES = 1 << 30
+#: zstd level: with the 20 000-row pages of Parquet C++'s default, 1 and 3 gave 41.7 kB per
+#: 1-s run (0.4 and 0.5 ms), 9 gave 41.4 kB in 1.2 ms, 19 40.5 kB in 13 ms (50 HF runs of
+#: `mixed`; without byte-stream-split 49.8 kB, snappy 58.5 kB); in one page, 3 saves 1 % for
+#: 1.6x the time: the low bits of simulated signals are noise, higher levels buy almost
+#: nothing.
 ZSTD_LEVEL = 1
 
 
@@ -80,7 +96,8 @@ def chunk_name(run_keys: Sequence[str]) -> str:
 
 def chunk_table(runs: Sequence[tuple[str, np.ndarray, Mapping[str, Any]]],
                 signals: Sequence[str] | None = None):
-    """Arrow table of a chunk.
+    """Arrow table of a chunk (its runs' metadata: :func:`chunk_metadata`; a one-run table
+    also carries it under the schema metadata key ``eha``).
 
     Parameters
     ----------
@@ -100,20 +117,43 @@ def chunk_table(runs: Sequence[tuple[str, np.ndarray, Mapping[str, Any]]],
     keys = pa.DictionaryArray.from_arrays(
         pa.array(np.repeat(np.arange(len(runs), dtype=np.int32), counts)),
         pa.array([r[0] for r in runs], pa.string()))
-    metas = {r[0]: r[2] for r in runs}
-    meta = {"eha_runs": json.dumps(metas, default=float, sort_keys=True)}
-    if len(runs) == 1:
-        meta["eha"] = json.dumps(runs[0][2], default=float)
+    meta = {"eha": json.dumps(runs[0][2], default=float)} if len(runs) == 1 else None
     fields = [pa.field("run_key", keys.type)] + [
         pa.field(OUTPUTS[i], pa.float64(), metadata={"unit": OUTPUT_UNITS[OUTPUTS[i]]})
         for i in keep]
-    arrays = [keys] + [pa.array(np.ascontiguousarray(data[:, i])) for i in keep]
+    cols = {OUTPUTS[i]: np.ascontiguousarray(data[:, i]) for i in keep}
+    copy = None
+    if COPY_OF[0] in cols and COPY_OF[1] in cols:
+        # bit for bit (not ==: -0.0 and 0.0 differ, NaN equals itself)
+        copy = cols[COPY_OF[0]].view(np.int64) == cols[COPY_OF[1]].view(np.int64)
+        if not copy.any():
+            copy = None
+    arrays = [keys] + [pa.array(v, mask=copy if n == COPY_OF[0] else None)
+                       for n, v in cols.items()]
+    if copy is not None:
+        fields.append(pa.field(COPY_FLAG, pa.bool_()))
+        arrays.append(pa.array(copy))
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=meta))
 
 
-def write_table_atomic(table, path: str | Path) -> int:
-    """Write an Arrow table to ``path`` (Parquet, zstd, byte-stream-split floats) under a
-    temporary name in the same folder, then rename; returns the file size [bytes]."""
+def chunk_metadata(runs: Sequence[tuple[str, Any, Mapping[str, Any]]]) -> dict[str, str]:
+    """The file metadata of a chunk: ``eha_runs``, JSON ``{run_key: meta}`` (compact)."""
+    metas = {r[0]: r[2] for r in runs}
+    return {"eha_runs": json.dumps(metas, default=float, sort_keys=True,
+                                   separators=(",", ":"))}
+
+
+def write_table_atomic(table, path: str | Path,
+                       file_metadata: Mapping[str, str] | None = None) -> int:
+    """Write an Arrow table to ``path`` (Parquet, zstd, byte-stream-split floats, one data page
+    per column and row group) under a temporary name in the same folder, then rename; returns
+    the file size [bytes].
+
+    ``file_metadata`` goes into the Parquet footer's key-value metadata only. The table's
+    schema metadata is written there too, and a second time inside the serialised Arrow schema
+    that pyarrow also stores (``ARROW:schema``, base64): large metadata, such as a chunk's
+    ``eha_runs``, belongs in ``file_metadata`` (read it with ``pq.read_metadata(path).metadata``).
+    """
     import pyarrow.parquet as pq
 
     path = Path(path)
@@ -122,10 +162,17 @@ def write_table_atomic(table, path: str | Path) -> int:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     os.close(fd)
     try:
-        pq.write_table(table, tmp, compression="zstd", compression_level=ZSTD_LEVEL,
-                       use_dictionary=[f.name for f in table.schema if f.name not in floats],
-                       use_byte_stream_split=floats or False,
-                       row_group_size=ROW_GROUP_ROWS)
+        with pq.ParquetWriter(tmp, table.schema, compression="zstd",
+                              compression_level=ZSTD_LEVEL,
+                              use_dictionary=[f.name for f in table.schema
+                                              if f.name not in floats
+                                              and f.type != "bool"],
+                              use_byte_stream_split=floats or False,
+                              max_rows_per_page=ROW_GROUP_ROWS,
+                              data_page_size=PAGE_BYTES) as writer:
+            writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
+            if file_metadata:
+                writer.add_key_value_metadata(dict(file_metadata))
         os.chmod(tmp, FILE_MODE)  # mkstemp makes 0600; traces are shared like any output
         size = os.stat(tmp).st_size
         if _PAUSE_BEFORE_RENAME:  # tests only: a kill -9 with the chunk half-way to its place
@@ -143,7 +190,7 @@ def write_chunk(runs: Sequence[tuple[str, np.ndarray, Mapping[str, Any]]], path:
                 signals: Sequence[str] | None = None) -> int:
     """Write the traces of ``runs`` (see :func:`chunk_table`) to one chunk file, atomically;
     returns its size [bytes]."""
-    return write_table_atomic(chunk_table(runs, signals), path)
+    return write_table_atomic(chunk_table(runs, signals), path, chunk_metadata(runs))
 
 
 def read_run(path: str | Path, run_key: str | None = None) -> tuple[np.ndarray, dict]:
@@ -159,8 +206,11 @@ def read_run(path: str | Path, run_key: str | None = None) -> tuple[np.ndarray, 
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
-    table = pq.read_table(path)
-    raw = table.schema.metadata or {}
+    pf = pq.ParquetFile(path)
+    # the footer's key-value metadata: ``eha_runs`` is there in every layout (in chunks of
+    # issue 25's first version also inside the Arrow schema)
+    raw = pf.metadata.metadata or {}
+    table = pf.read()
     if "run_key" in table.column_names:
         keys = table.column("run_key")
         present = pc.unique(keys.combine_chunks().dictionary_decode()
@@ -177,6 +227,10 @@ def read_run(path: str | Path, run_key: str | None = None) -> tuple[np.ndarray, 
     names = set(table.column_names)
     data = np.column_stack([table.column(n).to_numpy() if n in names
                             else np.full(table.num_rows, np.nan) for n in OUTPUTS])
+    if COPY_FLAG in names:  # xu left out where it equals xj
+        copy = table.column(COPY_FLAG).to_numpy()
+        src, dst = OUTPUTS.index(COPY_OF[1]), OUTPUTS.index(COPY_OF[0])
+        data[copy, dst] = data[copy, src]
     return np.ascontiguousarray(data, dtype=np.float64), meta
 
 
@@ -341,6 +395,7 @@ def clean_temp_files(folder: str | Path, keep: set[str] | None = None) -> int:
     return n
 
 
-__all__ = ["chunk_name", "chunk_table", "write_chunk", "write_table_atomic", "read_run",
+__all__ = ["chunk_name", "chunk_table", "chunk_metadata", "write_chunk", "write_table_atomic", "read_run",
            "write_trace", "read_trace", "trace_intact", "read_table_file", "write_table_file",
-           "trace_path", "clean_temp_files", "TEMP_SUFFIX", "ROW_GROUP_ROWS", "FILE_MODE"]
+           "trace_path", "clean_temp_files", "TEMP_SUFFIX", "ROW_GROUP_ROWS", "FILE_MODE",
+           "COPY_OF", "COPY_FLAG"]
