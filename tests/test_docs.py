@@ -130,3 +130,48 @@ def test_readme_commands_exist_with_their_options():
         problems += [f"{line}: no option {w}" for w in words
                      if w.startswith("--") and w.split("=")[0] not in known]
     assert problems == [], "\n".join(problems)
+
+
+# ---- benchmarks/results: one current file per benchmark, quoted by the docs -------------------
+
+RESULTS = ROOT / "benchmarks" / "results"
+#: Result files not named after a benchmark script, and why.
+NOT_A_SCRIPT = {
+    "explain_foreign.json": "the independent simulator's records, scored outside the repository",
+    "health-detection": "`eha report health` on campaigns/health-detection.toml (a folder)",
+}
+
+
+def test_every_result_file_is_the_current_file_of_a_benchmark():
+    scripts = {p.stem for p in (ROOT / "benchmarks").glob("*.py")}
+    stray = [p.name for p in RESULTS.iterdir()
+             if p.name not in NOT_A_SCRIPT and not (p.suffix == ".json" and p.stem in scripts)]
+    assert stray == [], f"not <benchmark script>.json: {stray}"
+
+
+def test_every_result_file_has_its_provenance():
+    import json
+
+    missing = {}
+    for path in sorted(RESULTS.glob("*.json")):
+        if path.name in NOT_A_SCRIPT:
+            continue
+        prov = json.loads(path.read_text(encoding="utf-8")).get("provenance") or {}
+        keys = {"commit", "date", "machine", "cores"} - set(prov)
+        if not {"load", "loadavg_start"} & set(prov):
+            keys.add("load")
+        if keys:
+            missing[path.name] = sorted(keys)
+    assert missing == {}
+
+
+def test_docs_link_result_files_that_exist():
+    """Every result file a page links exists (a script's `--json` output not yet run is named
+    in backticks, not linked)."""
+    pages = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+    # a quoted figure links its file: [...](../benchmarks/results/NAME.json)
+    named = {m for p in pages
+             for m in re.findall(r"\]\((?:\.\./)?benchmarks/results/([\w.-]+\.json)\)",
+                                 p.read_text("utf-8"))}
+    assert len(named) >= 5, f"the docs link few result files: {sorted(named)}"
+    assert sorted(n for n in named if not (RESULTS / n).is_file()) == []
