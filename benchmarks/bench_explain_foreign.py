@@ -1,0 +1,84 @@
+"""The residual loop on records of an independent simulator (the foreign validation set).
+
+The 34 records, their truth and their scorer (``score.py``) are not in this repository: they
+come from another implementation of the thesis' HF model. This script runs the scorer (which
+calls ``eha explain`` on each record whose JSON is not yet in ``--out``, 2 at a time), reads
+its table and writes ``benchmarks/results/explain_foreign.json`` with its provenance.
+
+    python benchmarks/bench_explain_foreign.py --scorer PATH/TO/foreign/score.py --out DIR
+    python benchmarks/bench_explain_foreign.py --scorer ... --out DIR --note "4 rerun at ..."
+
+Records already scored in ``--out`` are kept (the scorer skips them): say in ``--note`` which
+records come from which commit. ``--json`` prints the result file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+RESULT = Path(__file__).resolve().parent / "results" / "explain_foreign.json"
+
+
+def provenance(note: str) -> dict:
+    """Commit, date, machine and load of this measurement."""
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                            text=True, cwd=Path(__file__).parent).stdout.strip()
+    return {"commit": commit, "date": dt.date.today().isoformat(),
+            "machine": f"{os.cpu_count()} cores", "load_average": list(os.getloadavg()),
+            "note": note}
+
+
+def collect(out: Path, scorer: Path, table: str) -> list[dict]:
+    """One row per record: the scorer's line, and the verdict fields of its JSON."""
+    truth = json.loads((scorer.parent / "truth.json").read_text())
+    lines = {ln.split()[0]: ln for ln in table.splitlines() if ln[:1] == "f" and ln.split()}
+    rows = []
+    for name in sorted(truth):
+        path = out / f"{name}.json"
+        if not path.exists():
+            continue
+        doc = json.loads(path.read_text())
+        rows.append({"record": name, "kind": truth[name]["kind"],
+                     "truth": truth[name]["effect"],
+                     "steps": [s["effect"] for s in doc.get("steps", [])],
+                     "unexplained": doc.get("unexplained"),
+                     "beyond_healthy": doc.get("beyond_healthy"),
+                     "verdict": doc.get("verdict"), "score": lines.get(name, ""),
+                     "seconds": doc.get("_seconds"),
+                     "residual_limit": (doc.get("null") or {}).get("residual_limit")})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scorer", required=True, type=Path, help="the foreign set's score.py")
+    ap.add_argument("--out", required=True, type=Path, help="folder of the records' JSON")
+    ap.add_argument("--note", default="", help="what the provenance should say")
+    ap.add_argument("--json", action="store_true", help="print the result file")
+    a = ap.parse_args(argv)
+    a.out.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run([sys.executable, str(a.scorer), "--out", str(a.out)],
+                          capture_output=True, text=True)
+    table = proc.stdout
+    summary = [ln for ln in table.splitlines()
+               if ln.split()[:1] and ln.split()[0] in ("single", "two", "none", "outside",
+                                                         "time")]
+    result = {"benchmark": "explain_foreign",
+              "what": "score.py --out DIR (eha explain defaults, 2 records at a time)",
+              "provenance": provenance(a.note), "summary": summary,
+              "records": collect(a.out, a.scorer, table)}
+    RESULT.write_text(json.dumps(result, indent=1, ensure_ascii=False) + "\n")
+    print(table)
+    if a.json:
+        print(json.dumps(result, indent=1, ensure_ascii=False))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
