@@ -137,7 +137,9 @@ def test_readme_commands_exist_with_their_options():
 RESULTS = ROOT / "benchmarks" / "results"
 #: Result files not named after a benchmark script, and why.
 NOT_A_SCRIPT = {
-    "explain_foreign.json": "the independent simulator's records, scored outside the repository",
+    "explain_foreign.json": "bench_explain_foreign.py's result (the independent simulator's "
+                            "records, scored outside the repository): it keeps the name the "
+                            "docs quote",
     "health-detection": "`eha report health` on campaigns/health-detection.toml (a folder)",
 }
 
