@@ -20,6 +20,7 @@ Usage: ``python benchmarks/bench_campaign.py [--repeat N] [--long S] [--skip-rep
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import subprocess
 import sys
@@ -27,6 +28,10 @@ import tempfile
 import time
 import tomllib
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import write_result  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,6 +75,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--long", type=float, default=10.0, help="t_end [s] of the long variant")
     ap.add_argument("--skip-reproduce", action="store_true")
+    ap.add_argument("--json", action="store_true",
+                    help="write the figures to benchmarks/results/bench_campaign.json "
+                         "(replacing it)")
     args = ap.parse_args()
 
     from eha.models.simulate import simulate
@@ -81,13 +89,17 @@ def main() -> None:
                                                      "name": "thesis-matrix-long"}
     with tempfile.TemporaryDirectory(prefix="eha-bench-") as tmp:
         tmp = Path(tmp)
+        load_start = os.getloadavg()
+        ceiling = machine_speedup(args.repeat)
         print(f"machine check: 2 CPU loops on 2 processes vs 1 -> "
-              f"{machine_speedup(args.repeat):.2f}x available speed-up right now")
+              f"{ceiling:.2f}x available speed-up right now")
+        figures = {"repeat": args.repeat, "machine_speedup": ceiling, "runs": []}
         print(f"thesis-matrix: 60 runs x 1 s, median of {args.repeat}")
         res = {}
         for label, camp in (("matrix", matrix), (f"matrix t_end={args.long:g} s", long_table)):
             for w in (1, 2):
                 res[label, w] = r = median_runs(camp, w, args.repeat, tmp)
+                figures["runs"].append({"campaign": label, "workers": w, **r})
                 print(f"  {label:<22} {w} worker{'s' if w > 1 else ' '}: wall {r['wall_s']:6.2f} s"
                       f"  (pool start {r['startup_s']:5.2f} s, jobs {r['jobs_s']:6.2f} s)")
             one, two = res[label, 1], res[label, 2]
@@ -102,6 +114,9 @@ def main() -> None:
                 sys.exit(f"eha reproduce failed: {proc.stderr.strip()}")
             n_png = len(list((tmp / "reproduce" / "plots").rglob("*.png")))
             print(f"eha reproduce (cold results folder, {n_png} PNGs): {wall:.1f} s")
+            figures["reproduce_s"] = wall
+        if args.json:
+            write_result("bench_campaign", figures, load_start=load_start)
 
 
 if __name__ == "__main__":

@@ -8,10 +8,15 @@ HF structure as prior.
 """
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
-from eha.explain import augmented_base, explain
-from eha.identification.measured import from_arrays, synthetic_record
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import write_result  # noqa: E402
+from eha.explain import augmented_base, explain  # noqa: E402
+from eha.identification.measured import from_arrays, synthetic_record  # noqa: E402
 
 PRIOR = [{"effect": "orifice_law", "params": {}},
          {"effect": "flapper_dynamics", "params": {"SNF": 2513.0, "ZF": 0.6}}]
@@ -22,7 +27,11 @@ def main() -> None:
     ap.add_argument("--pop", type=int, default=20)
     ap.add_argument("--candidates", type=int, default=6)
     ap.add_argument("--t-end", type=float, default=1.0)
+    ap.add_argument("--json", action="store_true",
+                    help="write the figures to benchmarks/results/bench_explain.json "
+                         "(replacing it)")
     args = ap.parse_args()
+    rows = []
     cases = [("nominal", "mixed", {}, None), ("load", "test", {"FRC": 2000.0}, PRIOR)]
     print(f"pop {args.pop}, candidates {args.candidates}, record {args.t_end:g} s at 1 kHz")
     print(f"{'record':8} {'seconds':>8} {'fits':>5} {'s/fit':>6} {'rounds':>6}  "
@@ -39,6 +48,13 @@ def main() -> None:
         print(f"{name:8} {seconds:8.1f} {len(fits):5d} {seconds / len(fits):6.2f} "
               f"{len(res.rounds):6d}  {1e6 * res.rmse_before:11.3g} -> "
               f"{1e6 * res.rmse_after:<11.3g}  {', '.join(res.effects) or '-'}")
+        rows.append({"record": name, "command": command, "seconds": seconds, "fits": len(fits),
+                     "rounds": len(res.rounds), "rmse_before": res.rmse_before,
+                     "rmse_after": res.rmse_after, "effects": res.effects})
+    if args.json:
+        write_result("bench_explain", {"settings": {"pop": args.pop, "candidates":
+                                                    args.candidates, "t_end": args.t_end},
+                                       "records": rows})
 
 
 if __name__ == "__main__":

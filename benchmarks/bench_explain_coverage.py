@@ -25,7 +25,7 @@ floor now in :data:`eha.identification.intervals.LOOP_MODEL_FORM`, and their cov
 injected truth counted (all records; explained ones alone).
 
     python benchmarks/bench_explain_coverage.py --calibrate --seeds 1,2 --json cal.json
-    python benchmarks/bench_explain_coverage.py --evaluate benchmarks/results/explain_multi_revisit.json
+    python benchmarks/bench_explain_coverage.py --evaluate benchmarks/results/bench_explain_multi.json --json
 
 One calibration record takes 1-5 s (one core): 24 records about 1-2 min.
 """
@@ -42,6 +42,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import result_path, write_result  # noqa: E402
 
 from bench_explain_fp import P12_NOISE, clean, p12_column, provenance  # noqa: E402
 from bench_explain_multi import (FAULTS, RECORDS, STRUCTURAL, T_END, injected,  # noqa: E402
@@ -185,19 +187,27 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2", help="seed blocks of the calibration records")
     ap.add_argument("--evaluate", default=None, metavar="PATH",
                     help="re-score a bench_explain_multi JSON with and without the floor")
-    ap.add_argument("--json", default=None, metavar="PATH", help="write the figures")
+    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_coverage")),
+                    default=None, metavar="PATH",
+                    help="write the figures (default: the result file; a part not run now is "
+                         "kept from it)")
     args = ap.parse_args()
     if not args.calibrate and not args.evaluate:
         ap.error("give --calibrate and/or --evaluate PATH")
-    out = {"benchmark": "explain_coverage", "provenance": provenance(sys.argv)}
+    out = {"benchmark": "bench_explain_coverage", "provenance": provenance(sys.argv)}
     if args.calibrate:
         out["calibration"] = calibrate(args)
     if args.evaluate:
         out["evaluation"] = evaluate(args)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(clean(out), indent=1) + "\n")
-        print(f"wrote {args.json}", flush=True)
+        old = Path(args.json)
+        if old.is_file() and old.resolve() == result_path("bench_explain_coverage").resolve():
+            kept = json.loads(old.read_text())
+            for part in ("calibration", "evaluation"):
+                if part not in out and part in kept:
+                    out[part] = kept[part]
+                    out.setdefault("kept_from_previous", []).append(part)
+        write_result(old, clean(out))
 
 
 if __name__ == "__main__":

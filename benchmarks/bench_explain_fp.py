@@ -23,7 +23,8 @@ last round (effect, gain, score = gain - penalty*params; "runner-up" when that r
 an effect and the loop then stopped at the noise level) and the wall time; then the FP rate
 overall and per command, and how many records the loop stopped at the noise level.
 
-``--json PATH`` writes every record (truth, result, steps, and every refitted candidate of
+``--json`` writes the current result file, ``benchmarks/results/bench_explain_fp.json``
+(replacing it; ``--json PATH`` a part that ``merge_results.py fp`` merges into it), with every record (truth, result, steps, and every refitted candidate of
 every round with gain, score, RMSE on the fitted / held-out part and its parameters: what a
 stopping rule can be calibrated on offline) and the summary.
 
@@ -36,7 +37,8 @@ the HF simulation (:func:`eha.identification.measured.synthetic_record`). The lo
     python benchmarks/bench_explain_fp.py                         # 8 commands x 4 records
     python benchmarks/bench_explain_fp.py --limit 3               # smoke run
     python benchmarks/bench_explain_fp.py --commands mixed,steps_5mm --per-command 2
-    python benchmarks/bench_explain_fp.py --json benchmarks/results/explain_fp.json
+    python benchmarks/bench_explain_fp.py --json                  # benchmarks/results/bench_explain_fp.json
+    python benchmarks/bench_explain_fp.py --seed 6 --json part6.json   # a part, for merge_results.py
 
 One record takes 5-60 s (one core); 32 records about 15 min. Run one at a time on a shared
 machine (``nice -n 10``). To measure another copy of the package (e.g. the loop as committed
@@ -52,16 +54,18 @@ import argparse
 import hashlib
 import json
 import math
-import platform
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import provenance as common_provenance, result_path, write_result  # noqa: E402
 
 #: Commands in their fixed order (the order fixes the record seeds; a subset keeps them).
 COMMANDS = ("sine", "chirp_1mm", "chirp_1cm", "mixed", "test", "ramp", "steps_5mm",
@@ -332,14 +336,13 @@ def provenance(argv: list[str]) -> dict:
     ran = loop_sha256(lambda name: (loop_dir / name).read_bytes())
     head = loop_sha256(lambda name: subprocess.run(
         ["git", "show", f"HEAD:eha/explain/{name}"], cwd=root, capture_output=True).stdout)
-    return {"argv": argv, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "commit": git("rev-parse", "HEAD"),
+    return {**common_provenance(argv),
             "dirty": sorted(line[3:] for line in git("status", "--porcelain").splitlines()
                             if line[3:].startswith("eha/")),
             "eha_package": str(loop_dir.parent),
             # (the keys keep their names from the single module eha/explain.py)
             "explain_py_sha256": ran, "explain_py_is_head": ran == head,
-            "python": platform.python_version(), "machine": platform.machine()}
+            }
 
 
 def warm_up() -> None:
@@ -378,7 +381,8 @@ def main() -> None:
     ap.add_argument("--seeds", default=None,
                     help="only the records of these seeds, comma-separated (a rerun of those a "
                          "change can touch; benchmarks/merge_results.py puts them in place)")
-    ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
+    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_fp")), default=None,
+                    metavar="PATH", help="write every record + summary (default: the result file)")
     add_p12_arguments(ap)
     add_fit_argument(ap)
     args = ap.parse_args()
@@ -436,7 +440,7 @@ def main() -> None:
     summary["wall_s"] = wall
     print_summary(summary)
     if args.json:
-        out = {"benchmark": "explain_fp", "settings": {
+        out = {"benchmark": "bench_explain_fp", "settings": {
                    "commands": commands, "per_command": args.per_command, "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,
@@ -449,9 +453,7 @@ def main() -> None:
                                   for k, (lo, hi, a) in STEP_KINDS.items()},
                    "t_end": {c: T_END.get(c, 1.0) for c in commands}},
                "provenance": provenance(sys.argv), "summary": summary, "records": rows}
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(clean(out), indent=1) + "\n")
-        print(f"wrote {args.json}", flush=True)
+        write_result(Path(args.json), clean(out))
 
 
 def summarise(rows: list[dict], commands: list[str]) -> dict:

@@ -34,6 +34,7 @@ dither of :func:`eha.identification.measured.synthetic_record` and, on ``steps``
     python benchmarks/bench_explain_multi.py --limit 3            # smoke run
     python benchmarks/bench_explain_multi.py --records load+leak@mixed,5
     python benchmarks/bench_explain_multi.py --commands test,steps --json out.json
+    python benchmarks/bench_explain_multi.py --json   # benchmarks/results/bench_explain_multi.json
 
 A record takes 0.5-3 min (one core); all 24 about 30-50 min. Run one at a time on a shared
 machine (``nice -n 10``). ``PYTHONPATH=/other/copy python ...`` measures another copy of the
@@ -52,6 +53,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import result_path, write_result  # noqa: E402
 
 from bench_explain_fp import (STRUCTURAL, add_fit_argument, add_p12_arguments,  # noqa: E402
                               clean, fmt_effects, p12_column, provenance, result_json,
@@ -213,7 +216,9 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=1e-6, help="noise std on xu [m]")
     ap.add_argument("--limit", type=int, default=0, help="only the first N records (smoke run)")
     ap.add_argument("--list", action="store_true", help="list the records and stop")
-    ap.add_argument("--json", default=None, metavar="PATH", help="write every record + summary")
+    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_multi")),
+                    default=None, metavar="PATH",
+                    help="write every record + summary (default: the result file)")
     add_p12_arguments(ap)
     add_fit_argument(ap)
     args = ap.parse_args()
@@ -265,7 +270,7 @@ def main() -> None:
     summary["wall_s"] = time.perf_counter() - started
     print_summary(summary)
     if args.json:
-        out = {"benchmark": "explain_multi", "settings": {
+        out = {"benchmark": "bench_explain_multi", "settings": {
                    "records": [r["name"] for r in rows], "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight, "fit": args.fit,
@@ -276,9 +281,7 @@ def main() -> None:
                               for k, v in COMBOS.items()},
                    "t_end": {c: T_END.get(c, 1.0) for c in COMMANDS}},
                "provenance": provenance(sys.argv), "summary": summary, "records": rows}
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(clean(out), indent=1) + "\n")
-        print(f"wrote {args.json}", flush=True)
+        write_result(Path(args.json), clean(out))
 
 
 def summarise(rows: list[dict]) -> dict:

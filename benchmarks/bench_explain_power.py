@@ -31,16 +31,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from datetime import datetime, timezone
 from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import result_path, write_result  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ("mixed", "chirp_1cm", "sine", "held_steps")
@@ -87,14 +88,6 @@ def _one(args):
     return shifts[effect], gains[effect]
 
 
-def provenance() -> dict:
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    return {"commit": commit, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "machine": platform.node(), "cores": os.cpu_count(),
-            "load_average": list(os.getloadavg())}
-
-
 def plot(rows, path: Path) -> None:
     from eha.explain.effects import EFFECTS
     from eha.figures import pyplot, save
@@ -137,8 +130,7 @@ def main(argv=None) -> int:
     ap.add_argument("--records", type=int, default=5, help="records per effect and command")
     ap.add_argument("--alpha", type=float, default=0.05)
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
-    ap.add_argument("--json", nargs="?", const=str(ROOT / "benchmarks" / "results" /
-                                                     "bench_explain_power.json"))
+    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_power")))
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
     from eha.explain.effects import EFFECTS
@@ -197,13 +189,11 @@ def main(argv=None) -> int:
     if a.plot:
         plot(rows, Path(a.plot))
     if a.json:
-        out = {"benchmark": "bench_explain_power", "provenance": provenance(),
+        out = {"benchmark": "bench_explain_power",
                "settings": {"alpha": a.alpha, "actuators": a.actuators, "records": a.records,
                             "noise_m": NOISE, "commands": commands},
                "summary": summary, "rows": rows}
-        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps(out, indent=1))
-        print(f"json: {a.json}")
+        write_result(Path(a.json), out)
     return 0
 
 

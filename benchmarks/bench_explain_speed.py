@@ -12,12 +12,13 @@ Each is written to CSV and explained with the defaults through
 effects added, the load estimate, the number of fits and the machine's load average; ``--json
 PATH`` writes them.
 
-    python benchmarks/bench_explain_speed.py [--json benchmarks/results/explain_speed.json]
+    python benchmarks/bench_explain_speed.py [--json]   # benchmarks/results/bench_explain_speed.json
 """
 
 import argparse
 import json
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -25,9 +26,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from eha.models.commands import array_command, as_command
-from eha.explain import explain
-from eha.identification.measured import load, synthetic_record
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import result_path, write_result  # noqa: E402
+from eha.models.commands import array_command, as_command  # noqa: E402
+from eha.explain import explain  # noqa: E402
+from eha.identification.measured import load, synthetic_record  # noqa: E402
 
 TRUTH = {"BKL": 1e-4, "FDJ": 800.0, "FRC": 1500.0}
 
@@ -52,7 +56,8 @@ def mixed_2khz(seed: int = 1) -> pd.DataFrame:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--json", default=None, metavar="PATH")
+    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_speed")),
+                    default=None, metavar="PATH", help="write the figures (default: the result file)")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -76,9 +81,8 @@ def main() -> None:
                   f"{1e6 * res.rmse_before:.1f} -> {1e6 * res.rmse_after:.2f} µm  "
                   f"(load {load_before:.1f})", flush=True)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"benchmark": "explain_speed", "truth": TRUTH,
-                                               "records": rows}, indent=2, default=float))
+        write_result(Path(args.json), {"benchmark": "bench_explain_speed", "truth": TRUTH,
+                                       "records": rows})
 
 
 if __name__ == "__main__":

@@ -15,10 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import write_result  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,7 +42,9 @@ def main() -> None:
     ap.add_argument("--campaign", default=str(ROOT / "campaigns" / "thesis-fdi.toml"))
     ap.add_argument("--base", action="append", default=[],
                     help="LF parameter held fixed, NAME=VALUE (e.g. orifice_law=1); repeatable")
-    ap.add_argument("--json", action="store_true", help="print figures as JSON only")
+    ap.add_argument("--json", action="store_true",
+                    help="print figures as JSON only and write them to the result file, "
+                         "benchmarks/results/bench_fdi.json (replacing it)")
     args = ap.parse_args()
 
     from eha.models.params import parse_assignments, resolve
@@ -93,6 +100,7 @@ def main() -> None:
                "per_case": per_case}
     if args.json:
         print(json.dumps(summary, indent=2))
+        write_result("bench_fdi", {"settings": {"argv": sys.argv[1:]}, "summary": summary})
         return
     print(f"method {args.method}, objective {args.objective}, seeds 0..{args.seeds - 1}, "
           f"LF base {summary['base'] or 'nominal'}")

@@ -15,7 +15,7 @@ Prints per method and parameter the coverage of the nominal intervals, the media
 
     python benchmarks/bench_intervals.py                 # 120 records
     python benchmarks/bench_intervals.py --records 30 --methods health
-    python benchmarks/bench_intervals.py --json
+    python benchmarks/bench_intervals.py --json          # benchmarks/results/bench_intervals.json
     python benchmarks/bench_intervals.py --calibrate     # model-form floors (other seeds)
 """
 
@@ -26,8 +26,13 @@ import json
 import statistics
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import provenance, result_path, write_result  # noqa: E402
 
 #: Degraded levels of the faults of item 4 (drawn uniformly; Ofs with a random sign).
 EXTRA_LEVELS = {"GM": (0.006, 0.009), "Kintas": (0.2, 0.6), "Clk": (5e-13, 3e-12),
@@ -240,24 +245,36 @@ def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9
         {"records": n_records}
 
 
+def read_rows(path: str) -> list[dict]:
+    """Every record's result of an earlier run: its ``--rows`` JSONL, or the result file."""
+    if path.endswith(".json"):
+        return json.loads(Path(path).read_text())["rows"]
+    return [json.loads(line) for line in open(path) if line.strip()]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--records", type=int, default=120)
     ap.add_argument("--seed-block", type=int, default=10_000,
                     help="seeds of the records start here (calibration uses 0)")
     ap.add_argument("--methods", default=",".join(METHODS))
-    ap.add_argument("--json", action="store_true", help="print the figures as JSON only")
-    ap.add_argument("--rows", default=None, help="also write every record's result (JSONL)")
+    ap.add_argument("--json", action="store_true",
+                    help="write the figures and every record to the result file, "
+                         "benchmarks/results/bench_intervals.json (replacing it)")
+    ap.add_argument("--rows", default=None, help="also write every record's result (JSONL, "
+                    "as the run goes)")
     ap.add_argument("--calibrate", action="store_true",
                     help="measure the model-form floors on calibration records (seeds from 0)")
     ap.add_argument("--compare", type=int, default=0, metavar="N",
                     help="coverage of white-noise Laplace / HAC alone / the tool's intervals "
                          "on N records (seeds from 20000), then stop")
     ap.add_argument("--rescore", default=None, metavar="ROWS",
-                    help="summarise the JSONL of an earlier --rows run with the health "
-                         "intervals recomputed under the current floors")
+                    help="summarise the rows of an earlier run (its --rows JSONL or the result "
+                         "file) with the health intervals recomputed under the current floors "
+                         "(with --json: stored as 'rescored' in the result file)")
     ap.add_argument("--from-rows", default=None,
-                    help="calibrate from the JSONL of an earlier --rows run (no new records)")
+                    help="calibrate from the rows of an earlier run (JSONL or the result file; "
+                         "no new records)")
     args = ap.parse_args()
     methods = [m for m in args.methods.split(",") if m]
     if args.calibrate:
@@ -268,12 +285,17 @@ def main() -> None:
         print(json.dumps(compare_methods(args.compare), indent=2))
         return
     if args.rescore:
-        rows = rescore([json.loads(line) for line in open(args.rescore)])
-        print(json.dumps({"records": len(rows), "rescored_with": "current MODEL_FORM",
-                          "methods": summarise(rows)}, indent=2))
+        rows = rescore(read_rows(args.rescore))
+        rescored = {"records": len(rows), "rescored_with": "current MODEL_FORM",
+                    "methods": summarise(rows)}
+        print(json.dumps(rescored, indent=2))
+        if args.json:
+            doc = json.loads(result_path("bench_intervals").read_text())
+            doc["rescored"] = {**rescored, "provenance": provenance()}
+            write_result("bench_intervals", doc)
         return
     if args.from_rows:
-        rows = [json.loads(line) for line in open(args.from_rows)]
+        rows = read_rows(args.from_rows)
         print(json.dumps({"floors": calibrate(rows), "records": len(rows)}, indent=2))
         return
     from rich.progress import Progress
@@ -300,8 +322,7 @@ def main() -> None:
     out = {"records": len(rows), "wall_s": wall, "level": 0.9, "noise_m": 1e-6,
            "commands": list(COMMANDS), "methods": summarise(rows)}
     if args.json:
-        print(json.dumps(out, indent=2))
-        return
+        write_result("bench_intervals", {**out, "rows": rows})
     print(f"{len(rows)} records ({', '.join(COMMANDS)}, a third with one more fault), "
           f"1 µm noise, nominal level 90 %, {wall:.0f} s")
     print(f"{'method':<11} {'param':<7} {'coverage':>8} {'no extra':>8} {'extra':>7} "

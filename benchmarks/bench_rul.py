@@ -9,7 +9,11 @@ Usage::
 
     python benchmarks/bench_rul.py                         # the demo fleet, 2 workers
     python benchmarks/bench_rul.py --actuators 6 --out /tmp/bench-rul   # a smaller run
-    python benchmarks/bench_rul.py --json results/bench_rul.json --plots results/bench_rul
+    python benchmarks/bench_rul.py --json --plots results/bench_rul   # the result file
+    python benchmarks/bench_rul.py --fleet examples/fleet-validation.toml --json
+
+``--json`` writes the fleet's figures into ``benchmarks/results/bench_rul.json`` (one entry per
+fleet, each with its provenance; a run replaces its fleet's entry), ``--json PATH`` elsewhere.
 
 Re-running with the same ``--out`` reuses the records and assessments (resume); pass
 ``--fresh`` to time everything from scratch.
@@ -19,11 +23,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import time
 import tomllib
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import provenance, result_path, write_result  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,7 +48,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench_rul")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--fresh", action="store_true", help="Delete --out first.")
-    ap.add_argument("--json", type=Path, default=None, help="Write the figures as JSON.")
+    ap.add_argument("--json", type=Path, nargs="?", const=result_path("bench_rul"),
+                    default=None, help="Write the figures as JSON (default: the result file, "
+                    "this fleet's entry).")
     ap.add_argument("--plots", type=Path, default=None, help="Also write the plots here.")
     ap.add_argument("--base-model", default=None,
                     help="LF base of the assessment (plain or calibrated; default eha fdi's).")
@@ -60,6 +71,7 @@ def main(argv=None) -> int:
     out = args.out / fleet.name
     if args.fresh and out.exists():
         shutil.rmtree(out)
+    load_start = os.getloadavg()
     t0 = time.perf_counter()
     fr = simulate_fleet(fleet, out / "fleet", workers=args.workers, progress=False)
     t_fleet = time.perf_counter() - t0
@@ -124,9 +136,11 @@ def main(argv=None) -> int:
         print(f"pipeline time scaled to 200 records: "
               f"{figures['pipeline_s_per_200_records']:.0f} s (goal <= 600 s)")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(figures, indent=1))
-        print(f"json: {args.json}")
+        doc = json.loads(args.json.read_text()) if args.json.is_file() else {}
+        fleets = doc.get("fleets", {})
+        fleets[figures["fleet"]] = {**figures, "provenance": provenance(load_start=load_start)}
+        write_result(args.json, {"benchmark": "bench_rul", "fleets": fleets},
+                     load_start=load_start)
     return 0
 
 

@@ -20,7 +20,13 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import json  # noqa: E402
 import statistics  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import write_result  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -67,13 +73,18 @@ def measure(repeat=15, t_end=1.0):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--json", action="store_true", help="print JSON only")
+    ap.add_argument("--json", action="store_true",
+                    help="print JSON only and write it to the result file, "
+                         "benchmarks/results/bench_sim.json (replacing it)")
     ap.add_argument("--repeat", type=int, default=15)
     ap.add_argument("--t-end", type=float, default=1.0)
     args = ap.parse_args()
     kernel, e2e = measure(args.repeat, args.t_end)
     if args.json:
-        print(json.dumps({**kernel, "end_to_end": e2e}, indent=1))
+        figures = {**kernel, "end_to_end": e2e}
+        print(json.dumps(figures, indent=1))
+        write_result("bench_sim", {"settings": {"repeat": args.repeat, "t_end": args.t_end},
+                                   "ms_per_simulated_second": figures})
         return
     print(f"ms per simulated second (median of {args.repeat}, one core, t_end={args.t_end} s)")
     print(f"{'command':<10} {'HF kernel':>10} {'LF kernel':>10} {'HF simulate':>12} "

@@ -10,8 +10,13 @@ the same key (multi: record name and seed; fp: command and seed). That serves tw
   one seed, so when the JSON shows that no refit the change acts on occurred in the record's
   run, the old record *is* the new code's result. The provenance of every part is kept.
 
-    python benchmarks/merge_results.py multi OUT.json old_part1.json old_part2.json rerun.json
-    python benchmarks/merge_results.py fp OUT.json old.json rerun.json
+    python benchmarks/merge_results.py multi benchmarks/results/bench_explain_multi.json \
+        part0.json part1.json part2.json
+    python benchmarks/merge_results.py fp benchmarks/results/bench_explain_fp.json \
+        benchmarks/results/bench_explain_fp.json rerun.json
+
+The merged file's provenance says where each part comes from (``parts``) and, on top, the
+commit(s), the latest date, the machine(s), cores and load of the parts.
 """
 
 from __future__ import annotations
@@ -22,6 +27,21 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _results import write_result  # noqa: E402
+
+
+def merged_provenance(parts: list[dict]) -> dict:
+    """The provenance of a merged file: what its parts share, and every part."""
+    def one_or_all(key):
+        values = sorted({str(p[key]) for p in parts if p.get(key) is not None})
+        return values[0] if len(values) == 1 else (values or "not recorded")
+
+    dates = sorted(p["date"] for p in parts if p.get("date"))
+    return {"commit": one_or_all("commit"), "date": dates[-1] if dates else "not recorded",
+            "machine": one_or_all("machine"), "cores": one_or_all("cores"),
+            "load": one_or_all("load") if any(p.get("load") for p in parts) else "not recorded",
+            "parts": parts}
 
 
 def key(kind: str, row: dict) -> tuple:
@@ -51,15 +71,17 @@ def main() -> None:
         import bench_explain_fp as bench
         summary = bench.summarise(merged, list(dict.fromkeys(r["command"] for r in merged)))
     summary["wall_s"] = sum(d["summary"].get("wall_s", 0.0) for d in docs)
-    provenance = []
+    parts = []
     for part, doc in zip(args.parts, docs):
         prov = doc["provenance"]
+        if isinstance(prov, dict) and "parts" in prov:  # an earlier merge
+            prov = prov["parts"]
         for p in prov if isinstance(prov, list) else [prov]:
-            provenance.append({"part": Path(part).name, **p})
-    out = {"benchmark": docs[0]["benchmark"], "settings": docs[-1]["settings"],
-           "provenance": provenance, "replaced": replaced, "summary": summary,
+            parts.append({"part": Path(part).name, **p})
+    out = {"benchmark": f"bench_explain_{args.kind}", "settings": docs[-1]["settings"],
+           "provenance": merged_provenance(parts), "replaced": replaced, "summary": summary,
            "records": merged}
-    Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+    write_result(Path(args.out), out)
     bench.print_summary(summary)
     print(f"wrote {args.out}: {len(merged)} records, {len(replaced)} replaced")
 

@@ -42,7 +42,16 @@ The package, by concern:
 
 The names below are re-exported for ``from eha.explain import ...``; a constant is read where
 it is used, so a test that patches one patches the module that reads it.
+
+``eha.explain`` is this package *and* the public API's function: calling the package,
+``eha.explain(data, ...)``, runs :func:`explain` (docs/api.md). A package attribute of ``eha``
+named ``explain`` is always the package (Python binds it on the first import of any
+``eha.explain.*`` module), so the package itself is made callable rather than shadowed by the
+function, which would break ``eha.explain.loop`` and every patch of ``eha.explain.*``.
 """
+
+import sys
+import types
 
 from eha.explain.api import explain, healthy_null
 from eha.explain.decide import (NOTHING_IMPROVED, Choice, better_pass, choose, edge_of_spread,
@@ -82,3 +91,13 @@ __all__ = [
     "STRUCTURAL", "SPECIFIC_GAIN", "RIVAL_MARGIN", "LOOK_AHEAD", "CONFIRM_FRACTION",
     "POSITION_WORSENING", "SWAP_CANDIDATES", "REVISITS", "SECOND_PASS", "FLOW_GAIN_EDGE",
 ]
+
+
+class _CallablePackage(types.ModuleType):
+    """The type of the ``eha.explain`` package: calling it is :func:`explain`."""
+
+    def __call__(self, *args, **kwargs):
+        return self.api.explain(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallablePackage

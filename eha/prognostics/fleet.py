@@ -148,6 +148,54 @@ def _range(where: str, value: Any, lo: float, hi: float, problems: list[str],
     return (a, b)
 
 
+def _fault_spec(fname: str, spec: Any, limits: Mapping[str, float],
+                p: list[str]) -> FaultSpec | None:
+    """One ``[faults.NAME]`` table of a fleet: its :class:`FaultSpec`, or None with its
+    problems appended to ``p``."""
+    from eha.models.params import SPECS
+
+    where = f"faults.{fname}"
+    if fname not in SPECS or "hf" not in SPECS[fname].models:
+        p.append(f"{where}: unknown HF parameter (see `eha params --faults`)")
+        return None
+    if not isinstance(spec, Mapping):
+        p.append(f"{where}: must be a table")
+        return None
+    for key in spec:
+        if key not in FAULT_KEYS:
+            p.append(f"{where}.{key}: unknown key; allowed: {', '.join(FAULT_KEYS)}")
+    s = SPECS[fname]
+    init = _range(f"{where}.initial", spec.get("initial", s.nominal), s.lo, s.hi, p,
+                  s.unit)
+    laws = spec.get("laws", list(LAWS))
+    if isinstance(laws, str):
+        laws = [laws]
+    if not isinstance(laws, list) or not laws or any(law not in LAWS for law in laws):
+        p.append(f"{where}.laws: {laws!r}; allowed a non-empty list from "
+                 f"{', '.join(LAWS)}")
+        laws = list(LAWS)
+    rate = spec.get("rate")
+    rm = rs = None
+    if not isinstance(rate, Mapping) or "median" not in rate:
+        p.append(f"{where}.rate: required, {{median = r, sigma = s}} (lognormal slope "
+                 f"scale, {s.unit}/cycle)")
+    else:
+        rm = _num(f"{where}.rate.median", rate["median"], 0.0, s.hi, p,
+                  f"{s.unit}/cycle")
+        rs = _num(f"{where}.rate.sigma", rate.get("sigma", 0.0), 0.0, 3.0, p)
+    tau = _range(f"{where}.tau", spec.get("tau", [500.0, 2000.0]), 1e-6, 1e9, p,
+                 "cycles")
+    expo = _range(f"{where}.exponent", spec.get("exponent", [1.5, 3.0]), 0.1, 10.0, p)
+    ts = _num(f"{where}.t_scale", spec.get("t_scale", 1000.0), 1e-6, 1e9, p, "cycles")
+    pn = _num(f"{where}.process_noise", spec.get("process_noise", 0.0), 0.0, 2.0, p)
+    if None in (init, rm, rs, tau, expo, ts, pn):
+        return None
+    if fname in limits and init[1] >= limits[fname]:
+        p.append(f"{where}.initial: upper value {init[1]:g} is not below the limit "
+                 f"{limits[fname]:g} {s.unit}")
+    return FaultSpec(fname, init, tuple(laws), rm, rs, tau, expo, ts, pn)
+
+
 def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     """Validate a parsed fleet TOML; raises :class:`FleetError` with one line per problem."""
     from eha.models.commands import CommandError, make_command
@@ -215,45 +263,9 @@ def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
         p.append("faults: required, one table [faults.NAME] per degrading fault")
         f_t = {}
     for fname, spec in f_t.items():
-        where = f"faults.{fname}"
-        if fname not in SPECS or "hf" not in SPECS[fname].models:
-            p.append(f"{where}: unknown HF parameter (see `eha params --faults`)")
-            continue
-        if not isinstance(spec, Mapping):
-            p.append(f"{where}: must be a table")
-            continue
-        for key in spec:
-            if key not in FAULT_KEYS:
-                p.append(f"{where}.{key}: unknown key; allowed: {', '.join(FAULT_KEYS)}")
-        s = SPECS[fname]
-        init = _range(f"{where}.initial", spec.get("initial", s.nominal), s.lo, s.hi, p,
-                      s.unit)
-        laws = spec.get("laws", list(LAWS))
-        if isinstance(laws, str):
-            laws = [laws]
-        if not isinstance(laws, list) or not laws or any(law not in LAWS for law in laws):
-            p.append(f"{where}.laws: {laws!r}; allowed a non-empty list from "
-                     f"{', '.join(LAWS)}")
-            laws = list(LAWS)
-        rate = spec.get("rate")
-        rm = rs = None
-        if not isinstance(rate, Mapping) or "median" not in rate:
-            p.append(f"{where}.rate: required, {{median = r, sigma = s}} (lognormal slope "
-                     f"scale, {s.unit}/cycle)")
-        else:
-            rm = _num(f"{where}.rate.median", rate["median"], 0.0, s.hi, p,
-                      f"{s.unit}/cycle")
-            rs = _num(f"{where}.rate.sigma", rate.get("sigma", 0.0), 0.0, 3.0, p)
-        tau = _range(f"{where}.tau", spec.get("tau", [500.0, 2000.0]), 1e-6, 1e9, p,
-                     "cycles")
-        expo = _range(f"{where}.exponent", spec.get("exponent", [1.5, 3.0]), 0.1, 10.0, p)
-        ts = _num(f"{where}.t_scale", spec.get("t_scale", 1000.0), 1e-6, 1e9, p, "cycles")
-        pn = _num(f"{where}.process_noise", spec.get("process_noise", 0.0), 0.0, 2.0, p)
-        if None not in (init, rm, rs, tau, expo, ts, pn):
-            faults.append(FaultSpec(fname, init, tuple(laws), rm, rs, tau, expo, ts, pn))
-            if fname in limits and init[1] >= limits[fname]:
-                p.append(f"{where}.initial: upper value {init[1]:g} is not below the limit "
-                         f"{limits[fname]:g} {s.unit}")
+        fault = _fault_spec(fname, spec, limits, p)
+        if fault is not None:
+            faults.append(fault)
     for k in limits:
         if k not in f_t:
             p.append(f"limits: {k} has a limit but no [faults.{k}] table (it never degrades)")

@@ -292,33 +292,11 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     eha.prognostics.manifest.ManifestError, PrognosticsError
         Bad input (nothing written).
     """
-    from eha.prognostics.manifest import read_manifest
     from eha.campaigns.runner import run_campaign
 
     t0 = time.perf_counter()
-    manifest = read_manifest(manifest_path)
-    if limit_error is not None and not 0 <= limit_error < 1:
-        raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
-                               "(relative standard deviation)")
-    if not limits:
-        raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
-                               "limit), e.g. --limit FDJ=2000")
-    names = list(dict.fromkeys(list(fit or RUL_FIT) + list(limits)))
-    bad_laws = [x for x in laws if x not in LAWS]
-    if bad_laws or not laws:
-        raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "
-                               f"{', '.join(LAWS)}")
-    from eha.identification.problem import BASE_MODELS, FDIError, check_bounds
-
-    try:
-        chosen = check_bounds(health_bounds(names, limits, bounds))
-    except FDIError as exc:
-        raise PrognosticsError(str(exc)) from None
-    if base_model is not None and base_model not in BASE_MODELS:
-        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
-    truth_eol = load_truth(truth) if truth is not None else None
-    if json_out is not None and Path(json_out).suffix.lower() != ".json":
-        raise PrognosticsError(f"--json {json_out}: the file must end in .json")
+    manifest, names, chosen, truth_eol = _check_rul_inputs(
+        manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error, base_model)
     results = Path(results)
     camp = health_campaign(manifest, chosen, seed, base_model=base_model)
     summary = run_campaign(camp, results, workers=workers, replace=True, progress=progress)
@@ -333,17 +311,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
             done.append(r)
     hist = histories_from_checks(done, names, skip_flagged=skip_flagged)
     t1 = time.perf_counter()
-    out_acts: dict[str, Any] = {}
-    preds_all: dict[str, list] = {}
-    for aid in manifest.actuators:
-        if aid not in hist:
-            out_acts[aid] = {"predictions": []}
-            preds_all[aid] = []
-            continue
-        preds, _ = predict_history(aid, hist[aid], limits, seed=seed, laws=laws,
-                                   limit_error=limit_error)
-        preds_all[aid] = preds
-        out_acts[aid] = {"predictions": [p.to_dict() for p in preds]}
+    out_acts, preds_all = _predict_all(manifest.actuators, hist, limits, seed, laws, limit_error)
     t_predict = time.perf_counter() - t1
     output = {"unit": "cycle", "limits": dict(limits), "fit": names,
               "bounds": {k: list(v) for k, v in chosen.items()}, "laws": list(laws),
@@ -372,6 +340,55 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     res.seconds = {"assess": t_assess, "predict": t_predict,
                    "total": time.perf_counter() - t0}
     return res
+
+
+def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error,
+                      base_model):
+    """Validate :func:`run_rul`'s inputs (nothing written): the manifest, the tracked fault
+    names, the checked bounds and the true end of life (or None)."""
+    from eha.prognostics.manifest import read_manifest
+
+    manifest = read_manifest(manifest_path)
+    if limit_error is not None and not 0 <= limit_error < 1:
+        raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
+                               "(relative standard deviation)")
+    if not limits:
+        raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
+                               "limit), e.g. --limit FDJ=2000")
+    names = list(dict.fromkeys(list(fit or RUL_FIT) + list(limits)))
+    bad_laws = [x for x in laws if x not in LAWS]
+    if bad_laws or not laws:
+        raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "
+                               f"{', '.join(LAWS)}")
+    from eha.identification.problem import BASE_MODELS, FDIError, check_bounds
+
+    try:
+        chosen = check_bounds(health_bounds(names, limits, bounds))
+    except FDIError as exc:
+        raise PrognosticsError(str(exc)) from None
+    if base_model is not None and base_model not in BASE_MODELS:
+        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
+    truth_eol = load_truth(truth) if truth is not None else None
+    if json_out is not None and Path(json_out).suffix.lower() != ".json":
+        raise PrognosticsError(f"--json {json_out}: the file must end in .json")
+    return manifest, names, chosen, truth_eol
+
+
+def _predict_all(actuators, hist, limits, seed, laws, limit_error):
+    """RUL predictions of every actuator of the manifest (none where it has no history): the
+    JSON part ``{actuator: {"predictions": [...]}}`` and ``{actuator: [Prediction]}``."""
+    out_acts: dict[str, Any] = {}
+    preds_all: dict[str, list] = {}
+    for aid in actuators:
+        if aid not in hist:
+            out_acts[aid] = {"predictions": []}
+            preds_all[aid] = []
+            continue
+        preds, _ = predict_history(aid, hist[aid], limits, seed=seed, laws=laws,
+                                   limit_error=limit_error)
+        preds_all[aid] = preds
+        out_acts[aid] = {"predictions": [p.to_dict() for p in preds]}
+    return out_acts, preds_all
 
 
 def _json_default(v):

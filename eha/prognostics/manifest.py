@@ -137,71 +137,82 @@ def read_manifest(path: str | Path, check_files: bool = True) -> Manifest:
     if len(rows) == 1:
         problems.append("no checks: the manifest has a header but no rows")
     for raw, line in zip(rows[1:], numbers[1:]):
-        if len(raw) < len(header):
-            raw = raw + [""] * (len(header) - len(raw))
-        where = f"line {line}"
-        actuator = raw[idx["actuator"]].strip()
-        cycle_text = raw[idx["cycle"]].strip()
-        record_text = raw[idx["record"]].strip()
-        ok = True
-        if not actuator:
-            problems.append(f"{where}: column actuator is empty; give an identifier")
-            ok = False
-        try:
-            cycle = float(cycle_text)
-            if not math.isfinite(cycle):
-                raise ValueError
-        except ValueError:
-            problems.append(f"{where}: column cycle {cycle_text!r} is not a number; allowed "
-                            "a finite number >= 0 (cycles or hours)")
-            cycle, ok = math.nan, False
-        else:
-            if cycle < 0:
-                problems.append(f"{where}: column cycle {cycle_text} is negative; allowed a "
-                                "finite number >= 0 (cycles or hours)")
-                ok = False
-        if actuator and ok:
-            prev = last.get(actuator)
-            if prev is not None and cycle == prev[0]:
-                problems.append(f"{where}: actuator {actuator}: cycle {cycle:g} listed twice "
-                                f"(also on line {prev[1]}); cycles must be strictly "
-                                "increasing per actuator")
-                ok = False
-            elif prev is not None and cycle < prev[0]:
-                problems.append(f"{where}: actuator {actuator}: cycle {cycle:g} comes after "
-                                f"cycle {prev[0]:g} (line {prev[1]}); cycles must be strictly "
-                                "increasing per actuator")
-                ok = False
-            if prev is None or cycle > prev[0]:
-                last[actuator] = (cycle, line)
-        if not record_text:
-            problems.append(f"{where}: column record is empty; give the path of a record "
-                            "(relative to the manifest's folder)")
-            ok = False
-            record = Path()
-        else:
-            record = Path(record_text)
-            if not record.is_absolute():
-                record = folder / record
-            record = record.resolve()
-            if check_files:
-                if record.suffix.lower() not in RECORD_TYPES:
-                    problems.append(f"{where}: record {record_text}: unsupported file type "
-                                    f"{record.suffix or '(none)'!r}; allowed: "
-                                    f"{', '.join(RECORD_TYPES)}")
-                    ok = False
-                elif not record.is_file():
-                    problems.append(f"{where}: record {record_text}: file not found "
-                                    f"(looked for {record})")
-                    ok = False
-        if ok:
-            extra = {h: v for h, v in zip(header, raw) if h not in COLUMNS}
-            checks.append(Check(actuator, cycle, record, line, extra))
+        check = _check_row(raw, line, header, idx, folder, check_files, last, problems)
+        if check is not None:
+            checks.append(check)
     if problems:
         raise ManifestError(path, problems)
     order = {a: i for i, a in enumerate(dict.fromkeys(c.actuator for c in checks))}
     checks.sort(key=lambda c: (order[c.actuator], c.cycle))
     return Manifest(path.resolve(), tuple(checks))
+
+
+def _check_row(raw: list[str], line: int, header: list[str], idx: dict[str, int], folder: Path,
+               check_files: bool, last: dict[str, tuple[float, int]],
+               problems: list[str]) -> Check | None:
+    """One row of the manifest: its check, or None with its problems appended to
+    ``problems``; ``last`` (actuator -> last cycle and its line) is updated."""
+    if len(raw) < len(header):
+        raw = raw + [""] * (len(header) - len(raw))
+    where = f"line {line}"
+    actuator = raw[idx["actuator"]].strip()
+    cycle_text = raw[idx["cycle"]].strip()
+    record_text = raw[idx["record"]].strip()
+    ok = True
+    if not actuator:
+        problems.append(f"{where}: column actuator is empty; give an identifier")
+        ok = False
+    try:
+        cycle = float(cycle_text)
+        if not math.isfinite(cycle):
+            raise ValueError
+    except ValueError:
+        problems.append(f"{where}: column cycle {cycle_text!r} is not a number; allowed "
+                        "a finite number >= 0 (cycles or hours)")
+        cycle, ok = math.nan, False
+    else:
+        if cycle < 0:
+            problems.append(f"{where}: column cycle {cycle_text} is negative; allowed a "
+                            "finite number >= 0 (cycles or hours)")
+            ok = False
+    if actuator and ok:
+        prev = last.get(actuator)
+        if prev is not None and cycle == prev[0]:
+            problems.append(f"{where}: actuator {actuator}: cycle {cycle:g} listed twice "
+                            f"(also on line {prev[1]}); cycles must be strictly "
+                            "increasing per actuator")
+            ok = False
+        elif prev is not None and cycle < prev[0]:
+            problems.append(f"{where}: actuator {actuator}: cycle {cycle:g} comes after "
+                            f"cycle {prev[0]:g} (line {prev[1]}); cycles must be strictly "
+                            "increasing per actuator")
+            ok = False
+        if prev is None or cycle > prev[0]:
+            last[actuator] = (cycle, line)
+    if not record_text:
+        problems.append(f"{where}: column record is empty; give the path of a record "
+                        "(relative to the manifest's folder)")
+        ok = False
+        record = Path()
+    else:
+        record = Path(record_text)
+        if not record.is_absolute():
+            record = folder / record
+        record = record.resolve()
+        if check_files:
+            if record.suffix.lower() not in RECORD_TYPES:
+                problems.append(f"{where}: record {record_text}: unsupported file type "
+                                f"{record.suffix or '(none)'!r}; allowed: "
+                                f"{', '.join(RECORD_TYPES)}")
+                ok = False
+            elif not record.is_file():
+                problems.append(f"{where}: record {record_text}: file not found "
+                                f"(looked for {record})")
+                ok = False
+    if not ok:
+        return None
+    extra = {h: v for h, v in zip(header, raw) if h not in COLUMNS}
+    return Check(actuator, cycle, record, line, extra)
 
 
 def write_manifest(path: str | Path, rows: list[tuple[str, float, str]]) -> Path:
