@@ -241,7 +241,7 @@ def test_xu_is_stored_only_where_it_differs_from_xj_and_read_back_bit_for_bit(tm
     from eha.campaigns.traces import (COPY_FLAG, chunk_table, read_run, write_chunk,
                                       write_table_atomic)
     from eha.models import OUTPUTS
-    from eha.simulate import simulate
+    from eha.models.simulate import simulate
 
     xu, xj = OUTPUTS.index("xu"), OUTPUTS.index("xj")
     nominal = simulate("hf", "ramp", t_end=0.05).data             # xu is xj: no backlash
@@ -300,7 +300,7 @@ def test_workers_fix_the_malloc_thresholds_that_dask_sets():
     code = textwrap.dedent("""
         import resource
         from eha.campaigns.executors import tune_malloc
-        from eha.simulate import simulate
+        from eha.models.simulate import simulate
 
         def faults():
             simulate("hf", "mixed", t_end=0.3)
