@@ -149,3 +149,17 @@ def test_the_infrastructure_imports_only_the_models():
              if module.startswith("eha/campaigns/")
              for part in parts - {"campaigns", "models", "errors"}}
     assert found == set(), sorted(found)
+
+
+def test_no_dynamic_import_of_eha_modules():
+    """Modules are imported by name (plain imports, inside a function where start-up time
+    needs it), never by a computed string: no ``importlib.import_module`` and no
+    ``__import__`` in eha/. (Job kinds are found through their entry points,
+    :mod:`eha.campaigns.jobs`: the packaging metadata's plug-in mechanism.)"""
+    found = []
+    for path in sorted(ROOT.rglob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        for needle in ("import_module(", "__import__("):
+            if needle in text:
+                found.append(f"{path.relative_to(ROOT.parent)}: {needle}")
+    assert found == [], found

@@ -17,7 +17,5 @@ and ``eha --help`` start without it; each command imports what it calls.
 
 from eha.cli.app import app, main
 from eha.cli.guard import BAD_INPUT, INTERRUPTED, TERMINATED, Terminated, fail
-from eha.cli.options import library_default, signature_default
 
-__all__ = ["app", "main", "fail", "BAD_INPUT", "INTERRUPTED", "TERMINATED", "Terminated",
-           "library_default", "signature_default"]
+__all__ = ["app", "main", "fail", "BAD_INPUT", "INTERRUPTED", "TERMINATED", "Terminated"]

@@ -17,22 +17,19 @@ from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail
+from eha.cli import defaults
 from eha.cli.options import (COMMAND_HOLD, RESULTS, ColumnsOption, CommandHoldOption,
                              ResultsOption, UnitsOption, check_out_dir, check_out_file,
-                             check_seed, library_default, print_paths, record_file,
-                             signature_default)
+                             check_seed, print_paths, record_file)
 
 
-def _setting(name: str, cast=float):
-    """A default of :data:`eha.explain.settings.DEFAULTS`, read when the option is parsed."""
-    return library_default("eha.explain.settings", "DEFAULTS", lambda d: cast(d[name]))
+_setting = defaults.loop_setting
 
 
 # ---- the options, at module level so that the command stays short
 DATA = typer.Argument(..., help="Measured record: CSV/TSV/Parquet with t, com, xu (SI; aliases "
                       "in docs/explain.md, or see --columns, --units), optional p12, xs.")
-FIT = typer.Option(..., "--fit", default_factory=library_default("eha.identification.problem", "DEFAULT_FIT",
-                                                                 ",".join),
+FIT = typer.Option(..., "--fit", default_factory=defaults.fit_faults,
                    help="Declared faults to fit: NAME or NAME=LO:HI, comma-separated.")
 EFFECTS = typer.Option(None, "--effects", help="Candidate effects, comma-separated names of "
                        "docs/model.md's effect table (default: all 14).")
@@ -47,11 +44,9 @@ KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALU
 JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
                         "and the steps as JSON.")
 OUT = typer.Option(None, "--out", help="Output folder (default RESULTS/explain/<file stem>).")
-METHOD = typer.Option(..., "--method", default_factory=library_default("eha.identification.problem",
-                                                                       "DEFAULT_METHOD"),
+METHOD = typer.Option(..., "--method", default_factory=defaults.fit_method,
                       help="Optimizer of every fit (eha fdi).")
-POP = typer.Option(..., "--pop", default_factory=signature_default("eha.explain.api",
-                                                                   "explain", "pop"),
+POP = typer.Option(..., "--pop", default_factory=defaults.explain_population,
                    help="GA population of every fit.")
 SEED = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result).")
 CANDIDATES = typer.Option(..., "--candidates", default_factory=_setting("candidates", int),

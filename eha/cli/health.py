@@ -14,9 +14,10 @@ import typer
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, resumable, warn
+from eha.cli import defaults
 from eha.cli.options import (RESULTS, WORKERS, ColumnsOption, ResultsOption, UnitsOption,
                              WorkersOption, check_out_dir, check_out_file, check_seed,
-                             library_default, print_paths, record_file)
+                             print_paths, record_file)
 
 health_app = typer.Typer(no_args_is_help=True,
                          help="Health assessment: calibrate thresholds on a healthy fleet, "
@@ -32,7 +33,7 @@ def health_calibrate(
     actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
                                   help="Healthy actuators in the fleet."),
     alpha: float = typer.Option(
-        ..., "--alpha", default_factory=library_default("eha.health.detection", "DEFAULT_ALPHA"),
+        ..., "--alpha", default_factory=defaults.health_alpha,
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
     t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
     noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),

@@ -14,9 +14,10 @@ import typer
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, warn
+from eha.cli import defaults
 from eha.cli.options import (COMMAND_HOLD, PLOT_SUFFIXES, ColumnsOption, CommandHoldOption,
                              UnitsOption, check_names, check_out_file, check_seed,
-                             library_default, record_file, signature_default, split_names,
+                             record_file, split_names,
                              write_json)
 
 
@@ -26,19 +27,17 @@ FAULTS = typer.Option([], "--set", help="Fault injected in the HF reference, NAM
                       "(repeatable).")
 DATA = typer.Option(None, "--data", help="Measured record instead of an HF reference: "
                     "CSV/Parquet with t, com, xu (SI, or see --columns, --units).")
-FIT = typer.Option(..., "--fit", default_factory=library_default("eha.identification.problem", "DEFAULT_FIT",
-                                                                 ",".join),
+FIT = typer.Option(..., "--fit", default_factory=defaults.fit_faults,
                    help="LF parameters to identify.")
 BOUNDS = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI (default BKL=0:1.25e-3, "
                       "FDJ=200:4000, else the range).")
 BASE = typer.Option([], "--base", help="LF parameter held fixed, NAME=VALUE (e.g. "
                     "orifice_law=1).")
 METHOD = typer.Option(
-    ..., "--method", default_factory=library_default("eha.identification.problem", "DEFAULT_METHOD"),
+    ..., "--method", default_factory=defaults.fit_method,
     help="ga (the thesis), ga+ps (GA + pattern-search polish), ps (pattern search from the "
          "--base / nominal values) or lm (least squares from them).")
-POP = typer.Option(..., "--pop", default_factory=signature_default("eha.identification.fdi", "identify_source",
-                                                                   "pop"),
+POP = typer.Option(..., "--pop", default_factory=defaults.fdi_population,
                    help="GA population.")
 SEED = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed).")
 OBJECTIVE = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' mean "
@@ -46,8 +45,7 @@ OBJECTIVE = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis
 T_END = typer.Option(1.0, "--t-end", help="Simulated time of the HF reference, in seconds.")
 JSON_OUT = typer.Option(None, "--json", help="Write the result as JSON.")
 PLOT = typer.Option(None, "--plot", help="PNG: reference vs identified LF.")
-LEVEL = typer.Option(..., "--level", default_factory=library_default("eha.identification.problem",
-                                                                     "DEFAULT_LEVEL"),
+LEVEL = typer.Option(..., "--level", default_factory=defaults.interval_level,
                      help="Nominal coverage of the parameter intervals, in (0, 1).")
 BASE_MODEL = typer.Option(None, "--base-model", help="LF model: plain (the thesis') or "
                           "calibrated (by eha explain). Default: plain against an HF "

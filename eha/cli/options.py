@@ -58,30 +58,6 @@ def split_names(text: str) -> list[str]:
     return [n.strip() for n in text.split(",") if n.strip()]
 
 
-def library_default(module: str, name: str,
-                    pick: Callable[[Any], Any] | None = None) -> Callable[[], Any]:
-    """A default read from the library (``module.name``, optionally through ``pick``) when
-    the option is parsed: the CLI does not retype it, and ``eha --help`` does not pay for
-    importing the numerical modules."""
-    def default() -> Any:
-        import importlib
-
-        value = getattr(importlib.import_module(module), name)
-        return pick(value) if pick is not None else value
-
-    default.__name__ = f"{module}.{name}"
-    return default
-
-
-def signature_default(module: str, function: str, parameter: str) -> Callable[[], Any]:
-    """The default of ``parameter`` in the library function's signature (see
-    :func:`library_default`)."""
-    import inspect
-
-    return library_default(module, function,
-                           lambda fn: inspect.signature(fn).parameters[parameter].default)
-
-
 def _writable_folder(folder: Path, option: str, shown: Path) -> None:
     """Fail unless ``folder`` is (or can be created as) a writable folder."""
     probe = folder.absolute()

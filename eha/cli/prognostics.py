@@ -15,8 +15,9 @@ import typer
 from rich.table import Table
 
 from eha.cli.guard import console, resumable, warn
+from eha.cli import defaults
 from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
-                             check_out_file, check_seed, library_default, print_paths,
+                             check_out_file, check_seed, print_paths,
                              split_names, write_json)
 
 fleet_app = typer.Typer(no_args_is_help=True,
@@ -58,8 +59,7 @@ def rul(
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
-        ..., "--fit", default_factory=library_default("eha.prognostics.jobs", "RUL_FIT",
-                                                      ",".join),
+        ..., "--fit", default_factory=defaults.rul_faults,
         help="Faults identified and tracked (comma-separated; limited faults are added). "
         "GM (motor gain) is tracked by default: its manufacturing dispersion would "
         "otherwise bias FDJ."),

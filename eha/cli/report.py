@@ -16,8 +16,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, fail
+from eha.cli import defaults
 from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
-                             check_out_file, library_default, print_paths)
+                             check_out_file, print_paths)
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database."
                          "\n\nExample: eha report thesis --results results")
@@ -57,8 +58,7 @@ def report_health(results: ResultsOption = RESULTS,
                   campaign: str = typer.Option("health-detection", "--campaign",
                                                help="Detection campaign (as in the database)."),
                   alpha: float = typer.Option(
-                      ..., "--alpha", default_factory=library_default("eha.health.detection",
-                                                                      "DEFAULT_ALPHA"),
+                      ..., "--alpha", default_factory=defaults.health_alpha,
                       help="Probability that a healthy check raises any alarm, in (0, 1)."),
                   out: Optional[Path] = typer.Option(None, "--out", help="Output folder "
                                                      "(default RESULTS/reports/health).")):
