@@ -15,23 +15,16 @@ records come from which commit. ``--json`` prints the result file.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
-RESULT = Path(__file__).resolve().parent / "results" / "explain_foreign.json"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _results import provenance, write_result  # noqa: E402
 
-
-def provenance(note: str) -> dict:
-    """Commit, date, machine and load of this measurement."""
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True, cwd=Path(__file__).parent).stdout.strip()
-    return {"commit": commit, "date": dt.date.today().isoformat(),
-            "machine": f"{os.cpu_count()} cores", "load_average": list(os.getloadavg()),
-            "note": note}
+#: the result file (named for the data set, not the script: docs quote it as such)
+RESULT = "explain_foreign"
 
 
 def collect(out: Path, scorer: Path, table: str) -> list[dict]:
@@ -69,11 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     summary = [ln for ln in table.splitlines()
                if ln.split()[:1] and ln.split()[0] in ("single", "two", "none", "outside",
                                                          "time")]
-    result = {"benchmark": "explain_foreign",
-              "what": "score.py --out DIR (eha explain defaults, 2 records at a time)",
-              "provenance": provenance(a.note), "summary": summary,
+    result = {"what": "score.py --out DIR (eha explain defaults, 2 records at a time)",
+              "provenance": {**provenance(), "note": a.note}, "summary": summary,
               "records": collect(a.out, a.scorer, table)}
-    RESULT.write_text(json.dumps(result, indent=1, ensure_ascii=False) + "\n")
+    write_result(RESULT, result)
     print(table)
     if a.json:
         print(json.dumps(result, indent=1, ensure_ascii=False))
