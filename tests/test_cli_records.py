@@ -162,3 +162,79 @@ def test_loop_settings_are_checked_in_one_place():
     assert err.value.lines() == ["--min-gain nan: allowed range [0, 1]",
                                  "--alpha 1.5: allowed range (0, 1)"]
     assert LoopSettings().problems() == []
+
+
+# ----------------------------------------------------------------------------- eha rul
+RUL_COLUMNS = "t=time_s,com=command_mm,xu=lvdt"
+
+
+def _rul_manifests(folder):
+    """One actuator whose friction grows (FDJ 300, 700, 1100 N at cycles 0, 100, 200), its
+    records twice: canonical (t, com, xu in m) and as a logger writes them (time_s, command_mm,
+    lvdt in mm: the position's header declares no unit). The two hold the same numbers: the
+    canonical file is the user's read back and scaled, as the loader does."""
+    from eha.identification.measured import synthetic_record
+
+    rows = {"canonical": [], "user": []}
+    for i, (cycle, fdj) in enumerate([(0, 300.0), (100, 700.0), (200, 1100.0)]):
+        run = synthetic_record("chirp_1cm", {"FDJ": fdj}, t_end=0.3, noise=1e-6, seed=i)
+        pd.DataFrame({"time_s": run["t"], "command_mm": 1e3 * run["com"],
+                      "lvdt": 1e3 * run["xu"]}).to_csv(folder / f"u{i}.csv", index=False)
+        back = pd.read_csv(folder / f"u{i}.csv")
+        pd.DataFrame({"t": back["time_s"], "com": 1e-3 * back["command_mm"],
+                      "xu": 1e-3 * back["lvdt"]}).to_csv(folder / f"c{i}.csv", index=False)
+        rows["canonical"].append(f"A1,{cycle},c{i}.csv")
+        rows["user"].append(f"A1,{cycle},u{i}.csv")
+    for name, lines in rows.items():
+        (folder / f"{name}.csv").write_text("\n".join(["actuator,cycle,record", *lines]) + "\n")
+    return folder / "canonical.csv", folder / "user.csv"
+
+
+@pytest.mark.slow
+def test_rul_reads_the_records_with_columns_and_units_like_canonical_ones(tmp_path):
+    """`eha rul --columns --units` in a real process: the manifest of time_s,command_mm,lvdt
+    records in millimetres gives the RUL of the same records with canonical headers in SI
+    (the options travel with each record's job to the worker that reads it)."""
+    import json
+
+    canonical, user = _rul_manifests(tmp_path)
+    common = ["--limit", "FDJ=1500", "--fit", "FDJ", "--results", tmp_path / "res",
+              "--workers", "1", "--no-progress"]
+    proc = run_eha("rul", canonical, *common, "--json", tmp_path / "c.json", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    proc = run_eha("rul", user, *common, "--json", tmp_path / "u.json", "--columns",
+                   RUL_COLUMNS, "--units", "mm", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "3 records assessed now" in proc.stdout
+    ref = json.loads((tmp_path / "c.json").read_text())
+    out = json.loads((tmp_path / "u.json").read_text())
+    assert out["columns"] == {"t": "time_s", "com": "command_mm", "xu": "lvdt"}
+    assert out["units"] == "mm" and "columns" not in ref
+    got, want = out["actuators"]["A1"]["predictions"], ref["actuators"]["A1"]["predictions"]
+    assert [p["cycle"] for p in got] == [p["cycle"] for p in want] == [0.0, 100.0, 200.0]
+    assert want[-1]["rul"] is not None and want[-1]["driver"] == "FDJ"   # not None == None
+    for a, b in zip(got, want):
+        assert a["estimates"]["FDJ"] == pytest.approx(b["estimates"]["FDJ"], rel=1e-9)
+        for key in ("rul", "rul_lo", "rul_hi"):
+            assert a[key] == (None if b[key] is None else pytest.approx(b[key], rel=1e-9))
+    assert abs(want[-1]["rul"] - 100.0) < 60.0     # FDJ reaches 1500 N near cycle 300
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--columns", "position=lvdt"], "--columns position=lvdt: unknown signal 'position'; "
+                                     "allowed: t, com, xu, p12, xs"),
+    (["--columns", RUL_COLUMNS, "--units", "inch"], "--units 'inch': allowed m, mm, um"),
+])
+def test_rul_bad_columns_or_units_exit_2_in_one_line_and_write_nothing(tmp_path, options,
+                                                                         message):
+    for i in range(3):
+        _record(tmp_path / f"u{i}.csv")
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("actuator,cycle,record\n" + "".join(f"A1,{100 * i},u{i}.csv\n"
+                                                            for i in range(3)))
+    before = files_under(tmp_path)
+    proc = invoke_eha("rul", manifest, "--limit", "FDJ=1500", "--results", tmp_path / "res",
+                      "--json", tmp_path / "rul.json", "--no-progress", *options)
+    line = error_line(proc, 2)
+    assert line == f"error: {message}" or line.startswith(f"error: {message} "), line
+    assert files_under(tmp_path) == before and not (tmp_path / "res").exists()

@@ -16,9 +16,9 @@ from rich.table import Table
 
 from eha.cli.guard import console, resumable, warn
 from eha.cli import defaults
-from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
-                             check_out_file, check_seed, print_paths,
-                             split_names, write_json)
+from eha.cli.options import (RESULTS, WORKERS, ColumnsOption, ResultsOption, UnitsOption,
+                             WorkersOption, check_out_dir, check_out_file, check_seed,
+                             print_paths, split_names, write_json)
 
 fleet_app = typer.Typer(no_args_is_help=True,
                         help="Simulated fleets of degrading actuators (the prognostics test "
@@ -55,7 +55,8 @@ def fleet_simulate(
 
 def rul(
     manifest: Path = typer.Argument(..., help="Manifest CSV: actuator, cycle, record "
-                                    "(records relative to its folder)."),
+                                    "(records relative to its folder; SI, or see --columns, "
+                                    "--units)."),
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
@@ -85,13 +86,20 @@ def rul(
     limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
                                                 "of the assessment's systematic error "
                                                 "(default 0.02)."),
+    columns: ColumnsOption = None,
+    units: UnitsOption = None,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
     trends, predict when each limited fault reaches its limit (median, 5 %, 95 %).
 
+    --columns and --units apply to every record of the manifest.
+
     Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
     --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul
+
+    Example (records headed time_s,command_mm,position_mm): eha rul manifest.csv --limit
+    FDJ=2000 --columns t=time_s,com=command_mm,xu=position_mm
     """
     from eha.identification.fdi import parse_bounds
     from eha.prognostics.jobs import parse_limits, run_rul
@@ -105,7 +113,8 @@ def rul(
                       bounds=parse_bounds(bounds), results=results, json_out=json_out,
                       truth=truth, plots=plots, seed=seed, workers=workers,
                       laws=split_names(laws), skip_flagged=skip_flagged, progress=progress,
-                      limit_error=limit_error, base_model=base_model)
+                      limit_error=limit_error, base_model=base_model, columns=columns,
+                      units=units)
     _render_rul(res, results)
     if res.failed:
         raise typer.Exit(1)

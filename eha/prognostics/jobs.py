@@ -111,11 +111,15 @@ def run_id_of(manifest_path: Path) -> str:
 
 
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
-                    method: str = HEALTH_METHOD, base_model: str | None = None):
+                    method: str = HEALTH_METHOD, base_model: str | None = None,
+                    columns: Mapping[str, str] | str | None = None, units: str | None = None):
     """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
     ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default
-    the one ``eha fdi --data`` uses)."""
+    the one ``eha fdi --data`` uses); ``columns`` and ``units``: how every record is read
+    (:class:`eha.identification.measured.RecordFile`), carried in each job's spec to the worker
+    (and into its run key: other columns or units are another assessment)."""
     from eha.campaigns.files import Campaign, Job
+    from eha.identification.measured import RecordFile
     from eha.models.simulate import MODEL_VERSION
 
     from eha.identification.problem import BASE_MODELS, DEFAULT_BASE_MODEL, DEFAULT_LEVEL
@@ -133,6 +137,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
         spec = {"record": str(c.record), "sha": file_sha(c.record), "actuator": c.actuator,
                 "cycle": c.cycle, "fit": fit, "seed": int(seed), "method": method,
                 "base_model": base_model, "base": base, "level": level}
+        spec.update(_record_format(RecordFile(c.record, columns, units)))
         key = hashlib.sha256(json.dumps({"campaign": name, "kind": "health", "spec": spec,
                                          "model_version": MODEL_VERSION}, sort_keys=True,
                                         default=float).encode()).hexdigest()[:16]
@@ -141,7 +146,20 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
         jobs.append(Job(name, "health", key, spec, cols))
     return Campaign(name, f"health assessment of {manifest.source}", str(manifest.source),
                     {"manifest": str(manifest.source), "fit": fit, "seed": seed,
-                     "method": method, "base_model": base_model}, tuple(jobs))
+                     "method": method, "base_model": base_model,
+                     **_record_format(RecordFile(manifest.source, columns, units))},
+                    tuple(jobs))
+
+
+def _record_format(record) -> dict[str, Any]:
+    """A record's ``columns`` and ``units`` for a job's spec, only those given: the run keys of
+    records read by their usual names stay what they were."""
+    out: dict[str, Any] = {}
+    if record.columns:
+        out["columns"] = dict(record.columns)
+    if record.units is not None:
+        out["units"] = record.units
+    return out
 
 
 def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
@@ -149,12 +167,15 @@ def run_health_job(spec: Mapping[str, Any], run_key: str, campaign: str,
     """Worker of a ``health`` job: identify the fitted faults of one record with intervals
     (:func:`eha.identification.fdi.identify_source`); returns its ``health_checks`` row."""
     from eha.identification.fdi import identify_source
+    from eha.identification.measured import RecordFile
 
     fit = {k: tuple(v) for k, v in spec["fit"].items()}
     extra = {}
     if spec.get("base_model") is not None:
         extra = {"base_model": spec["base_model"], "level": spec["level"]}
-    run = identify_source(data=spec["record"], fit=tuple(fit), bounds=fit,
+    # the record as its user has it: the spec's columns and units, read by the one loader
+    record = RecordFile(spec["record"], spec.get("columns"), spec.get("units"))
+    run = identify_source(data=record, fit=tuple(fit), bounds=fit,
                           seed=int(spec["seed"]), method=spec["method"], **extra)
     res = run.result
     intervals = {k: [float(v[0]), float(v[1])]
@@ -253,7 +274,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
             truth: str | Path | None = None, plots: str | Path | None = None,
             seed: int = 0, workers: int = 2, laws: Sequence[str] = LAWS,
             skip_flagged: bool = False, progress: bool = True,
-            limit_error: float | None = None, base_model: str | None = None) -> RulResult:
+            limit_error: float | None = None, base_model: str | None = None,
+            columns: Mapping[str, str] | str | None = None,
+            units: str | None = None) -> RulResult:
     """Assess, predict, store and (optionally) evaluate and plot one manifest.
 
     Parameters
@@ -286,6 +309,11 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     base_model : str, optional
         LF base of the assessment (``eha.identification.problem.BASE_MODELS``, default that of
         ``eha fdi --data``).
+    columns, units : optional
+        How the records are read, each as :class:`eha.identification.measured.RecordFile`
+        reads one: the header of a signal (``"t=time_s,com=command_mm"`` or a mapping) and
+        the unit (m, mm, um) of length columns whose header declares none. Checked before
+        anything is written; a record without a named header fails its assessment.
 
     Raises
     ------
@@ -296,19 +324,14 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
 
     t0 = time.perf_counter()
     manifest, names, chosen, truth_eol = _check_rul_inputs(
-        manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error, base_model)
+        manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error, base_model,
+        columns, units)
     results = Path(results)
-    camp = health_campaign(manifest, chosen, seed, base_model=base_model)
+    camp = health_campaign(manifest, chosen, seed, base_model=base_model, columns=columns,
+                           units=units)
     summary = run_campaign(camp, results, workers=workers, replace=True, progress=progress)
     t_assess = time.perf_counter() - t0
-    rows = read_health_rows(results, camp.name)
-    failed = [f"{r.get('actuator') or '?'} cycle {r.get('cycle')}: {r['error']}"
-              for r in rows if r["status"] != "done"]
-    spec_of = {j.run_key: j.spec for j in camp.jobs}
-    done = []
-    for r in rows:
-        if r["status"] == "done" and r.get("run_key") in spec_of:
-            done.append(r)
+    done, failed = _split_rows(read_health_rows(results, camp.name), camp)
     hist = histories_from_checks(done, names, skip_flagged=skip_flagged)
     t1 = time.perf_counter()
     out_acts, preds_all = _predict_all(manifest.actuators, hist, limits, seed, laws, limit_error)
@@ -318,6 +341,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
               "seed": seed, "base_model": camp.definition.get("base_model"),
               "limit_error": PRED_LIMIT_ERROR if limit_error is None else limit_error,
               "run_id": camp.name, "manifest": str(manifest.source),
+              **{k: camp.definition[k] for k in ("columns", "units") if k in camp.definition},
               "actuators": out_acts}
     metrics = None
     if truth_eol is not None:
@@ -342,13 +366,26 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     return res
 
 
+def _split_rows(rows: list[dict[str, Any]], camp) -> tuple[list[dict[str, Any]], list[str]]:
+    """The assessed rows of the campaign's jobs, and one line per failed record."""
+    failed = [f"{r.get('actuator') or '?'} cycle {r.get('cycle')}: {r['error']}"
+              for r in rows if r["status"] != "done"]
+    keys = {j.run_key for j in camp.jobs}
+    return [r for r in rows if r["status"] == "done" and r.get("run_key") in keys], failed
+
+
 def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error,
-                      base_model):
-    """Validate :func:`run_rul`'s inputs (nothing written): the manifest, the tracked fault
-    names, the checked bounds and the true end of life (or None)."""
+                      base_model, columns=None, units=None):
+    """Validate :func:`run_rul`'s inputs (nothing written): the manifest, the records' columns
+    and units, the tracked fault names, the checked bounds and the true end of life (or None)."""
+    from eha.identification.measured import MeasuredDataError, RecordFile
     from eha.prognostics.manifest import read_manifest
 
     manifest = read_manifest(manifest_path)
+    try:  # the loader's own check of --columns and --units, once for every record
+        RecordFile(manifest.source, columns, units)
+    except MeasuredDataError as exc:
+        raise PrognosticsError(exc.problems) from None
     if limit_error is not None and not 0 <= limit_error < 1:
         raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
                                "(relative standard deviation)")
