@@ -79,6 +79,53 @@ def test_cli_bad_manifest_exits_2_and_writes_nothing(tmp_path):
     assert res.exit_code == 2 and "FDJ" in res.output
 
 
+def test_manifest_rows_may_say_how_their_record_is_read(tmp_path):
+    """The optional columns ``columns`` and ``units`` of a row override ``eha rul --columns``
+    and ``--units`` for its record; they reach the job's spec (and run key) only when given."""
+    from eha.prognostics.jobs import health_campaign
+
+    _records(tmp_path, ["a.csv", "b.csv", "c.csv"])
+    (tmp_path / "m.csv").write_text(
+        "actuator,cycle,record,Columns,units,note\n"
+        "A,0,a.csv,,,x\n"
+        'A,1,b.csv,"t=time_s,com=command_mm,xu=LVDT",um,y\n'
+        "A,2,c.csv,,mm,\n")
+    m = read_manifest(tmp_path / "m.csv")
+    assert [(c.columns, c.units, c.extra) for c in m.checks] == [
+        (None, None, {"note": "x"}),
+        ({"t": "time_s", "com": "command_mm", "xu": "LVDT"}, "um", {"note": "y"}),
+        (None, "mm", {"note": ""})]
+    bounds = {"FDJ": (200.0, 4000.0)}
+    plain = [j.spec for j in health_campaign(m, bounds).jobs]
+    assert "columns" not in plain[0] and "units" not in plain[0]
+    assert plain[1]["units"] == "um" and plain[1]["columns"]["xu"] == "LVDT"
+    wide = [j.spec for j in health_campaign(m, bounds, columns="xu=lvdt", units="m").jobs]
+    assert (wide[0]["columns"], wide[0]["units"]) == ({"xu": "lvdt"}, "m")      # the options
+    assert (wide[1]["columns"]["xu"], wide[1]["units"]) == ("LVDT", "um")     # the row's own
+    assert (wide[2]["columns"], wide[2]["units"]) == ({"xu": "lvdt"}, "mm")
+    keys = [j.run_key for j in health_campaign(m, bounds, units="m").jobs]
+    assert keys[0] != [j.run_key for j in health_campaign(m, bounds).jobs][0]
+
+
+def test_bad_record_format_cells_are_one_line_each_and_nothing_written(tmp_path):
+    _records(tmp_path, ["a.csv", "b.csv"])
+    (tmp_path / "m.csv").write_text("actuator,cycle,record,columns,units\n"
+                                    'A,0,a.csv,"position=lvdt,t=time_s",inch\n'
+                                    "A,1,b.csv,com,\n")
+    with pytest.raises(ManifestError) as info:
+        read_manifest(tmp_path / "m.csv")
+    assert info.value.problems == [
+        "line 2: columns 'position=lvdt,t=time_s': unknown signal 'position'; allowed: t, com, "
+        "xu, p12, xs (SIGNAL=HEADER, e.g. com=command_mm)",
+        "line 2: units 'inch': allowed m, mm, um (the unit of com, xu and xs columns whose "
+        "header has none)",
+        "line 3: columns 'com': no header; give SIGNAL=HEADER, e.g. com=command_mm"]
+    res = runner.invoke(app, ["rul", str(tmp_path / "m.csv"), "--limit", "FDJ=2000",
+                              "--results", str(tmp_path / "res")])
+    assert res.exit_code == 2 and not (tmp_path / "res").exists()
+    assert len([ln for ln in res.output.splitlines() if ln.startswith("error:")]) == 3
+
+
 # ----------------------------------------------------------------------------- the model
 def _history(law, cycles, noise, rng, sigma=None):
     if law == "linear":

@@ -56,7 +56,8 @@ def fleet_simulate(
 def rul(
     manifest: Path = typer.Argument(..., help="Manifest CSV: actuator, cycle, record "
                                     "(records relative to its folder; SI, or see --columns, "
-                                    "--units)."),
+                                    "--units; a row's own columns, units cells override "
+                                    "them)."),
     limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
                                     "fault (SI, repeatable), e.g. FDJ=2000."),
     fit: str = typer.Option(
@@ -93,7 +94,8 @@ def rul(
     """Remaining useful life from health histories: assess each record, fit degradation
     trends, predict when each limited fault reaches its limit (median, 5 %, 95 %).
 
-    --columns and --units apply to every record of the manifest.
+    --columns and --units apply to every record of the manifest but those whose row has its
+    own columns or units.
 
     Example: eha rul results/fleet-demo/manifest.csv --limit BKL=5e-4 --limit FDJ=2000
     --json results/rul.json --truth results/fleet-demo/truth.json --plots results/rul

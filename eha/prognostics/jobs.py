@@ -116,8 +116,9 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
     """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
     ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default
     the one ``eha fdi --data`` uses); ``columns`` and ``units``: how every record is read
-    (:class:`eha.identification.measured.RecordFile`), carried in each job's spec to the worker
-    (and into its run key: other columns or units are another assessment)."""
+    (:class:`eha.identification.measured.RecordFile`; a manifest row's own ``columns`` or
+    ``units`` override them), carried in each job's spec to the worker (and into its run key:
+    other columns or units are another assessment)."""
     from eha.campaigns.files import Campaign, Job
     from eha.identification.measured import RecordFile
     from eha.models.simulate import MODEL_VERSION
@@ -137,7 +138,8 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
         spec = {"record": str(c.record), "sha": file_sha(c.record), "actuator": c.actuator,
                 "cycle": c.cycle, "fit": fit, "seed": int(seed), "method": method,
                 "base_model": base_model, "base": base, "level": level}
-        spec.update(_record_format(RecordFile(c.record, columns, units)))
+        # a row's own columns / units (the manifest's optional columns) override the options
+        spec.update(_record_format(RecordFile(c.record, c.columns or columns, c.units or units)))
         key = hashlib.sha256(json.dumps({"campaign": name, "kind": "health", "spec": spec,
                                          "model_version": MODEL_VERSION}, sort_keys=True,
                                         default=float).encode()).hexdigest()[:16]

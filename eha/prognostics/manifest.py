@@ -11,6 +11,16 @@ A manifest is a CSV file with (at least) the columns
     Path of the check's record, a table ``eha fdi --data`` accepts (CSV/TSV/TXT or Parquet
     with t, com, xu in SI units), relative to the manifest's folder (or absolute).
 
+Optional columns say how a record is read when its header or units are not the usual ones
+(:class:`eha.identification.measured.RecordFile`, as ``--columns`` and ``--units`` of ``eha rul``
+do for every record; a non-empty cell overrides the option for its row):
+
+``columns``
+    Header of each signal, ``SIGNAL=HEADER`` comma-separated, in quotes
+    (``"t=time_s,com=command_mm,xu=lvdt"``).
+``units``
+    Unit (m, mm, um) of the record's length columns whose header declares none.
+
 Other columns are kept (``extra``) and ignored. Column names are matched case-insensitively.
 Rows may come in any order; :func:`read_manifest` returns them sorted by actuator (in order of
 first appearance) and cycle.
@@ -18,8 +28,8 @@ first appearance) and cycle.
 :func:`read_manifest` reports every problem at once, one line each (:class:`ManifestError`):
 missing columns, empty actuator names, non-numeric / negative / non-finite cycles, duplicate
 or decreasing cycles of an actuator (in file order), records that do not exist or have an
-unsupported file type. Reading writes nothing; record contents are validated later, by the
-health assessment of each record.
+unsupported file type, a bad ``columns`` or ``units`` cell. Reading writes nothing; record
+contents are validated later, by the health assessment of each record.
 """
 
 from __future__ import annotations
@@ -32,6 +42,8 @@ from eha.errors import InputError
 
 #: Required manifest columns.
 COLUMNS = ("actuator", "cycle", "record")
+#: Optional columns: how the row's record is read (``eha rul --columns``, ``--units``).
+FORMAT_COLUMNS = ("columns", "units")
 #: Record file types accepted (those of :mod:`eha.identification.measured`).
 RECORD_TYPES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
 
@@ -60,6 +72,9 @@ class Check:
         Line number in the manifest file (header = line 1).
     extra : dict
         Other columns of the row, as text.
+    columns, units : optional
+        How the record is read (the row's ``columns``, signal -> header, and ``units``);
+        None where the row gives none.
     """
 
     actuator: str
@@ -67,6 +82,8 @@ class Check:
     record: Path
     row: int
     extra: dict = field(default_factory=dict)
+    columns: dict | None = None
+    units: str | None = None
 
 
 @dataclass(frozen=True)
@@ -127,7 +144,7 @@ def read_manifest(path: str | Path, check_files: bool = True) -> Manifest:
         problems.append(f"missing column(s) {', '.join(missing)}; required columns: "
                         f"{', '.join(COLUMNS)} (found: {', '.join(rows[0]) or 'none'})")
         raise ManifestError(path, problems)
-    dup = sorted({h for h in header if header.count(h) > 1 and h in COLUMNS})
+    dup = sorted({h for h in header if header.count(h) > 1 and h in COLUMNS + FORMAT_COLUMNS})
     for h in dup:
         problems.append(f"column {h} given twice; keep one")
     idx = {c: header.index(c) for c in COLUMNS}
@@ -209,10 +226,32 @@ def _check_row(raw: list[str], line: int, header: list[str], idx: dict[str, int]
                 problems.append(f"{where}: record {record_text}: file not found "
                                 f"(looked for {record})")
                 ok = False
-    if not ok:
+    fmt = _record_format(raw, header, where, problems)
+    if not ok or fmt is None:
         return None
-    extra = {h: v for h, v in zip(header, raw) if h not in COLUMNS}
-    return Check(actuator, cycle, record, line, extra)
+    extra = {h: v for h, v in zip(header, raw) if h not in COLUMNS + FORMAT_COLUMNS}
+    return Check(actuator, cycle, record, line, extra, *fmt)
+
+
+def _record_format(raw: list[str], header: list[str], where: str, problems: list[str]
+                   ) -> tuple[dict | None, str | None] | None:
+    """The row's ``columns`` and ``units`` (None where empty), checked by the record loader
+    (:class:`eha.identification.measured.RecordFile`); None with the problems appended."""
+    cells = {h: v.strip() for h, v in zip(header, raw) if h in FORMAT_COLUMNS and v.strip()}
+    if not cells:
+        return None, None
+    from eha.identification.measured import MeasuredDataError, RecordFile
+
+    try:
+        fmt = RecordFile(Path(), cells.get("columns"), cells.get("units"))
+    except MeasuredDataError as exc:
+        # the loader names its options ("--units 'inch': allowed ..."): here they are columns
+        for problem in exc.problems:
+            detail = problem.split(": ", 1)[-1]
+            name = "columns" if problem.startswith("--columns") else "units"
+            problems.append(f"{where}: {name} {cells[name]!r}: {detail}")
+        return None
+    return (fmt.columns or None), fmt.units
 
 
 def write_manifest(path: str | Path, rows: list[tuple[str, float, str]]) -> Path:
@@ -227,4 +266,5 @@ def write_manifest(path: str | Path, rows: list[tuple[str, float, str]]) -> Path
     return path
 
 
-__all__ = ["Check", "Manifest", "ManifestError", "read_manifest", "write_manifest", "COLUMNS"]
+__all__ = ["Check", "Manifest", "ManifestError", "read_manifest", "write_manifest", "COLUMNS",
+           "FORMAT_COLUMNS"]
