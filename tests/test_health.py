@@ -133,6 +133,8 @@ def _record(path, command="chirp_1cm", faults=None, t_end=0.3, seed=5):
 
 @pytest.mark.parametrize("args, message", [
     (["--level", "1.5"], "--level 1.5: allowed range (0, 1)"),
+    (["--level", "0"], "--level 0.0: allowed range (0, 1)"),
+    (["--level", "nan"], "--level nan: allowed range (0, 1)"),
     (["--seed", "-1"], "--seed -1: allowed range"),
     (["--json", "out.txt"], "--json out.txt: unsupported file type '.txt'"),
 ])
@@ -143,6 +145,22 @@ def test_health_check_bad_options_one_line_nothing_written(tmp_path, args, messa
                       cwd=tmp_path)
     assert message in error_line(proc, 2)
     assert files_under(tmp_path) == before
+
+
+def test_the_level_is_checked_by_the_library_before_any_file_is_read(tmp_path):
+    """check_record, the function `eha health check` calls, owns the range of --level (the CLI
+    repeats no range check): an input error naming the option, raised before the calibration
+    or the record is opened."""
+    from eha.errors import InputError
+    from eha.health.monitoring import check_record
+
+    for level in (1.5, 0.0, -0.1, float("inf")):
+        with pytest.raises(DetectionError) as err:
+            check_record(tmp_path / "none.csv", tmp_path / "none.json", level=level,
+                         results=tmp_path / "res")
+        assert isinstance(err.value, InputError) and err.value.exit_code == 2
+        assert err.value.problems == [f"--level {level!r}: allowed range (0, 1), e.g. 0.9"]
+    assert not files_under(tmp_path)
 
 
 def test_health_check_refuses_a_calibration_of_another_command_or_length(tmp_path):

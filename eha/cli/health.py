@@ -114,8 +114,6 @@ def health_check(
     check_seed(seed)
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(results, "--results")
-    if level is not None and not 0 < level < 1:  # eha.monitoring words it as level=...
-        fail(f"--level {level!r}: allowed range (0, 1)")
     with err_console.status("assessing ...") as status:
         run = check_record(record_file(record, columns, units), calibration, level=level,
                            seed=seed, json_path=json_out, results=results,

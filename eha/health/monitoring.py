@@ -151,13 +151,19 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
     from eha.identification.intervals import check_level
     from eha.identification.measured import load
 
+    if level is not None:  # the one check of --level, before any file is read
+        try:
+            level = check_level(level)
+        except ValueError:
+            raise DetectionError(f"--level {level!r}: allowed range (0, 1), e.g. 0.9") from None
     cal = load_calibration(calibration) if calibration is not None else None
     if level is None:
         level = cal.level if cal else DEFAULT_LEVEL
-    try:
-        level = check_level(level)
-    except ValueError as exc:
-        raise DetectionError(f"--level {exc}") from None
+        try:
+            level = check_level(level)
+        except ValueError:
+            raise DetectionError(f"--calibration {calibration}: level {level!r}: allowed "
+                                 "range (0, 1)") from None
     data = load(record)
     lo, hi = RECORD_SECONDS
     if not lo <= data.t_end <= hi:
