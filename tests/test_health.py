@@ -131,6 +131,24 @@ def _record(path, command="chirp_1cm", faults=None, t_end=0.3, seed=5):
     return path
 
 
+def test_calibration_fleet_size_is_checked_by_the_library_before_anything_runs(tmp_path):
+    """A threshold needs 5 healthy assessments: calibrate_fleet refuses fewer actuators up
+    front (it used to run the fleet, then fail), the CLI repeats no range of its own."""
+    from eha.health.monitoring import calibrate_fleet
+
+    with pytest.raises(DetectionError) as err:
+        calibrate_fleet(actuators=3, alpha=1.5, results=tmp_path / "res", t_end=0.3)
+    assert err.value.problems == [
+        "--actuators 3: allowed range [5, 10000] (a threshold needs at least 5 healthy "
+        "actuators)", "--alpha 1.5: allowed range (0, 1)"]
+    for n in ("4", "10001"):
+        proc = invoke_eha("health", "calibrate", "--actuators", n, "--results",
+                          tmp_path / "res", "--no-progress")
+        assert error_line(proc, 2).startswith(f"error: --actuators {n}: allowed range "
+                                              "[5, 10000]")
+    assert not files_under(tmp_path)
+
+
 @pytest.mark.parametrize("args, message", [
     (["--level", "1.5"], "--level 1.5: allowed range (0, 1)"),
     (["--level", "0"], "--level 0.0: allowed range (0, 1)"),

@@ -30,8 +30,8 @@ health_app = typer.Typer(no_args_is_help=True,
 def health_calibrate(
     command: str = typer.Option("chirp_1cm", "--command",
                                 help="Command of the checks (a preset, `eha commands`)."),
-    actuators: int = typer.Option(30, "--actuators", min=5, max=10000,
-                                  help="Healthy actuators in the fleet."),
+    actuators: int = typer.Option(30, "--actuators",
+                                  help="Healthy actuators in the fleet, 5 to 10000."),
     alpha: float = typer.Option(
         ..., "--alpha", default_factory=defaults.health_alpha,
         help="Probability that a healthy check raises any alarm, in (0, 1)."),

@@ -43,6 +43,10 @@ ISOLATION_WEIGHT = 0.5
 DEFAULT_ALPHA = 0.01
 #: Version of the calibration file format.
 CALIBRATION_FORMAT = 1
+#: Fewest healthy assessments of a fault its threshold is set from (:func:`calibrate_thresholds`).
+MIN_HEALTHY = 5
+#: Most actuators of a fleet (per group of a campaign's ``[health]`` section).
+MAX_ACTUATORS = 10000
 
 
 # --------------------------------------------------------------------------------------------
@@ -92,12 +96,13 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or not 0.2 <= t_end <= 10:
         problems.append(f"health.t_end={t_end!r}: allowed range [0.2, 10] s")
     n = section.get("actuators", 20)
-    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 10000:
-        problems.append(f"health.actuators={n!r}: allowed range [1, 10000]")
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_ACTUATORS:
+        problems.append(f"health.actuators={n!r}: allowed range [1, {MAX_ACTUATORS}]")
     n_healthy = section.get("healthy_actuators", n)
     if isinstance(n_healthy, bool) or not isinstance(n_healthy, int) or \
-            not 1 <= n_healthy <= 10000:
-        problems.append(f"health.healthy_actuators={n_healthy!r}: allowed range [1, 10000]")
+            not 1 <= n_healthy <= MAX_ACTUATORS:
+        problems.append(f"health.healthy_actuators={n_healthy!r}: allowed range "
+                        f"[1, {MAX_ACTUATORS}]")
     seed = section.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
         problems.append(f"health.seed={seed!r}: allowed range [0, 2147483647]")
@@ -316,9 +321,9 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
         d = np.array([statistic(name, r["means"][name]) for r in rows if name in r["means"]])
         sp = np.array([r["spread"][name] for r in rows if name in r.get("spread", {})])
         sp = sp[np.isfinite(sp)]
-        if d.size < 5:
+        if d.size < MIN_HEALTHY:
             raise DetectionError(f"calibration: {d.size} healthy assessments of {name}; "
-                                 "at least 5 are needed (use more actuators)")
+                                 f"at least {MIN_HEALTHY} are needed (use more actuators)")
         spread = float(np.median(sp)) if sp.size else 0.0
         thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
         healthy[name] = {k: summary[k] for k in ("mean", "std", "spread", "n", "max")}

@@ -15,8 +15,9 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from eha.health.detection import (DEFAULT_ALPHA, Calibration, calibrate_thresholds,
-                                  empirical_false_alarms, load_calibration, performance, verdicts)
+from eha.health.detection import (DEFAULT_ALPHA, MAX_ACTUATORS, MIN_HEALTHY, Calibration,
+                                  calibrate_thresholds, empirical_false_alarms, load_calibration,
+                                  performance, verdicts)
 from eha.identification.healthy import DISPERSION, DetectionError, command_signature
 from eha.identification.problem import BASE_MODELS, DEFAULT_LEVEL
 
@@ -61,8 +62,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     from eha.models.simulate import MODEL_VERSION
     from eha.campaigns.store import replace_rows
 
-    if not 0 < alpha < 1:
-        raise DetectionError(f"--alpha {alpha!r}: allowed range (0, 1)")
+    _check_calibration_inputs(actuators, alpha)
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
@@ -100,6 +100,21 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                    "created_at": now} for n, t in thresholds.items()],
                  {"calibration": str(path)})
     return {"calibration": cal, "path": path, "summary": summary, "campaign": name}
+
+
+def _check_calibration_inputs(actuators: Any, alpha: Any) -> None:
+    """The ranges of :func:`calibrate_fleet`'s fleet, before anything runs: every fault's
+    threshold needs :data:`MIN_HEALTHY` healthy assessments."""
+    problems = []
+    if isinstance(actuators, bool) or not isinstance(actuators, int) or \
+            not MIN_HEALTHY <= actuators <= MAX_ACTUATORS:
+        problems.append(f"--actuators {actuators!r}: allowed range [{MIN_HEALTHY}, "
+                        f"{MAX_ACTUATORS}] (a threshold needs at least {MIN_HEALTHY} healthy "
+                        "actuators)")
+    if not 0 < alpha < 1:
+        problems.append(f"--alpha {alpha!r}: allowed range (0, 1)")
+    if problems:
+        raise DetectionError(problems)
 
 
 def _dispersion_text() -> dict[str, list]:
