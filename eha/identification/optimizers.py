@@ -157,13 +157,27 @@ def run_ga(obj: BatchObjective, k: int, pop: int, seed: int, max_gen: int, stall
 
 def pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, xtol: float,
                     max_evals: int, history: list[float]) -> tuple[np.ndarray, float]:
-    """Compass search: poll ``x ± step·e_i`` (one batch), move to the best improving point,
-    else halve the step; stop below ``xtol`` or at the evaluation budget."""
+    """Compass search with pattern moves: poll ``x ± step·e_i`` (one batch), move to the best
+    improving point, else halve the step; stop below ``xtol`` or at the evaluation budget.
+
+    Each poll after a move also tries the pattern moves of Hooke and Jeeves, in the same
+    batch: ``x + v`` and ``x + 2v`` for ``v`` the last move and the last two moves together.
+    Along a valley that no coordinate follows, a compass search crawls one coordinate and one
+    step at a time (measured on the residual loop's refits: 80-87 % of polls were moves, 39
+    to 65 moves a search); the pattern moves follow the valley and double along it, which
+    cuts the polls by 40-50 % for 4 more runs in a batch of ``2k`` (measured on three
+    foreign-physics records: docs/decisions.md)."""
     k = x.size
     step = step0
     eye = np.eye(k)
+    trail = [x]                       # the points moved to at this step size, last last
     while step >= xtol and obj.evaluations < max_evals:
-        polls = np.clip(np.vstack([x + step * eye, x - step * eye]), 0.0, 1.0)
+        polls = [x + step * eye, x - step * eye]
+        for back in (2, 3):
+            if len(trail) >= back:
+                v = x - trail[-back]
+                polls.append(np.vstack([x + v, x + 2.0 * v]))
+        polls = np.clip(np.vstack(polls), 0.0, 1.0)
         polls = polls[np.any(polls != x, axis=1)]          # drop points clipped onto x
         if polls.shape[0] == 0:
             step *= 0.5
@@ -172,8 +186,10 @@ def pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, x
         i = int(np.argmin(values))
         if values[i] < f:
             x, f = polls[i], float(values[i])
+            trail.append(x)
         else:
             step *= 0.5
+            trail = [x]
         history.append(f)
     return x, f
 
