@@ -18,7 +18,7 @@ For each size (``--runs``) and run length (``--t-end``), on one set of warm work
 
 Also the parent's throughput with jobs that do nothing (a fake executor in this process returns
 finished chunks at once: validation, database, commits and progress only; runs/s), and, with
-``--dask``, the first size on a Dask ``LocalCluster`` of the same number of single-threaded
+``--dask``, the first size (``--dask all``: every size) on a Dask ``LocalCluster`` of the same number of single-threaded
 worker processes against the pool: both kept open, the bare loop and the campaign on the pool
 and on Dask alternately, ``--rounds`` times (the best of each; a shared machine's load drifts
 within minutes, so only walls taken side by side are compared).
@@ -199,7 +199,8 @@ def main(argv=None) -> int:
     ap.add_argument("--t-end", default="1.0,0.2", help="run lengths [s] (comma-separated)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--noop-runs", type=int, default=20000)
-    ap.add_argument("--dask", action="store_true", help="also the first size on Dask")
+    ap.add_argument("--dask", nargs="?", const="first", choices=("first", "all"), default=None,
+                    help="also on Dask: the first size (default) or all sizes")
     ap.add_argument("--rounds", type=int, default=2,
                     help="alternating pool/Dask rounds of the Dask comparison")
     ap.add_argument("--no-queries", action="store_true")
@@ -220,8 +221,8 @@ def main(argv=None) -> int:
         with LocalPoolExecutor(args.workers) as pool:
             pool.warm_up()
             run_pool_rows(args, sizes, lengths, pool, tmp, out)
-            if args.dask:
-                run_dask_rows(args, sizes[0], lengths, pool, tmp, out)
+            for n in (sizes if args.dask == "all" else sizes[:1] if args.dask else []):
+                run_dask_rows(args, n, lengths, pool, tmp, out)
     out["provenance"] = provenance(load_start)
     if args.json:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

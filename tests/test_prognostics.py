@@ -434,3 +434,20 @@ def test_tracking_the_motor_gain_removes_the_fdj_bias_of_a_dispersed_actuator(tm
     assert abs(tracked["FDJ"] / truth["FDJ"] - 1) < 0.05
     assert tracked["GM"] == pytest.approx(truth["GM"], rel=0.02)
     assert tracked["BKL"] == pytest.approx(truth["BKL"], rel=0.05)
+
+
+def test_failed_assessments_are_named_by_their_record_label():
+    """A record whose assessment failed has no health_checks row: its line names the run's
+    label (actuator and cycle), not "? cycle None"."""
+    from types import SimpleNamespace
+
+    from eha.prognostics.jobs import _split_rows
+
+    camp = SimpleNamespace(jobs=[SimpleNamespace(run_key="k1"), SimpleNamespace(run_key="k2")])
+    rows = [{"status": "done", "run_key": "k1", "actuator": "A1", "cycle": 0.0,
+             "run_label": "A1 cycle 0"},
+            {"status": "failed", "run_key": None, "actuator": None, "cycle": None,
+             "run_label": "A1 cycle 300", "error": "MeasuredDataError: xu: NaN at row 12"}]
+    done, failed = _split_rows(rows, camp)
+    assert [r["run_key"] for r in done] == ["k1"]
+    assert failed == ["A1 cycle 300: MeasuredDataError: xu: NaN at row 12"]

@@ -199,7 +199,8 @@ def read_health_rows(results: Path, campaign: str) -> list[dict[str, Any]]:
     con = connect(results)
     try:
         cur = con.execute("""
-            SELECT r.status, r.error, h.* FROM runs r LEFT JOIN health_checks h USING (run_key)
+            SELECT r.status, r.error, r.label AS run_label, h.*
+            FROM runs r LEFT JOIN health_checks h USING (run_key)
             WHERE r.campaign = ?""", [campaign])
         cols = [d[0] for d in cur.description]
         rows = [dict(zip(cols, r)) for r in cur.fetchall()]
@@ -370,8 +371,8 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
 
 def _split_rows(rows: list[dict[str, Any]], camp) -> tuple[list[dict[str, Any]], list[str]]:
     """The assessed rows of the campaign's jobs, and one line per failed record."""
-    failed = [f"{r.get('actuator') or '?'} cycle {r.get('cycle')}: {r['error']}"
-              for r in rows if r["status"] != "done"]
+    # a failed run has no health_checks row: its label ("A1 cycle 3") names the record
+    failed = [f"{r.get('run_label') or '?'}: {r['error']}" for r in rows if r["status"] != "done"]
     keys = {j.run_key for j in camp.jobs}
     return [r for r in rows if r["status"] == "done" and r.get("run_key") in keys], failed
 
