@@ -1,29 +1,22 @@
-"""Shared fixtures and helpers of the test suite.
+"""Shared fixtures of the test suite.
 
-- ``eha`` / ``run_eha``: run the real command line (``python -m eha ...``) in a subprocess;
-  returns the completed process (text stdout/stderr). ``invoke_eha``: the same in this
-  process (typer's runner), for the many checks of one message each.
-- ``error_line(proc, code)``: the single ``error:`` line a failing command printed, after
-  checking its exit status and that no traceback reached the user.
-- ``write_campaign(tmp_path, text)``: a campaign file from TOML text.
-- ``close(a, b, rel=..., abs=...)``: element-wise tolerance check of arrays or scalars with a
-  message that shows the worst element (``numpy.testing.assert_allclose``).
+- ``eha``: the real command line in a subprocess (``helpers.run_eha``).
+- the residual loop's null cache, in a temporary folder for the session (autouse).
 - ``slow``: marker of the end-to-end tests that take more than a few seconds
-  (``pytest -m "not slow"`` skips them; CI runs everything).
+  (``pytest -m "not slow"`` skips them; CI runs everything; markers are strict).
+
+Plain helper functions (``run_eha``, ``invoke_eha``, ``error_line``, ``write_campaign``,
+``close``, ``files_under``) are in tests/helpers.py: tests import them from there, never
+from this file (pytest imports conftest itself).
 """
 
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import textwrap
-from pathlib import Path
 
-import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import run_eha
 
 # Rich sizes tables to the terminal: a wide one in every process of the suite (pytest-xdist's
 # workers have none), so that no check of printed text depends on where the tests run.
@@ -43,67 +36,7 @@ def _explain_null_cache(tmp_path_factory):
         os.environ["EHA_CACHE_DIR"] = old
 
 
-def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
-            timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:
-    """``python -m eha ARGS`` in a subprocess (the installed package of this interpreter)."""
-    full_env = {**os.environ, "COLUMNS": "200", **(env or {})}
-    return subprocess.run([sys.executable, "-m", "eha", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd, env=full_env, timeout=timeout, **kwargs)
-
-
-def invoke_eha(*args: str, cwd: str | Path | None = None) -> subprocess.CompletedProcess:
-    """The command line in this process (typer's runner: no interpreter start-up, so a test of
-    a message costs milliseconds); same result type as :func:`run_eha`."""
-    from typer.testing import CliRunner
-
-    from eha.cli import app
-
-    old = Path.cwd()
-    if cwd is not None:
-        os.chdir(cwd)
-    try:
-        res = CliRunner().invoke(app, [str(a) for a in args], env={"COLUMNS": "200"})
-    finally:
-        os.chdir(old)
-    if res.exception is not None and not isinstance(res.exception, SystemExit):
-        raise res.exception
-    return subprocess.CompletedProcess(list(args), res.exit_code, res.stdout, res.stderr)
-
-
 @pytest.fixture
 def eha():
     """The command line in a subprocess: ``eha("simulate", "--out", path)``."""
     return run_eha
-
-
-def error_line(proc: subprocess.CompletedProcess, code: int | None = None) -> str:
-    """The one ``error:`` line of a failed command; asserts the exit status (non-zero, or
-    ``code``) and that nothing else, in particular no traceback, was printed to stderr."""
-    assert proc.returncode != 0, (proc.stdout, proc.stderr)
-    if code is not None:
-        assert proc.returncode == code, (proc.returncode, proc.stderr)
-    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
-    return lines[0]
-
-
-def write_campaign(folder: Path, text: str, name: str = "campaign.toml") -> Path:
-    """Write a campaign file (TOML text, dedented) into ``folder``; returns its path."""
-    path = Path(folder) / name
-    path.write_text(textwrap.dedent(text))
-    return path
-
-
-def close(actual, expected, rel: float = 1e-9, abs: float = 0.0, what: str = "") -> None:
-    """Assert ``|actual - expected| <= abs + rel*|expected|`` element-wise."""
-    np.testing.assert_allclose(np.asarray(actual, dtype=float),
-                               np.asarray(expected, dtype=float), rtol=rel, atol=abs,
-                               err_msg=what)
-
-
-def files_under(folder: Path) -> list[Path]:
-    """Every file under ``folder`` (relative paths, sorted); [] when it does not exist."""
-    folder = Path(folder)
-    return sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file()) \
-        if folder.exists() else []

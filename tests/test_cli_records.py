@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import error_line, files_under, invoke_eha, run_eha
+from helpers import error_line, files_under, invoke_eha, run_eha
 
 from eha.errors import EhaError, InputError
 from eha.identification.measured import MeasuredDataError, RecordFile, load

@@ -1,5 +1,6 @@
-"""Code size (issue 26): no module over 600 lines and no function or method over 100 lines in
-``eha/``; a longer one is split into helpers."""
+"""Code size and shape (issue 26): no module over 600 lines and no function or method over 100
+lines in ``eha/`` (a longer one is split into helpers); tests import their helpers from
+tests/helpers.py, never conftest."""
 
 import ast
 from pathlib import Path
@@ -30,3 +31,17 @@ def test_no_function_over_100_lines():
                 if n > MAX_FUNCTION:
                     long[f"{p.relative_to(PACKAGE)}:{node.lineno} {node.name}"] = n
     assert long == {}, long
+
+
+def test_tests_import_their_helpers_not_conftest():
+    """pytest imports conftest.py itself (fixtures); a test that imports it as a module gets
+    a second copy under another name. Helpers live in tests/helpers.py."""
+    tests = Path(__file__).resolve().parent
+    offenders = []
+    for path in sorted(tests.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n.split(".")[0] == "conftest" for n in names):
+                offenders.append(f"{path.name}:{node.lineno}")
+    assert offenders == []

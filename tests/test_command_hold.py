@@ -9,7 +9,7 @@ import pytest
 from eha.models.commands import array_command, as_command
 from eha.identification.measured import detect_hold, from_arrays, load, synthetic_record
 
-from conftest import error_line, invoke_eha
+from helpers import error_line, invoke_eha
 
 GRID = np.arange(1001) * 1e-3
 

@@ -178,7 +178,7 @@ def test_healthy_folder_needs_five_readable_records(tmp_path):
 def test_cli_healthy_and_alpha_are_checked_before_any_work(tmp_path):
     """Bad --alpha, --null-actuators or --healthy: one line naming the option and its range,
     exit 2, nothing written."""
-    from conftest import error_line, files_under, invoke_eha
+    from helpers import error_line, files_under, invoke_eha
 
     rec = tmp_path / "r.csv"
     t = np.arange(201) * 1e-3

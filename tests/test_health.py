@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import error_line, files_under, invoke_eha
+from helpers import error_line, files_under, invoke_eha
 from eha.health.detection import (Calibration, alarm_value, calibrate_thresholds, health_jobs,
                                   isolate_row, load_calibration, performance, statistic)
 from eha.identification.healthy import DetectionError

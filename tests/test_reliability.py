@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import (close, error_line, files_under, invoke_eha, run_eha,
+from helpers import (close, error_line, files_under, invoke_eha, run_eha,
                       write_campaign)
 from eha.identification.measured import load
 

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from conftest import error_line, files_under, run_eha, write_campaign
+from helpers import error_line, files_under, run_eha, write_campaign
 from eha.campaigns.query import query
 from eha.campaigns.traces import trace_intact, write_trace
 

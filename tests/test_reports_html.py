@@ -19,7 +19,7 @@ import pytest
 
 import report_data
 from browser import check_page
-from conftest import error_line, invoke_eha
+from helpers import error_line, invoke_eha
 from eha.reports.html import ReportError, build_report
 from eha.campaigns.query import query
 from eha.campaigns.store import replace_rows
