@@ -237,12 +237,10 @@ def test_noise_only_adds_nothing(tmp_path):
     ("load", "mixed", 1.0, {"FRC": 2000.0}, "FRC", 0.10),
     ("bias", "test", 0.6, {"sensor_bias": 1e-4}, "sensor_bias", 0.05),
     # the command steps away at t = 0: the LF starts where its *recorded* position is the
-    # measured one, so a bias is not taken for a shifted start (was: offset at its bound)
-    pytest.param("bias_step", "step_1cm", 0.5, {"sensor_bias": 2e-4}, "sensor_bias", 0.05,
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "known regression of the healthy null (issue 24): on a 1 cm step a "
-                     "torque-motor offset is chosen for the 200 um sensor bias (the foreign "
-                     "-100 um bias on a 1 cm step alike); strict: passes again when fixed"))),
+    # measured one, so a bias is not taken for a shifted start (was: offset at its bound).
+    # Failed (a torque-motor offset chosen for the bias) until the pattern search polled
+    # pattern moves (docs/decisions.md); why that fit changed is not analysed
+    ("bias_step", "step_1cm", 0.5, {"sensor_bias": 2e-4}, "sensor_bias", 0.05),
 ])
 @pytest.mark.slow
 def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overrides, param,
