@@ -605,7 +605,9 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
     gain, flapper) of an LF `test` record, warm-started near the truth with the flapper at
     its probe (the flapper candidate of the bench record load+leak+motor_gain@steps): finished
     by least squares (the default) the fit is within the noise and the flapper and load
-    within 15 % and 2 %; the GA alone stops on the valley's side (2.4 µm, flapper 35 % off)."""
+    within 15 % and 2 %, closer than the GA and its pattern search alone (measured: 0.93 µm
+    and flapper 3 % off, against 1.08 µm and 9 %; with the compass search before its pattern
+    moves the GA stopped on the valley's side, 2.4 µm and 35 % off)."""
     import eha.explain.fitting as fitting
     from eha.explain import ResidualLoop
 
@@ -620,8 +622,9 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
     finished = loop.evaluate([loop.refit(start, free, "finished", warm_start=True)])[0]
     monkeypatch.setattr(fitting, "LEAST_SQUARES_FINISH", False)
     ga_only = loop.evaluate([loop.refit(start, free, "GA alone", warm_start=True)])[0]
-    assert finished.rmse_fit < 1.5 * NOISE < ga_only.rmse_fit
+    assert finished.rmse_fit < 1.5 * NOISE and finished.rmse_fit < ga_only.rmse_fit
     assert finished.rmse_hold < ga_only.rmse_hold
+    assert abs(finished.params.SNF / 2513.0 - 1) < abs(ga_only.params.SNF / 2513.0 - 1)
     assert finished.params.SNF == pytest.approx(2513.0, rel=0.15)
     assert finished.params.FRC == pytest.approx(2000.0, rel=0.02)
 
