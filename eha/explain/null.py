@@ -56,7 +56,7 @@ from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
-NULL_FORMAT = 2
+NULL_FORMAT = 3   # 3: the pattern search polls pattern moves (its fits changed)
 
 
 def noise_class(noise: float) -> float:
