@@ -45,3 +45,15 @@ def test_tests_import_their_helpers_not_conftest():
             if any(n.split(".")[0] == "conftest" for n in names):
                 offenders.append(f"{path.name}:{node.lineno}")
     assert offenders == []
+
+
+def test_no_command_function_over_60_lines():
+    """The CLI only parses, calls one library function and renders (issue 26): no function
+    of eha/cli over 60 lines, option declarations included."""
+    long = {}
+    for path in sorted((PACKAGE / "cli").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if (n := node.end_lineno - node.lineno + 1) > 60:
+                    long[f"{path.name}:{node.name}"] = n
+    assert long == {}, long

@@ -53,43 +53,53 @@ def fleet_simulate(
         raise typer.Exit(1)
 
 
+#: The options of ``eha rul`` that only it takes (module level: the command stays short).
+RUL_MANIFEST = typer.Argument(..., help="Manifest CSV: actuator, cycle, record (records "
+                              "relative to its folder; SI, or see --columns, --units; a row's "
+                              "own columns, units cells override them).")
+RUL_LIMIT = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a fault (SI, "
+                         "repeatable), e.g. FDJ=2000.")
+RUL_FIT = typer.Option(..., "--fit", default_factory=defaults.rul_faults,
+                       help="Faults identified and tracked (comma-separated; limited faults "
+                       "are added). GM (motor gain) is tracked by default: its manufacturing "
+                       "dispersion would otherwise bias FDJ.")
+RUL_BOUNDS = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI (default: eha fdi's, "
+                          "widened to twice the limit).")
+RUL_JSON = typer.Option(None, "--json", help="Write the predictions (and metrics) as JSON.")
+RUL_TRUTH = typer.Option(None, "--truth", help="True end of life: truth.json of eha fleet "
+                         "simulate, or CSV actuator,eol; adds the prognostic metrics.")
+RUL_PLOTS = typer.Option(None, "--plots", help="Folder for the PNG plots and the fleet summary "
+                         "table.")
+RUL_LAWS = typer.Option("linear,exponential,power", "--laws", help="Degradation laws averaged "
+                        "by evidence.")
+RUL_SEED = typer.Option(0, "--seed", help="Seed of the identifications and RUL draws.")
+RUL_SKIP_FLAGGED = typer.Option(False, "--skip-flagged", help="Leave records the monitoring "
+                                "model does not explain out of the fits.")
+RUL_BASE_MODEL = typer.Option(None, "--base-model", help="LF base of the assessment: plain or "
+                              "calibrated (default: as eha fdi --data).")
+RUL_LIMIT_ERROR = typer.Option(None, "--limit-error", help="Relative std of the assessment's "
+                               "systematic error (default 0.02).")
+PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress bar.")
+
+
 def rul(
-    manifest: Path = typer.Argument(..., help="Manifest CSV: actuator, cycle, record "
-                                    "(records relative to its folder; SI, or see --columns, "
-                                    "--units; a row's own columns, units cells override "
-                                    "them)."),
-    limit: List[str] = typer.Option([], "--limit", help="End-of-life limit NAME=VALUE of a "
-                                    "fault (SI, repeatable), e.g. FDJ=2000."),
-    fit: str = typer.Option(
-        ..., "--fit", default_factory=defaults.rul_faults,
-        help="Faults identified and tracked (comma-separated; limited faults are added). "
-        "GM (motor gain) is tracked by default: its manufacturing dispersion would "
-        "otherwise bias FDJ."),
-    bounds: List[str] = typer.Option([], "--bounds", help="Search bounds NAME=LO:HI "
-                                     "(default: eha fdi's, widened to twice the limit)."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions "
-                                            "(and metrics) as JSON."),
+    manifest: Path = RUL_MANIFEST,
+    limit: List[str] = RUL_LIMIT,
+    fit: str = RUL_FIT,
+    bounds: List[str] = RUL_BOUNDS,
+    json_out: Optional[Path] = RUL_JSON,
     results: ResultsOption = RESULTS,
-    truth: Optional[Path] = typer.Option(None, "--truth", help="True end of life: truth.json "
-                                         "of eha fleet simulate, or CSV actuator,eol; adds the "
-                                         "prognostic metrics."),
-    plots: Optional[Path] = typer.Option(None, "--plots", help="Folder for the PNG plots and "
-                                         "the fleet summary table."),
-    laws: str = typer.Option("linear,exponential,power", "--laws", help="Degradation laws "
-                             "averaged by evidence."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the identifications and RUL draws."),
+    truth: Optional[Path] = RUL_TRUTH,
+    plots: Optional[Path] = RUL_PLOTS,
+    laws: str = RUL_LAWS,
+    seed: int = RUL_SEED,
     workers: WorkersOption = WORKERS,
-    skip_flagged: bool = typer.Option(False, "--skip-flagged", help="Leave records the "
-                                      "monitoring model does not explain out of the fits."),
-    base_model: Optional[str] = typer.Option(None, "--base-model", help="LF base of the "
-                                             "assessment: plain or calibrated (default: as "
-                                             "eha fdi --data)."),
-    limit_error: Optional[float] = typer.Option(None, "--limit-error", help="Relative std "
-                                                "of the assessment's systematic error "
-                                                "(default 0.02)."),
+    skip_flagged: bool = RUL_SKIP_FLAGGED,
+    base_model: Optional[str] = RUL_BASE_MODEL,
+    limit_error: Optional[float] = RUL_LIMIT_ERROR,
     columns: ColumnsOption = None,
     units: UnitsOption = None,
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
+    progress: bool = PROGRESS,
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
     trends, predict when each limited fault reaches its limit (median, 5 %, 95 %).
