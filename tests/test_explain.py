@@ -328,6 +328,7 @@ def test_max_steps_holds_when_a_combination_wins(tmp_path):
     assert not any("+" in c.effect for c in res.rounds[0].candidates)
 
 
+@pytest.mark.slow
 def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
     data = load(_record(tmp_path, "nominal", "mixed", 0.3))
     with pytest.raises(ExplainError, match="--set BKL: also a fitted fault"):

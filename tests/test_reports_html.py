@@ -256,6 +256,7 @@ def test_cli_prints_where_the_report_is(canned, tmp_path):
 
 
 # ----------------------------------------------------------------------------- in a browser
+@pytest.mark.slow
 def test_the_report_in_headless_chromium(canned, tmp_path):
     """No console error, no request but the file itself, every plot drawn with a non-zero size
     and a non-blank picture; a click on a fleet row shows that actuator's figure."""
