@@ -10,6 +10,7 @@ error_line, invoke_eha``); the fixtures are in conftest.py, which no test import
 - ``close(a, b, rel=..., abs=...)``: element-wise tolerance check of arrays or scalars with a
   message that shows the worst element (``numpy.testing.assert_allclose``).
 - ``files_under(folder)``: every file under a folder (to check that nothing was written).
+- ``SMALL_FLEET``: the TOML of a two-actuator fleet (prognostics and report tests).
 """
 
 from __future__ import annotations
@@ -81,3 +82,23 @@ def files_under(folder: Path) -> list[Path]:
     folder = Path(folder)
     return sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file()) \
         if folder.exists() else []
+
+
+#: A two-actuator fleet whose friction (FDJ) grows linearly to its 1500 N limit on 0.3-s chirp
+#: records: the small fleet of the prognostics and report tests (``eha fleet simulate``).
+SMALL_FLEET = """
+name = "t-fleet"
+seed = 3
+actuators = 2
+command = "chirp_1cm"
+t_end = 0.3
+noise = 2e-6
+check_every = 400
+max_cycles = 6000
+[limits]
+FDJ = 1500
+[faults.FDJ]
+initial = 200
+laws = ["linear"]
+rate = {median = 1.0, sigma = 0.0}
+"""

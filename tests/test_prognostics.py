@@ -14,6 +14,8 @@ from eha.prognostics.rul import FaultHistory, predict_history, sigma_from_interv
 from eha.prognostics.metrics import (Profile, alpha_lambda, cumulative_relative_accuracy,
                                      prognostic_horizon, relative_accuracy)
 
+from helpers import SMALL_FLEET
+
 runner = CliRunner()
 
 
@@ -283,22 +285,7 @@ def test_alpha_lambda_by_hand():
 
 
 # ----------------------------------------------------------------------------- fleet
-FLEET = """
-name = "t-fleet"
-seed = 3
-actuators = 2
-command = "chirp_1cm"
-t_end = 0.3
-noise = 2e-6
-check_every = 400
-max_cycles = 6000
-[limits]
-FDJ = 1500
-[faults.FDJ]
-initial = 200
-laws = ["linear"]
-rate = {median = 1.0, sigma = 0.0}
-"""
+FLEET = SMALL_FLEET
 
 
 def test_fleet_truth_is_exact_for_a_noiseless_linear_law(tmp_path):

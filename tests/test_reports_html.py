@@ -19,7 +19,7 @@ import pytest
 
 import report_data
 from browser import check_page
-from helpers import error_line, invoke_eha
+from helpers import SMALL_FLEET, error_line, invoke_eha
 from eha.reports.html import ReportError, build_report
 from eha.campaigns.query import query
 from eha.campaigns.store import replace_rows
@@ -272,7 +272,7 @@ def test_real_fleet_rul_and_campaign_report_end_to_end(tmp_path, eha):
     """`eha fleet simulate` + `eha rul` + `eha campaign run` + `eha report html`, then the
     browser check; the fleet table is `rul_predictions`."""
     fleet = tmp_path / "f.toml"
-    fleet.write_text(report_data_fleet())
+    fleet.write_text(SMALL_FLEET)
     camp = tmp_path / "c.toml"
     camp.write_text('name = "tiny"\nmodels = ["hf", "lf"]\ncommands = ["step_1mm"]\n'
                     't_end = 0.2\n[faults]\ngrid = { BKL = [5e-5, 1e-4], FDJ = [400.0, 800.0] }'
@@ -298,21 +298,3 @@ def test_real_fleet_rul_and_campaign_report_end_to_end(tmp_path, eha):
     out = check_page(tmp_path / "r.html", tmp_path)
     assert out["plots"] >= 4
 
-
-def report_data_fleet() -> str:
-    return """
-name = "t-fleet"
-seed = 3
-actuators = 2
-command = "chirp_1cm"
-t_end = 0.3
-noise = 2e-6
-check_every = 400
-max_cycles = 6000
-[limits]
-FDJ = 1500
-[faults.FDJ]
-initial = 200
-laws = ["linear"]
-rate = {median = 1.0, sigma = 0.0}
-"""
