@@ -170,7 +170,7 @@ def pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, x
     k = x.size
     step = step0
     eye = np.eye(k)
-    trail = [x]                       # the points moved to at this step size, last last
+    trail = [x]                 # the last three points moved to at this step size, last last
     while step >= xtol and obj.evaluations < max_evals:
         polls = [x + step * eye, x - step * eye]
         for back in (2, 3):
@@ -186,7 +186,7 @@ def pattern_search(obj: BatchObjective, x: np.ndarray, f: float, step0: float, x
         i = int(np.argmin(values))
         if values[i] < f:
             x, f = polls[i], float(values[i])
-            trail.append(x)
+            trail = trail[-2:] + [x]          # the pattern moves look two moves back
         else:
             step *= 0.5
             trail = [x]
