@@ -152,6 +152,9 @@ class NoopExecutor:
 
         now = datetime.now(timezone.utc).replace(tzinfo=None)
         for task in tasks:
+            if task["kind"] == "bundle":
+                yield {"bundle": list(self.map_unordered(fn, task["tasks"]))}
+                continue
             keys = [r["run_key"] for r in task["runs"]]
             rows = [{"run_key": k, "status": "done", "error": None, "worker": "noop",
                      "started_at": now, "finished_at": now, "sim_s": 0.0, "elapsed_s": 0.0,

@@ -175,6 +175,36 @@ def test_many_runs_per_file_same_rows_and_traces(chunky):
     assert (again.done, again.skipped) == (0, 256)
 
 
+def test_short_chunks_go_to_the_workers_in_bundles_long_ones_alone():
+    """Bundles: about TASKS_PER_WORKER tasks per worker for a short campaign, never fewer than
+    its estimated work / TASK_SECONDS, consecutive chunks shared out evenly and each chunk in
+    exactly one task; a kind without an estimate and single jobs go as they are."""
+    from eha.campaigns.jobs import TASK_SECONDS, JobKind
+    from eha.campaigns.runner import TASKS_PER_WORKER, bundle_tasks
+
+    def chunk(i, n=10):
+        return {"kind": "chunk", "job_kind": "fast", "trace_path": f"c{i}",
+                "runs": [{"run_key": f"{i}-{j}", "spec": {"s": 0.001}} for j in range(n)]}
+
+    fast = JobKind("fast", run=None, estimate_s=lambda spec: spec["s"])
+    chunks = [chunk(i) for i in range(64)]          # 0.64 s of work in 64 chunks
+    single = {"kind": "other", "run_key": "x"}
+    tasks = bundle_tasks(chunks + [single], {"fast": fast}, workers=2)
+    bundles = [t for t in tasks if t["kind"] == "bundle"]
+    assert len(bundles) == TASKS_PER_WORKER * 2 and single in tasks and len(tasks) == 9
+    sizes = [len(b["tasks"]) for b in bundles]
+    assert max(sizes) - min(sizes) <= 1
+    assert [c for b in bundles for c in b["tasks"]] == chunks     # in order, each once
+    # 6.4 s of work: 13 tasks of at most 0.5 s, more than 4 per worker
+    many = bundle_tasks([chunk(i, 100) for i in range(64)], {"fast": fast}, workers=2)
+    assert len(many) == round(6.4 / TASK_SECONDS + 0.5) and all(
+        t["kind"] == "bundle" for t in many)
+    # chunks of 1 s each: sent alone
+    slow = [chunk(i, 1000) for i in range(64)]
+    assert bundle_tasks(slow, {"fast": fast}, workers=2) == slow
+    assert bundle_tasks(chunks, {"fast": JobKind("fast", run=None)}, workers=2) == chunks
+
+
 def test_damaged_chunk_is_detected_and_its_runs_redone(chunky, tmp_path):
     camp, results = copy(chunky, tmp_path)
     before = state(results)

@@ -45,6 +45,13 @@ class UnknownJobKind(EhaError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+#: Target work per task [s]: well above what a task round trip costs on the local pool
+#: (~1 ms) or Dask (2-5 ms of the scheduler's and client's CPU, on the cores the workers
+#: use), well below a campaign's wall time (the last tasks run alone). Job kinds size their
+#: chunks with it; the runner bundles shorter chunks up to it.
+TASK_SECONDS = 0.5
+
+
 @dataclass(frozen=True)
 class JobKind:
     """A job kind's functions; only ``run`` is required.
@@ -216,16 +223,19 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
-    """Run one task in a worker: a chunk of runs of one kind (its ``run_chunk``) or a single
-    job (:func:`execute_job`)."""
+    """Run one task in a worker: a chunk of runs of one kind (its ``run_chunk``), a bundle of
+    chunks run in turn (``{"bundle": [result, ...]}``) or a single job
+    (:func:`execute_job`)."""
     from eha.campaigns.executors import tune_malloc
 
     tune_malloc()  # once per process: also a Dask worker restarted without the warm-up
+    if task["kind"] == "bundle":
+        return {"bundle": [execute_task(t) for t in task["tasks"]]}
     if task["kind"] == "chunk":
         return job_kind(task["job_kind"]).run_chunk(task)
     return execute_job(task)
 
 
-__all__ = ["JobKind", "UnknownJobKind", "register_job", "register_section", "job_kind",
+__all__ = ["TASK_SECONDS", "JobKind", "UnknownJobKind", "register_job", "register_section", "job_kind",
            "find_job_kind", "section_names", "section", "warm_ups", "execute_job",
            "execute_task"]

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from eha.campaigns.executors import Executor, make_executor
-from eha.campaigns.jobs import JobKind, execute_task, find_job_kind
+from eha.campaigns.jobs import TASK_SECONDS, JobKind, execute_task, find_job_kind
 from eha.errors import InputError
 
 #: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` runs): a
@@ -46,6 +46,11 @@ from eha.errors import InputError
 #: workers, and a crash loses at most this much finished work.
 BATCH_SECONDS = 0.5
 BATCH_ROWS = 5000
+#: A campaign whose chunks are short is sent as about this many tasks per worker (each a
+#: *bundle* of consecutive chunks, run in turn by one worker), never fewer than
+#: (estimated work) / :data:`TASK_SECONDS`: enough for the workers to share the work evenly,
+#: few enough that the per-task cost stays small beside the work.
+TASKS_PER_WORKER = 4
 
 
 class CampaignChanged(InputError):
@@ -221,6 +226,7 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
     t0 = time.perf_counter()
     own = executor is None
     n_runs = sum(len(p["runs"]) if p["kind"] == "chunk" else 1 for p in payloads)
+    by_name = {k.name: k for k in kinds}
     with (make_executor(workers, scheduler) if own else contextlib.nullcontext(executor)) as ex, \
             _progress(progress) as bar:
         task = bar.add_task(f"{summary.campaign} (starting {ex.workers} workers)",
@@ -235,7 +241,8 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
         collectors = [k.collect(payloads) for k in kinds if k.collect is not None]
         last = time.perf_counter()
         try:
-            for res in ex.map_unordered(execute_task, payloads):
+            for res in _unbundled(ex.map_unordered(
+                    execute_task, bundle_tasks(payloads, by_name, ex.workers))):
                 for c in collectors:
                     c.add(res)
                 if "runs" in res:   # a chunk
@@ -259,6 +266,46 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
             # on Ctrl-C too: keep what is done
             db.record(buffer, _collected(collectors), batches)
             summary.jobs_s = time.perf_counter() - t0 - summary.startup_s
+
+
+def bundle_tasks(payloads: list[dict], kinds: dict[str, JobKind], workers: int) -> list[dict]:
+    """The tasks to send: the chunk tasks of a kind whose chunks are short grouped into
+    bundles of consecutive chunks (``{"kind": "bundle", "tasks": [...]}``), other tasks as
+    they are.
+
+    A kind's chunks (its files) depend on the campaign only; how many of them one task runs
+    depends on the workers: ``max(TASKS_PER_WORKER x workers, work / TASK_SECONDS)`` tasks,
+    the work estimated with the kind's ``estimate_s``, chunks shared out evenly in campaign
+    order. A kind without an estimate, or chunks long enough already, are sent one per task.
+    """
+    import math
+
+    chunks: dict[str, list[dict]] = {}
+    out: list[dict] = []
+    for p in payloads:
+        kind = kinds.get(p.get("job_kind", "")) if p["kind"] == "chunk" else None
+        if kind is None or kind.estimate_s is None:
+            out.append(p)
+        else:
+            chunks.setdefault(kind.name, []).append(p)
+    for name, tasks in chunks.items():
+        work = sum(kinds[name].estimate_s(r["spec"]) for t in tasks for r in t["runs"])
+        n = max(TASKS_PER_WORKER * max(1, workers), math.ceil(work / TASK_SECONDS))
+        if n >= len(tasks):
+            out.extend(tasks)
+            continue
+        edges = [round(i * len(tasks) / n) for i in range(n + 1)]
+        out.extend({"kind": "bundle", "tasks": tasks[a:b]} for a, b in zip(edges, edges[1:]))
+    return out
+
+
+def _unbundled(results):
+    """The results of the tasks, a bundle's one per chunk."""
+    for res in results:
+        if "bundle" in res:
+            yield from res["bundle"]
+        else:
+            yield res
 
 
 def _collected(collectors: list) -> dict[str, list[dict]]:

@@ -31,14 +31,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from eha.campaigns.jobs import register_job
+from eha.campaigns.jobs import TASK_SECONDS, register_job
 
-#: Target work per task [s]: well above the ~1 ms a task round trip costs on the local pool
-#: or Dask, well below a campaign's wall time (the last tasks run alone).
-TASK_SECONDS = 0.5
-#: A campaign of N simulations is split into at least min(N, MIN_TASKS) tasks, so that
-#: the workers share the work evenly (a small campaign keeps one file per run).
-MIN_TASKS = 64
+#: A campaign of N simulations is split into at least min(N, MIN_CHUNKS) chunks, so that up
+#: to 16 workers get 4 each whatever their number (the chunks never depend on the workers; on
+#: fewer workers the runner sends several short chunks as one task); a small campaign keeps
+#: one file per run.
+MIN_CHUNKS = 64
 #: Most rows of one chunk file (a chunk of long runs is smaller).
 MAX_CHUNK_ROWS = 1_000_000
 #: Cost of simulating one second at DT = 1e-5 s [s], per model (2-core reference machine).
@@ -58,7 +57,7 @@ def chunk_size(jobs: Sequence[Any]) -> int:
         return 1
     per_run = sum(estimated_run_s(j.spec) for j in jobs) / len(jobs)
     rows = max(int(round(j.spec["t_end"] / 1e-3)) + 1 for j in jobs)  # 1 kHz output
-    k = min(TASK_SECONDS / max(per_run, 1e-6), len(jobs) / MIN_TASKS, MAX_CHUNK_ROWS / rows)
+    k = min(TASK_SECONDS / max(per_run, 1e-6), len(jobs) / MIN_CHUNKS, MAX_CHUNK_ROWS / rows)
     return max(1, int(k))
 
 
@@ -389,4 +388,4 @@ SIMULATE = register_job("simulate", run_simulation_job, plan_chunks=plan_chunks,
 
 
 __all__ = ["plan_chunks", "chunk_size", "run_chunk", "estimated_run_s", "TASK_SECONDS",
-           "MIN_TASKS", "run_simulation_job", "warm_up", "worker_info", "Pairs", "finish_pairs"]
+           "MIN_CHUNKS", "run_simulation_job", "warm_up", "worker_info", "Pairs", "finish_pairs"]
