@@ -176,11 +176,16 @@ def test_many_runs_per_file_same_rows_and_traces(chunky):
 
 
 def test_short_chunks_go_to_the_workers_in_bundles_long_ones_alone():
-    """Bundles: about TASKS_PER_WORKER tasks per worker for a short campaign, never fewer than
-    its estimated work / TASK_SECONDS, consecutive chunks shared out evenly and each chunk in
-    exactly one task; a kind without an estimate and single jobs go as they are."""
+    """Bundles (Dask): about tasks_per_worker tasks per worker for a short campaign, never
+    fewer than its estimated work / TASK_SECONDS, consecutive chunks shared out evenly and
+    each chunk in exactly one task; a kind without an estimate, single jobs, and every task
+    on an executor without tasks_per_worker (the local pool) go as they are."""
+    from eha.campaigns.executors import DaskExecutor, LocalPoolExecutor
     from eha.campaigns.jobs import TASK_SECONDS, JobKind
-    from eha.campaigns.runner import TASKS_PER_WORKER, bundle_tasks
+    from eha.campaigns.runner import bundle_tasks
+
+    per_worker = DaskExecutor.tasks_per_worker
+    assert per_worker and LocalPoolExecutor.tasks_per_worker is None
 
     def chunk(i, n=10):
         return {"kind": "chunk", "job_kind": "fast", "trace_path": f"c{i}",
@@ -189,20 +194,42 @@ def test_short_chunks_go_to_the_workers_in_bundles_long_ones_alone():
     fast = JobKind("fast", run=None, estimate_s=lambda spec: spec["s"])
     chunks = [chunk(i) for i in range(64)]          # 0.64 s of work in 64 chunks
     single = {"kind": "other", "run_key": "x"}
-    tasks = bundle_tasks(chunks + [single], {"fast": fast}, workers=2)
+    tasks = bundle_tasks(chunks + [single], {"fast": fast}, 2, per_worker)
     bundles = [t for t in tasks if t["kind"] == "bundle"]
-    assert len(bundles) == TASKS_PER_WORKER * 2 and single in tasks and len(tasks) == 9
+    assert len(bundles) == per_worker * 2 and single in tasks and len(tasks) == 9
     sizes = [len(b["tasks"]) for b in bundles]
     assert max(sizes) - min(sizes) <= 1
     assert [c for b in bundles for c in b["tasks"]] == chunks     # in order, each once
     # 6.4 s of work: 13 tasks of at most 0.5 s, more than 4 per worker
-    many = bundle_tasks([chunk(i, 100) for i in range(64)], {"fast": fast}, workers=2)
+    many = bundle_tasks([chunk(i, 100) for i in range(64)], {"fast": fast}, 2, 4)
     assert len(many) == round(6.4 / TASK_SECONDS + 0.5) and all(
         t["kind"] == "bundle" for t in many)
     # chunks of 1 s each: sent alone
     slow = [chunk(i, 1000) for i in range(64)]
-    assert bundle_tasks(slow, {"fast": fast}, workers=2) == slow
-    assert bundle_tasks(chunks, {"fast": JobKind("fast", run=None)}, workers=2) == chunks
+    assert bundle_tasks(slow, {"fast": fast}, 2, 4) == slow
+    assert bundle_tasks(chunks, {"fast": JobKind("fast", run=None)}, 2, 4) == chunks
+    assert bundle_tasks(chunks, {"fast": fast}, 2, None) == chunks
+
+
+def test_a_campaign_sent_in_bundles_has_the_rows_and_files_of_one_chunk_per_task(
+        chunky, tmp_path):
+    """The chunky campaign on an executor that bundles (4 tasks for its one worker): the
+    same runs, metrics and chunk files as one chunk per task."""
+    camp, results = chunky
+
+    class Bundling(Inline):
+        tasks_per_worker = 4
+
+        def map_unordered(self, fn, payloads):
+            payloads = list(payloads)
+            assert len(payloads) == 4 and {p["kind"] for p in payloads} == {"bundle"}
+            yield from super().map_unordered(fn, payloads)
+
+    s = run_campaign(camp, tmp_path / "bundled", executor=Bundling(), progress=False)
+    assert (s.done, s.failed) == (256, 0)
+    assert state(tmp_path / "bundled").equals(state(results))
+    names = sorted(p.name for p in (tmp_path / "bundled" / "traces" / "chunky").iterdir())
+    assert names == sorted(p.name for p in (results / "traces" / "chunky").iterdir())
 
 
 def test_damaged_chunk_is_detected_and_its_runs_redone(chunky, tmp_path):

@@ -46,11 +46,6 @@ from eha.errors import InputError
 #: workers, and a crash loses at most this much finished work.
 BATCH_SECONDS = 0.5
 BATCH_ROWS = 5000
-#: A campaign whose chunks are short is sent as about this many tasks per worker (each a
-#: *bundle* of consecutive chunks, run in turn by one worker), never fewer than
-#: (estimated work) / :data:`TASK_SECONDS`: enough for the workers to share the work evenly,
-#: few enough that the per-task cost stays small beside the work.
-TASKS_PER_WORKER = 4
 
 
 class CampaignChanged(InputError):
@@ -242,7 +237,8 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
         last = time.perf_counter()
         try:
             for res in _unbundled(ex.map_unordered(
-                    execute_task, bundle_tasks(payloads, by_name, ex.workers))):
+                    execute_task, bundle_tasks(payloads, by_name, ex.workers,
+                                               ex.tasks_per_worker))):
                 for c in collectors:
                     c.add(res)
                 if "runs" in res:   # a chunk
@@ -268,18 +264,24 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
             summary.jobs_s = time.perf_counter() - t0 - summary.startup_s
 
 
-def bundle_tasks(payloads: list[dict], kinds: dict[str, JobKind], workers: int) -> list[dict]:
-    """The tasks to send: the chunk tasks of a kind whose chunks are short grouped into
-    bundles of consecutive chunks (``{"kind": "bundle", "tasks": [...]}``), other tasks as
+def bundle_tasks(payloads: list[dict], kinds: dict[str, JobKind], workers: int,
+                 tasks_per_worker: int | None) -> list[dict]:
+    """The tasks to send: on an executor whose tasks cost more (``tasks_per_worker``, Dask's
+    :attr:`~eha.campaigns.executors.Executor.tasks_per_worker`), the chunk tasks of a kind
+    whose chunks are short grouped into bundles of consecutive chunks
+    (``{"kind": "bundle", "tasks": [...]}``, run in turn by one worker); other tasks as
     they are.
 
     A kind's chunks (its files) depend on the campaign only; how many of them one task runs
-    depends on the workers: ``max(TASKS_PER_WORKER x workers, work / TASK_SECONDS)`` tasks,
+    depends on the executor: ``max(tasks_per_worker x workers, work / TASK_SECONDS)`` tasks,
     the work estimated with the kind's ``estimate_s``, chunks shared out evenly in campaign
-    order. A kind without an estimate, or chunks long enough already, are sent one per task.
+    order. A kind without an estimate, chunks long enough already, or ``tasks_per_worker``
+    None: one chunk per task.
     """
     import math
 
+    if tasks_per_worker is None:
+        return payloads
     chunks: dict[str, list[dict]] = {}
     out: list[dict] = []
     for p in payloads:
@@ -290,7 +292,7 @@ def bundle_tasks(payloads: list[dict], kinds: dict[str, JobKind], workers: int) 
             chunks.setdefault(kind.name, []).append(p)
     for name, tasks in chunks.items():
         work = sum(kinds[name].estimate_s(r["spec"]) for t in tasks for r in t["runs"])
-        n = max(TASKS_PER_WORKER * max(1, workers), math.ceil(work / TASK_SECONDS))
+        n = max(tasks_per_worker * max(1, workers), math.ceil(work / TASK_SECONDS))
         if n >= len(tasks):
             out.extend(tasks)
             continue
