@@ -134,6 +134,7 @@ class NoopExecutor:
     """Returns each chunk as finished at once, in this process: the parent's own costs."""
 
     workers = 2
+    tasks_per_worker = None     # one chunk per task, as the local pool
 
     def __enter__(self):
         return self
@@ -152,9 +153,6 @@ class NoopExecutor:
 
         now = datetime.now(timezone.utc).replace(tzinfo=None)
         for task in tasks:
-            if task["kind"] == "bundle":
-                yield {"bundle": list(self.map_unordered(fn, task["tasks"]))}
-                continue
             keys = [r["run_key"] for r in task["runs"]]
             rows = [{"run_key": k, "status": "done", "error": None, "worker": "noop",
                      "started_at": now, "finished_at": now, "sim_s": 0.0, "elapsed_s": 0.0,
