@@ -90,6 +90,10 @@ POSITION_WORSENING = 1.2
 #: Effects tried in place of an added one by the final check's swap (:meth:`ResidualLoop.swap`):
 #: those whose signature is most like the added effect's contribution.
 SWAP_CANDIDATES = 3
+#: Far from the noise, the rivals of a swap or merge (singles and pairs) are all refitted
+#: locally from their probes, and this many of them, the best so refitted, also searched
+#: globally (two GA searches each).
+GLOBAL_RIVALS = 2
 #: Times the rounds resume after a final check (:meth:`ResidualLoop.prune`) that changed a
 #: model which still leaves the record unexplained.
 REVISITS = 1
