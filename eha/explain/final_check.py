@@ -17,7 +17,7 @@ import numpy as np
 from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.decide import keeps_effect
 from eha.explain.record import corr
-from eha.explain.results import Dismissal, Evaluation, Step
+from eha.explain.results import Dismissal, Evaluation, Step, ranking_score
 from eha.explain.settings import GLOBAL_RIVALS, STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import signatures
 from eha.models.params import LFParams
@@ -58,8 +58,7 @@ class FinalCheck:
             start = effect.switch_off(self.current)
             refitted = self.refit(start, free, f"final check: without {step.effect}",
                                   method="ps")
-            without = min(self.evaluate([start, refitted]), key=lambda e: e.rmse_score
-                          if math.isfinite(e.rmse_score) else math.inf)
+            without = min(self.evaluate([start, refitted]), key=ranking_score)
             keep, loss, p = keeps_effect(self.cur.rmse_score, without.rmse_score,
                                          len(effect.params), self.cur.n_eff, s)
             if not keep:
@@ -124,7 +123,7 @@ class FinalCheck:
             local = self.refit(start, bounds, f"final check: {name} for {label}", method="ps")
             fits.append((group, start, bounds, name, [self.evaluate([local])[0]]))
         if self.unexplained():
-            ranked = sorted(fits, key=lambda f: _score(f[4][0]))
+            ranked = sorted(fits, key=lambda f: ranking_score(f[4][0]))
             for group, start, bounds, name, trials in ranked[:GLOBAL_RIVALS]:
                 found = [self.refit(start, bounds, f"final check: {name} for {label}",
                                     method=self.settings.method, warm_start=warm)
@@ -136,7 +135,7 @@ class FinalCheck:
                       if not any(self.within_healthy_at(o, t.params) for o in group)]
             if not trials:
                 continue
-            ev = min(trials, key=_score)
+            ev = min(trials, key=ranking_score)
             if math.isfinite(ev.rmse_score) and (best is None or
                                                  ev.rmse_score < best[1].rmse_score):
                 best = (group, ev)
@@ -268,8 +267,3 @@ class FinalCheck:
         name = "+".join(o.name for o in others)
         return [Dismissal(a.effect, len(self.rounds), loss, p, replaced_by=name),
                 Dismissal(b.effect, len(self.rounds), loss, p, replaced_by=name)]
-
-
-def _score(ev: Evaluation) -> float:
-    """An evaluation's score for ranking fits (a diverged fit last)."""
-    return ev.rmse_score if math.isfinite(ev.rmse_score) else math.inf

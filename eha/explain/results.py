@@ -54,6 +54,11 @@ class Evaluation:
                                 + self.p12_hold ** 2))
 
 
+
+def ranking_score(ev: Evaluation) -> float:
+    """An evaluation's score for choosing between fits (a diverged fit last)."""
+    return ev.rmse_score if math.isfinite(ev.rmse_score) else math.inf
+
 @dataclass
 class Candidate:
     """One effect tried in one round."""

@@ -12,7 +12,8 @@ from typing import Mapping, Sequence
 from eha.explain.effects import COMBINATIONS, EFFECTS, Effect, missing_requirements
 from eha.explain.decide import (Choice, choose, keeps_effect, significance, split_combination,
                                 trades_position)
-from eha.explain.results import Candidate, Dismissal, Evaluation, Round, Step
+from eha.explain.results import (Candidate, Dismissal, Evaluation, Round, Step,
+                                 ranking_score)
 from eha.explain.settings import LOOK_AHEAD, SPECIFIC_GAIN, STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import trace_residual
 from eha.models.params import LFParams
@@ -264,8 +265,7 @@ class Rounds:
             start = effect.switch_off(params)
             refitted = self.refit(start, free, f"round {len(self.rounds) - 1}: "
                                   f"{best.effect} without {name}", method="ps")
-            without = min(self.evaluate([start, refitted]), key=lambda e: e.rmse_score
-                          if math.isfinite(e.rmse_score) else math.inf)
+            without = min(self.evaluate([start, refitted]), key=ranking_score)
             keep, loss, p = keeps_effect(ev.rmse_score, without.rmse_score,
                                          len(effect.params), ev.n_eff, s)
             if not keep:
