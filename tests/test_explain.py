@@ -689,7 +689,7 @@ def test_a_candidate_that_trades_the_position_for_p12_is_not_added(tmp_path):
         loop = ResidualLoop(data, settings=LoopSettings(p12_weight=weight))
         loop.current = truth.replace(XJ0=loop.base.XJ0)
         loop.cur = loop.evaluate([loop.current])[0]
-        loop.refit = lambda start, free, label, **kw: start.replace(Clk=2e-11)
+        loop.fit_with_cost = lambda start, free, label, **kw: (start.replace(Clk=2e-11), 0.0)
         cand = loop.try_candidate(Candidate("leakage", math.nan, math.nan))
         assert cand.rmse_fit > 2 * loop.cur.rmse_fit
         assert (cand.score == -math.inf) is switched_off, (weight, cand.score)

@@ -26,6 +26,46 @@ from eha.models.params import LFParams
 class FinalCheck:
     """The final check of :class:`~eha.explain.loop.ResidualLoop` (see :meth:`prune`)."""
 
+    def not_excluded(self) -> list[dict]:
+        """The exclusion check of a model at the noise level: each effect the null tests that
+        is not in the final model gets the rounds' test (:meth:`local_test`, least squares
+        from the effect off and from its probe, every parameter of the final model free); an
+        effect whose fit leaves the band healthy actuators reach on this command fits the
+        record with a value a healthy actuator does not reach, so the record cannot rule it
+        out. (A viscous friction of 4000 N·s/m beside a motor gain of -30 % on a chirp: the
+        motor gain alone leaves the noise, and the friction's fit runs to 9300 at the same
+        residual, the flow and motor gains trading against it.) The null's own test at the
+        same level, so a healthy record lists an effect with probability at most ``alpha``.
+        Returns one dict per such effect (empty without a null)."""
+        if not self.thresholds:
+            return []
+        in_model = {st.effect for st in self.steps}
+        free = dict(self.free)
+        for st in self.steps:
+            free.update(EFFECTS[st.effect].bounds)
+        out = []
+        for effect in self.pool:
+            if (effect.name in in_model or effect.name in STRUCTURAL
+                    or effect.name not in self.thresholds):
+                continue
+            members = [*(EFFECTS[n] for n in missing_requirements(effect, self.current)),
+                       effect]
+            start, free_e = self.current, dict(free)
+            for member in members:
+                start = member.switch_on(start, {
+                    p: member.off[p] for p, (lo, hi) in member.bounds.items()
+                    if lo <= member.off[p] <= hi})
+                free_e.update(member.bounds)
+            local = self.local_test(start, free_e, members)
+            if not self.within_healthy_at(effect, local):
+                (param,) = effect.params
+                out.append({"effect": effect.name, "param": param,
+                            "value": float(getattr(local, param)),
+                            "shift": float(effect.shift_at(local)),
+                            "threshold": float(self.thresholds[effect.name]),
+                            "unit": effect.units()[param]})
+        return out
+
     def prune(self) -> list[Dismissal]:
         """(f) After the last round: is each effect added still needed now that the later
         ones are in, and is it the right one? An effect added early can stand in for several

@@ -133,6 +133,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             if not changed or not self.unexplained():
                 break
         self.estimate()
+        self.rivals = self.not_excluded() if self.at_noise_level() else []
         return self.result(before, faults_before, stop)
 
     # -- the steps -------------------------------------------------------------------------
@@ -325,7 +326,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
             measured=data.xu.copy(), settings=settings,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
-            unexplained=flagged or not self.at_noise_level(), beyond_healthy=flagged,
+            unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
+            beyond_healthy=flagged, not_excluded=self.rivals,
             interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
             null=self.null.summary(s.alpha) if self.null is not None else None)

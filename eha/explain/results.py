@@ -174,6 +174,11 @@ class ExplainResult:
     #: the healthy null the decisions rested on (:meth:`eha.explain.null.Null.summary`):
     #: source, alpha, and per effect its threshold and detectable size; None without one
     null: dict[str, Any] | None = None
+    #: effects outside the final model that the record cannot rule out (the loop's exclusion
+    #: check, :meth:`eha.explain.final_check.FinalCheck.not_excluded`): per effect its
+    #: parameter, the value its test fit reached (beyond the healthy threshold) and the
+    #: threshold; non-empty only for a model at the noise level, then ``unexplained``
+    not_excluded: list[dict[str, Any]] = field(default_factory=list)
 
     def undetectable(self) -> list[str]:
         """One line per testable effect not in the model: below which size this record's
@@ -219,6 +224,14 @@ class ExplainResult:
             if limit is not None:
                 text += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
             return text + tentative
+        if self.not_excluded:
+            rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} {e['unit']}, "
+                               f"healthy up to a change of {e['threshold']:.3g})"
+                               for e in self.not_excluded)
+            return (f"not uniquely explained: residual {1e6 * self.rmse_after:.3g} µm "
+                    f"({ratio:.1f}× noise) with {'+'.join(self.effects) or 'the faults'}, "
+                    f"but {rivals} also fits beyond the healthy band: the record cannot rule "
+                    f"it out")
         if self.unexplained:
             band = (f"within what healthy actuators leave on this command (up to "
                     f"{limit:.2g}×)" if limit is not None else "below the flag ratio")
@@ -277,6 +290,7 @@ class ExplainResult:
                           for d in self.dismissed],
             "null": self.null,
             "undetectable": self.undetectable(),
+            "not_excluded": [dict(e) for e in self.not_excluded],
         }
 
     @staticmethod
