@@ -88,7 +88,9 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
-                        "undetectable"}
+                        "undetectable", "not_excluded"}
+    assert all(e["shift"] > e["threshold"] for e in doc["not_excluded"])
+    assert doc["unexplained"] or not doc["not_excluded"]
     assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05
     assert doc["null"]["source"].startswith("simulated healthy fleet (5 actuators")
     added = {st["effect"] for st in doc["steps"]}

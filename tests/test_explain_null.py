@@ -250,3 +250,26 @@ def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
     null.residual_ratios = [2.5, 3.5, 4.0]
     assert null.residual_limit(0.05) == FLAG_RATIO
     assert null.summary(0.05)["residual_limit"] == FLAG_RATIO
+
+
+def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tmp_path):
+    """On an LF record with a viscous friction of 3000 N·s/m, the model without it (the
+    truth otherwise) gets the exclusion check: the friction's test fit runs beyond a
+    threshold of 500 N·s/m (listed, with its value within 20 % of the truth: the record
+    shows it) and not beyond one of 1e5 (empty)."""
+    from eha.explain import LoopSettings, ResidualLoop
+    from eha.identification.measured import load
+    from eha.models.params import LFParams
+    from test_explain import FAULTS, _record
+
+    truth = {**FAULTS, "CJ": 3000.0}
+    data = load(_record(tmp_path, "lf_vf", "mixed", 0.6, overrides=truth, model="lf"))
+    loop = ResidualLoop(data, effects="viscous_friction", settings=LoopSettings())
+    loop.current = LFParams().replace(**FAULTS, XJ0=loop.base.XJ0)
+    loop.cur = loop.evaluate([loop.current])[0]
+    loop.thresholds = {"viscous_friction": 500.0}
+    (rival,) = loop.not_excluded()
+    assert rival["effect"] == "viscous_friction" and rival["param"] == "CJ"
+    assert rival["threshold"] == 500.0 and abs(rival["value"] - 3000.0) < 600.0, rival
+    loop.thresholds = {"viscous_friction": 1e5}
+    assert loop.not_excluded() == []

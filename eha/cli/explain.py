@@ -170,6 +170,10 @@ def _render(res) -> None:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "
                           "do not read the estimates as numbers", highlight=False)
+    elif res.not_excluded:
+        err_console.print("warning: the model leaves only noise, but the record cannot rule "
+                          "out " + ", ".join(e["effect"] for e in res.not_excluded) +
+                          ": an alternative explanation, not a confident one", highlight=False)
     elif res.unexplained:
         err_console.print("warning: the residual is above the noise level: the effects added "
                           "are tentative, and an effect below this command's healthy band may "

@@ -34,9 +34,12 @@ class FinalCheck:
         record with a value a healthy actuator does not reach, so the record cannot rule it
         out. (A viscous friction of 4000 N·s/m beside a motor gain of -30 % on a chirp: the
         motor gain alone leaves the noise, and the friction's fit runs to 9300 at the same
-        residual, the flow and motor gains trading against it.) The null's own test at the
-        same level, so a healthy record lists an effect with probability at most ``alpha``.
-        Returns one dict per such effect (empty without a null)."""
+        residual, the flow and motor gains trading against it.) The null's own test and
+        threshold, but not its state: the null runs it with the structure in and no other
+        effect, and an effect in the model (or the structure missing) makes others less
+        identifiable, so the rate at which it lists an effect is measured, not ``alpha``
+        (docs/explain.md, "The exclusion check"). Returns one dict per such effect (empty
+        without a null)."""
         if not self.thresholds:
             return []
         in_model = {st.effect for st in self.steps}

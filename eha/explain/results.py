@@ -230,8 +230,9 @@ class ExplainResult:
                                for e in self.not_excluded)
             return (f"not uniquely explained: residual {1e6 * self.rmse_after:.3g} µm "
                     f"({ratio:.1f}× noise) with {'+'.join(self.effects) or 'the faults'}, "
-                    f"but {rivals} also fits beyond the healthy band: the record cannot rule "
-                    f"it out")
+                    f"but {rivals} also {'fit' if len(self.not_excluded) > 1 else 'fits'} "
+                    f"beyond the healthy band: the record cannot rule "
+                    f"{'them' if len(self.not_excluded) > 1 else 'it'} out")
         if self.unexplained:
             band = (f"within what healthy actuators leave on this command (up to "
                     f"{limit:.2g}×)" if limit is not None else "below the flag ratio")
