@@ -43,9 +43,6 @@ class FinalCheck:
         if not self.thresholds:
             return []
         in_model = {st.effect for st in self.steps}
-        free = dict(self.free)
-        for st in self.steps:
-            free.update(EFFECTS[st.effect].bounds)
         out = []
         for effect in self.pool:
             if (effect.name in in_model or effect.name in STRUCTURAL
@@ -53,13 +50,10 @@ class FinalCheck:
                 continue
             members = [*(EFFECTS[n] for n in missing_requirements(effect, self.current)),
                        effect]
-            start, free_e = self.current, dict(free)
-            for member in members:
-                start = member.switch_on(start, {
-                    p: member.off[p] for p, (lo, hi) in member.bounds.items()
-                    if lo <= member.off[p] <= hi})
-                free_e.update(member.bounds)
-            local = self.local_test(start, free_e, members)
+            start, free = self.candidate_start(members)
+            for st in self.steps:           # every parameter of the final model free
+                free.update(EFFECTS[st.effect].bounds)
+            local = self.local_test(start, free, members)
             if not self.within_healthy_at(effect, local):
                 (param,) = effect.params
                 out.append({"effect": effect.name, "param": param,
