@@ -89,7 +89,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
                         "undetectable", "not_excluded"}
-    assert all(e["shift"] > e["threshold"] for e in doc["not_excluded"])
+    assert all(e["shift"] > e["detectable"] > e["threshold"] for e in doc["not_excluded"])
     assert doc["unexplained"] or not doc["not_excluded"]
     assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05
     assert doc["null"]["source"].startswith("simulated healthy fleet (5 actuators")
@@ -101,8 +101,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert doc["p12_in_fit"] is True            # the record has P12
     assert all(set(d) == {"effect", "round", "loss", "p_value", "replaced_by"}
                for d in doc["dismissed"])
-    assert doc["level"] == 0.9 and doc["unexplained"] is False
-    assert doc["verdict"].startswith("explained: residual")
+    # at the noise level: explained, or not uniquely so when the exclusion check names a
+    # rival (a 20 µs delay beside a 5-actuator null here): nothing added for it either way
+    assert doc["level"] == 0.9 and doc["unexplained"] is bool(doc["not_excluded"])
+    assert doc["beyond_healthy"] is False
+    assert doc["verdict"].startswith("not uniquely explained: residual" if doc["not_excluded"]
+                                     else "explained: residual")
     lo, hi = doc["intervals"]["FDJ"]
     assert lo <= doc["faults_after"]["FDJ"] <= hi
     assert doc["steps"][0]["effect"] == "orifice_law"

@@ -255,8 +255,8 @@ def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():
 def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tmp_path):
     """On an LF record with a viscous friction of 3000 N·s/m, the model without it (the
     truth otherwise) gets the exclusion check: the friction's test fit runs beyond a
-    threshold of 500 N·s/m (listed, with its value within 20 % of the truth: the record
-    shows it) and not beyond one of 1e5 (empty)."""
+    detectable size of about 500 N·s/m (listed, with its value within 20 % of the truth: the
+    record shows it) and not beyond one of about 1e5 (empty)."""
     from eha.explain import LoopSettings, ResidualLoop
     from eha.identification.measured import load
     from eha.models.params import LFParams
@@ -267,9 +267,14 @@ def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tm
     loop = ResidualLoop(data, effects="viscous_friction", settings=LoopSettings())
     loop.current = LFParams().replace(**FAULTS, XJ0=loop.base.XJ0)
     loop.cur = loop.evaluate([loop.current])[0]
-    loop.thresholds = {"viscous_friction": 500.0}
-    (rival,) = loop.not_excluded()
-    assert rival["effect"] == "viscous_friction" and rival["param"] == "CJ"
-    assert rival["threshold"] == 500.0 and abs(rival["value"] - 3000.0) < 600.0, rival
-    loop.thresholds = {"viscous_friction": 1e5}
-    assert loop.not_excluded() == []
+    for healthy, listed in ((400.0, True), (9e4, False)):
+        loop.null = _null({"viscous_friction": [healthy * f for f in (0.9, 1.1, 1.0, 0.95,
+                                                                      1.05)]})
+        loop.thresholds = loop.null.thresholds(loop.settings.alpha)
+        rivals = loop.not_excluded()
+        assert bool(rivals) is listed, rivals
+        if listed:
+            (rival,) = rivals
+            assert rival["effect"] == "viscous_friction" and rival["param"] == "CJ"
+            assert rival["shift"] > rival["detectable"] > rival["threshold"]
+            assert abs(rival["value"] - 3000.0) < 600.0, rival

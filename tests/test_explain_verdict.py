@@ -68,17 +68,17 @@ def test_the_verdict_states_the_ratio_it_rests_on(ratio):
 
 
 def test_an_effect_the_record_cannot_rule_out_makes_it_not_uniquely_explained():
-    """At the noise level, an effect outside the model whose fit leaves its healthy band
-    (``not_excluded``) turns "explained" into "not uniquely explained", names the effect, its
-    value and the healthy threshold, and is in the JSON."""
+    """At the noise level, an effect outside the model that fits as well beyond the size the
+    command shows (``not_excluded``) turns "explained" into "not uniquely explained", names
+    the effect, its value and the detectable size, and is in the JSON."""
     rival = {"effect": "viscous_friction", "param": "CJ", "value": 9300.0, "shift": 9250.0,
-             "threshold": 1860.0, "unit": "N*s/m"}
+             "threshold": 1860.0, "detectable": 2540.0, "unit": "N*s/m"}
     r = result(1.03e-6, unexplained=True, beyond=False, steps=[step("motor_gain")])
     r.not_excluded = [rival]
     text = r.verdict
     assert text.startswith("not uniquely explained: residual 1.03 µm (1.0× noise) with "
-                           "motor_gain, but viscous_friction (CJ 9.3e+03 N*s/m, healthy up "
-                           "to a change of 1.86e+03)")
+                           "motor_gain, but viscous_friction (CJ 9.3e+03 N*s/m, a change "
+                           "beyond the 2.54e+03 this command shows) also fits as well")
     assert not text.startswith("explained")
     doc = r.to_json()
     assert doc["not_excluded"] == [rival] and doc["unexplained"] is True

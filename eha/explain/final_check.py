@@ -32,7 +32,12 @@ class FinalCheck:
         from the effect off and from its probe, every parameter of the final model free); an
         effect whose fit leaves the band healthy actuators reach on this command fits the
         record with a value a healthy actuator does not reach, so the record cannot rule it
-        out. (A viscous friction of 4000 N·s/m beside a motor gain of -30 % on a chirp: the
+        out. The bar is the null's detectable size (:meth:`eha.explain.null.Null.detectable`),
+        not its threshold: a clean verdict states that nothing the command shows (the
+        ``undetectable`` lines: above that size) is missing, and this check tests that
+        statement; a rival between threshold and detectable size is what those lines already
+        disclaim (on a nominal record, a delay of 20 µs). (A viscous friction of 4000 N·s/m
+        beside a motor gain of -30 % on a chirp: the
         motor gain alone leaves the noise, and the friction's fit runs to 9300 at the same
         residual, the flow and motor gains trading against it.) The null's own test and
         threshold, but not its state: the null runs it with the structure in and no other
@@ -40,8 +45,9 @@ class FinalCheck:
         identifiable, so the rate at which it lists an effect is measured, not ``alpha``
         (docs/explain.md, "The exclusion check"). Returns one dict per such effect (empty
         without a null)."""
-        if not self.thresholds:
+        if not self.thresholds or self.null is None:
             return []
+        detectable = self.null.detectable(self.settings.alpha)
         in_model = {st.effect for st in self.steps}
         out = []
         for effect in self.pool:
@@ -54,13 +60,14 @@ class FinalCheck:
             for st in self.steps:           # every parameter of the final model free
                 free.update(EFFECTS[st.effect].bounds)
             local = self.local_test(start, free, members)
-            if not self.within_healthy_at(effect, local):
+            size = detectable.get(effect.name, math.inf)
+            if effect.shift_at(local) > size:
                 (param,) = effect.params
                 out.append({"effect": effect.name, "param": param,
                             "value": float(getattr(local, param)),
                             "shift": float(effect.shift_at(local)),
                             "threshold": float(self.thresholds[effect.name]),
-                            "unit": effect.units()[param]})
+                            "detectable": float(size), "unit": effect.units()[param]})
         return out
 
     def prune(self) -> list[Dismissal]:

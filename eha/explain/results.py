@@ -226,12 +226,12 @@ class ExplainResult:
             return text + tentative
         if self.not_excluded:
             rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} {e['unit']}, "
-                               f"healthy up to a change of {e['threshold']:.3g})"
+                               f"a change beyond the {e['detectable']:.3g} this command shows)"
                                for e in self.not_excluded)
             return (f"not uniquely explained: residual {1e6 * self.rmse_after:.3g} µm "
                     f"({ratio:.1f}× noise) with {'+'.join(self.effects) or 'the faults'}, "
                     f"but {rivals} also {'fit' if len(self.not_excluded) > 1 else 'fits'} "
-                    f"beyond the healthy band: the record cannot rule "
+                    f"as well: the record cannot rule "
                     f"{'them' if len(self.not_excluded) > 1 else 'it'} out")
         if self.unexplained:
             band = (f"within what healthy actuators leave on this command (up to "
