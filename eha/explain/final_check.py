@@ -30,9 +30,9 @@ class FinalCheck:
         """The exclusion check of a model at the noise level: each effect the null tests that
         is not in the final model gets the rounds' test (:meth:`local_test`, least squares
         from the effect off and from its probe, every parameter of the final model free); an
-        effect whose fit leaves the band healthy actuators reach on this command fits the
-        record with a value a healthy actuator does not reach, so the record cannot rule it
-        out. The bar is the null's detectable size (:meth:`eha.explain.null.Null.detectable`),
+        effect whose fit runs beyond the size this command shows fits the record as well with
+        a value a healthy actuator does not reach, so the record cannot rule it out. The bar
+        is the null's detectable size (:meth:`eha.explain.null.Null.detectable`),
         not its threshold: a clean verdict states that nothing the command shows (the
         ``undetectable`` lines: above that size) is missing, and this check tests that
         statement; a rival between threshold and detectable size is what those lines already

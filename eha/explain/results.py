@@ -54,10 +54,10 @@ class Evaluation:
                                 + self.p12_hold ** 2))
 
 
-
 def ranking_score(ev: Evaluation) -> float:
     """An evaluation's score for choosing between fits (a diverged fit last)."""
     return ev.rmse_score if math.isfinite(ev.rmse_score) else math.inf
+
 
 @dataclass
 class Candidate:
@@ -176,8 +176,9 @@ class ExplainResult:
     null: dict[str, Any] | None = None
     #: effects outside the final model that the record cannot rule out (the loop's exclusion
     #: check, :meth:`eha.explain.final_check.FinalCheck.not_excluded`): per effect its
-    #: parameter, the value its test fit reached (beyond the healthy threshold) and the
-    #: threshold; non-empty only for a model at the noise level, then ``unexplained``
+    #: parameter, the value its test fit reached (beyond the null's detectable size), that
+    #: size and the threshold; non-empty only for a model at the noise level, then
+    #: ``unexplained``
     not_excluded: list[dict[str, Any]] = field(default_factory=list)
 
     def undetectable(self) -> list[str]:

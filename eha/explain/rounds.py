@@ -112,6 +112,20 @@ class Rounds:
         adds to the false-positive rate on healthy records is measured by
         ``benchmarks/bench_explain_fp.py``.
         """
+        # the screen (:meth:`screen`) and the candidate's refit test the same effect from the
+        # same model: the least-squares fits are made once
+        key = (start, tuple(sorted(free.items())), tuple(e.name for e in members))
+        memo = self.__dict__.setdefault("_local_fits", {})
+        if key not in memo:
+            memo[key] = self._local_fits_of(start, free, members)
+        best, cost = memo[key]
+        if also is not None and also[1] < cost:
+            best = also[0]
+        return best
+
+    def _local_fits_of(self, start: LFParams, free: Mapping[str, tuple[float, float]],
+                       members: Sequence[Effect]) -> tuple[LFParams, float]:
+        """:meth:`local_test`'s two least-squares fits, the better one and its cost."""
         label = f"round {len(self.rounds)}: local test of " \
                 f"{'+'.join(e.name for e in members)}"
         best, cost = self.fit_with_cost(start, free, label, method="lm")
@@ -126,9 +140,7 @@ class Rounds:
                                                method="lm")
             if fit_cost < cost:
                 best, cost = fit, fit_cost
-        if also is not None and also[1] < cost:
-            best = also[0]
-        return best
+        return best, cost
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
@@ -195,6 +207,7 @@ class Rounds:
         if not self.thresholds:
             return []
         picked = {c.effect for c in chosen}
+        traced = {c.effect for c in rnd.candidates}
         out = []
         for cand in rnd.candidates:
             effect = EFFECTS.get(cand.effect)
@@ -202,9 +215,8 @@ class Rounds:
                     or effect.name not in self.thresholds):
                 continue
             needed = [EFFECTS[n] for n in missing_requirements(effect, self.current)]
-            if any(e.name not in {c.effect for c in rnd.candidates} and not e.is_on(
-                    self.current) for e in needed):
-                continue
+            if any(e.name not in traced for e in needed):
+                continue        # the structure it needs is fixed off or not a candidate
             start, free = self.candidate_start([*needed, effect])
             local = self.local_test(start, free, [*needed, effect])
             if not self.within_healthy_at(effect, local):
