@@ -11,8 +11,8 @@ import numpy as np
 from eha.explain.effects import Effect
 from eha.explain.record import rmse
 from eha.explain.results import Evaluation
-from eha.explain.settings import (GLOBAL_METHODS, LEAST_SQUARES_FINISH, MULTISTART,
-                                  MULTISTART_PARAMS, SWITCHED_OFF, ExplainError)
+from eha.explain.settings import (FINISHED_POLISH_XTOL, GLOBAL_METHODS, LEAST_SQUARES_FINISH,
+                                  MULTISTART, MULTISTART_PARAMS, SWITCHED_OFF, ExplainError)
 from eha.identification.intervals import effective_samples
 from eha.models.params import LFParams
 
@@ -95,6 +95,8 @@ class Fitting:
         options = (self.fdi_options if method not in ("ps", "lm") else
                    {k: v for k, v in self.fdi_options.items()
                     if k in METHOD_DEFAULTS[method] and method == "ps"})
+        if method == "ga+ps" and LEAST_SQUARES_FINISH:
+            options = {"xtol": FINISHED_POLISH_XTOL, **options}
         # searches of many parameters get more GA starts (other seeds); the best fit is kept
         if starts is None:
             starts = 1 if method in ("ps", "lm") or len(free) < MULTISTART_PARAMS \

@@ -37,6 +37,11 @@ MULTISTART = 2
 #: (:meth:`ResidualLoop.refit`) when LEAST_SQUARES_FINISH is on.
 GLOBAL_METHODS = ("ga", "ga+ps")
 LEAST_SQUARES_FINISH = True
+#: Smallest step (of each search range) of the compass polish in a ``ga+ps`` refit that least
+#: squares finishes (LEAST_SQUARES_FINISH): its halvings below this only refine what least
+#: squares refines next, and they cost about half of a refit's LF runs (one record at a time
+#: on 2 cores: f07 44 -> 33 s, f14 113 -> 54 s; docs/decisions.md). A user's ``xtol`` wins.
+FINISHED_POLISH_XTOL = 1e-3
 
 
 # --------------------------------------------------------------------------------------------
