@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -27,8 +28,40 @@ from _results import provenance, write_result  # noqa: E402
 RESULT = "explain_foreign"
 
 
+def calibration_seconds(doc: dict, path: Path) -> float:
+    """Seconds the record's run spent calibrating its command's healthy null: the null's own
+    time when its cache file was written during this record's run (between the run's start and
+    its JSON), else 0 (the null came from the cache)."""
+    from eha.explain.null import cache_dir
+
+    null = doc.get("null") or {}
+    cached = cache_dir() / f"{null.get('key', '')}.json"
+    seconds = doc.get("_seconds")
+    if not null.get("key") or not cached.exists() or seconds is None:
+        return 0.0
+    end = path.stat().st_mtime
+    return float(null.get("seconds") or 0.0) \
+        if end - seconds - 1.0 <= cached.stat().st_mtime <= end else 0.0
+
+
+def loop_time_summary(rows: list[dict]) -> list[str]:
+    """Median and max of the loop's own time (without a new command's calibration) and of
+    the calibrations made during the run."""
+    loop = [r["seconds"] - r["calibration_seconds"] for r in rows if r["seconds"] is not None]
+    cal = [r["calibration_seconds"] for r in rows if r["calibration_seconds"]]
+    out = []
+    if loop:
+        out.append(f"loop time per record (without calibrating a new null): median "
+                   f"{statistics.median(loop):.0f} s, max {max(loop):.0f} s")
+    if cal:
+        out.append(f"null calibrations during the run: {len(cal)}, median "
+                   f"{statistics.median(cal):.0f} s, max {max(cal):.0f} s")
+    return out
+
+
 def collect(out: Path, scorer: Path, table: str) -> list[dict]:
-    """One row per record: the scorer's line, and the verdict fields of its JSON."""
+    """One row per record: the scorer's line, the verdict fields of its JSON, and the time it
+    spent calibrating a new command's null (:func:`calibration_seconds`)."""
     truth = json.loads((scorer.parent / "truth.json").read_text())
     lines = {ln.split()[0]: ln for ln in table.splitlines() if ln[:1] == "f" and ln.split()}
     rows = []
@@ -44,6 +77,7 @@ def collect(out: Path, scorer: Path, table: str) -> list[dict]:
                      "beyond_healthy": doc.get("beyond_healthy"),
                      "verdict": doc.get("verdict"), "score": lines.get(name, ""),
                      "seconds": doc.get("_seconds"),
+                     "calibration_seconds": calibration_seconds(doc, path),
                      "residual_limit": (doc.get("null") or {}).get("residual_limit")})
     return rows
 
@@ -62,11 +96,13 @@ def main(argv: list[str] | None = None) -> int:
     summary = [ln for ln in table.splitlines()
                if ln.split()[:1] and ln.split()[0] in ("single", "two", "none", "outside",
                                                          "time")]
+    rows = collect(a.out, a.scorer, table)
     result = {"what": "score.py --out DIR (eha explain defaults, 2 records at a time)",
-              "provenance": {**provenance(), "note": a.note}, "summary": summary,
-              "records": collect(a.out, a.scorer, table)}
+              "provenance": {**provenance(), "note": a.note},
+              "summary": summary + loop_time_summary(rows), "records": rows}
     write_result(RESULT, result)
     print(table)
+    print("\n".join(result["summary"][len(summary):]))
     if a.json:
         print(json.dumps(result, indent=1, ensure_ascii=False))
     return 0
