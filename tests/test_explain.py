@@ -614,7 +614,9 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
     by least squares (the default) the fit is within the noise and the flapper and load
     within 15 % and 2 %, closer than the GA and its pattern search alone (measured: 0.93 µm
     and flapper 3 % off, against 1.08 µm and 9 %; with the compass search before its pattern
-    moves the GA stopped on the valley's side, 2.4 µm and 35 % off)."""
+    moves the GA stopped on the valley's side, 2.4 µm and 35 % off). It also guards the
+    compass polish's early stop (FINISHED_POLISH_XTOL): stopped at 1e-3 of each range, least
+    squares stalled at 1.65 µm, the flapper 25 % off."""
     import eha.explain.fitting as fitting
     from eha.explain import ResidualLoop
 

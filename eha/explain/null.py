@@ -56,7 +56,7 @@ from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
-NULL_FORMAT = 4   # 4: the compass polish before least squares stops at a coarser step
+NULL_FORMAT = 5   # 5: the compass polish before least squares stops at 1e-4 of each range
 
 
 def noise_class(noise: float) -> float:
