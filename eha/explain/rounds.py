@@ -112,13 +112,7 @@ class Rounds:
         adds to the false-positive rate on healthy records is measured by
         ``benchmarks/bench_explain_fp.py``.
         """
-        # the screen (:meth:`screen`) and the candidate's refit test the same effect from the
-        # same model: the least-squares fits are made once
-        key = (start, tuple(sorted(free.items())), tuple(e.name for e in members))
-        memo = self.__dict__.setdefault("_local_fits", {})
-        if key not in memo:
-            memo[key] = self._local_fits_of(start, free, members)
-        best, cost = memo[key]
+        best, cost = self._local_fits_of(start, free, members)
         if also is not None and also[1] < cost:
             best = also[0]
         return best
@@ -156,7 +150,6 @@ class Rounds:
         ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
         chosen = ranked if s.candidates <= 0 else ranked[:s.candidates]
         names_left = {e.name for e in remaining}
-        chosen.extend(c for c in self.screen(rnd, chosen) if c not in chosen)
         for cand in chosen:
             # an effect that needs structure the model lacks is tried with it (its signature
             # was traced so): the supply pressure with the orifice law
@@ -194,34 +187,6 @@ class Rounds:
                 rnd.candidates.append(cand)
                 chosen.append(cand)
         return rnd, chosen
-
-    def screen(self, rnd: Round, chosen: Sequence[Candidate]) -> list[Candidate]:
-        """The round's traced candidates that the trace did not rank among the best but whose
-        local test (:meth:`local_test`, the null's own statistic) leaves the band healthy
-        actuators reach on this command: they are refitted too. The trace ranks by a
-        linearised fit at the current model, which misses an effect whose signature the
-        model's other parameters absorb at first order (a supply pressure of 14 MPa on held
-        steps, with the flow gain and the flapper fitted); the null's test is run on every
-        effect of every healthy record, so running it on every candidate keeps the
-        calibration's meaning."""
-        if not self.thresholds:
-            return []
-        picked = {c.effect for c in chosen}
-        traced = {c.effect for c in rnd.candidates}
-        out = []
-        for cand in rnd.candidates:
-            effect = EFFECTS.get(cand.effect)
-            if (cand.effect in picked or effect is None or effect.name in STRUCTURAL
-                    or effect.name not in self.thresholds):
-                continue
-            needed = [EFFECTS[n] for n in missing_requirements(effect, self.current)]
-            if any(e.name not in traced for e in needed):
-                continue        # the structure it needs is fixed off or not a candidate
-            start, free = self.candidate_start([*needed, effect])
-            local = self.local_test(start, free, [*needed, effect])
-            if not self.within_healthy_at(effect, local):
-                out.append(cand)
-        return out
 
     def choose(self, rnd: Round, tried: list[Candidate]) -> Choice:
         """(d) :func:`choose` with this record's evaluations."""
