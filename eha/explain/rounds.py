@@ -112,14 +112,6 @@ class Rounds:
         adds to the false-positive rate on healthy records is measured by
         ``benchmarks/bench_explain_fp.py``.
         """
-        best, cost = self._local_fits_of(start, free, members)
-        if also is not None and also[1] < cost:
-            best = also[0]
-        return best
-
-    def _local_fits_of(self, start: LFParams, free: Mapping[str, tuple[float, float]],
-                       members: Sequence[Effect]) -> tuple[LFParams, float]:
-        """:meth:`local_test`'s two least-squares fits, the better one and its cost."""
         label = f"round {len(self.rounds)}: local test of " \
                 f"{'+'.join(e.name for e in members)}"
         best, cost = self.fit_with_cost(start, free, label, method="lm")
@@ -134,7 +126,9 @@ class Rounds:
                                                method="lm")
             if fit_cost < cost:
                 best, cost = fit, fit_cost
-        return best, cost
+        if also is not None and also[1] < cost:
+            best = also[0]
+        return best
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
