@@ -92,7 +92,7 @@ def run_hf_foreign(p, com, dither, steps_per_out, out, k3, asym, overlap):
     inv_q = 1.0 / q_xs if q_xs > 0.0 else 0.0
     psr = p[HF.PSR]; prv = p[HF.PRV]; pvap = p[HF.PVap]
     gp = p[HF.GP]; gq = p[HF.GQ]
-    xss = p[HF.PSR0] / gp
+    xss = p[HF.PSR0] / gp * (psr / p[HF.PSR0]) ** p[HF.XSSK]
     gpq_xss = gp / gq * xss
     den0 = gpq_xss * p[HF.Clk]
     pi0 = 0.5 * (psr + 2.0 * prv)

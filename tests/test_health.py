@@ -13,6 +13,7 @@ from eha.health.detection import (Calibration, alarm_value, calibrate_thresholds
                                   isolate_row, load_calibration, performance, statistic)
 from eha.identification.healthy import DetectionError
 from eha.health.assessment import FAULTS
+from eha.models.simulate import MODEL_VERSION
 
 
 def _row(means, grp="healthy", command="chirp_1cm", weights=None, spread=None):
@@ -100,7 +101,7 @@ def test_health_section_reports_every_problem():
 
 
 def test_calibration_file_checks(tmp_path):
-    good = Calibration(command="chirp_1cm", command_sig="x", t_end=1.0, model_version="1",
+    good = Calibration(command="chirp_1cm", command_sig="x", t_end=1.0, model_version=MODEL_VERSION,
                        base_model="calibrated", level=0.9, alpha=0.01, thresholds={"FDJ": 1.0},
                        healthy={}, fleet={})
     path = good.save(tmp_path / "cal.json")
@@ -186,7 +187,7 @@ def test_health_check_refuses_a_calibration_of_another_command_or_length(tmp_pat
     from eha.health.monitoring import _command_samples
 
     cal = Calibration(command="chirp_1cm", command_sig=command_signature(
-        _command_samples("chirp_1cm", 0.3)), t_end=0.3, model_version="1",
+        _command_samples("chirp_1cm", 0.3)), t_end=0.3, model_version=MODEL_VERSION,
         base_model="calibrated", level=0.9, alpha=0.01, thresholds={}, healthy={}, fleet={})
     cal_path = cal.save(tmp_path / "cal.json")
     mixed = _record(tmp_path / "mixed.csv", command="mixed")

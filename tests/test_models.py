@@ -399,3 +399,24 @@ def test_grid_recurrence_equals_direct_sin(name):
     t = np.arange(1_000_001) * 1e-5
     c = make_command(name)
     np.testing.assert_allclose(c.sample(t, uniform=True), c.sample(t), rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("model", ["hf", "lf"])
+def test_supply_pressure_law_sets_the_no_load_flow(model):
+    """docs/model.md §2, the supply-pressure law: with the listing's XSS = PSR0/GP (XSSK 0)
+    the no-load flow is GQ·XS·PSR/PSR0, so a 30 % lower supply slows the jack (on the step's
+    rising edge the closed loop partly makes up for it: 21 % slower, measured; asserted: more
+    than 15 %); with the text's XSS = PSR/GP (XSSK 1) the no-load flow is GQ·XS whatever the
+    supply: the same peak speed within 3 % (no jack friction; the spool's dynamics are the
+    same at both pressures)."""
+    extra = {"orifice_law": 1.0} if model == "lf" else {}
+
+    def peak_speed(**p):
+        trace = simulate(model, "step", {**extra, "FDJ": 0.0, **p}, t_end=0.1, seed=0)
+        return float(np.max(np.abs(trace["dxj"])))
+
+    nominal = peak_speed()
+    listing = peak_speed(PSR=1.4e7, XSSK=0.0)
+    text = peak_speed(PSR=1.4e7, XSSK=1.0)
+    assert listing / nominal < 0.85
+    assert text / nominal == pytest.approx(1.0, rel=0.03)

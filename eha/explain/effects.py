@@ -50,6 +50,15 @@ class Effect:
         the supply pressure only bounds P12, so ``supply_pressure`` requires ``orifice_law``.
         The residual loop tries such an effect together with the requirements the model
         lacks.
+    other_starts : tuple of mappings
+        Further values the loop's local test also starts from (on top of the probe), for a
+        parameter that sets another's sensitivity by orders of magnitude: the supply
+        pressure's law (``XSSK``), whose two ends are the thesis' two laws; from the probe's
+        end alone least squares stays in that law's basin.
+    statistic : str
+        The parameter whose distance from off the healthy null tests (:meth:`shift`), when
+        the effect fits more than one (the supply pressure, not its law); default: the one
+        fitted parameter.
     """
 
     name: str
@@ -58,6 +67,8 @@ class Effect:
     switch: Mapping[str, float] = field(default_factory=dict)
     probe: Mapping[str, float] = field(default_factory=dict)
     requires: tuple[str, ...] = ()
+    other_starts: tuple[Mapping[str, float], ...] = ()
+    statistic: str = ""
 
     @property
     def params(self) -> tuple[str, ...]:
@@ -96,13 +107,22 @@ class Effect:
         """``base`` with every parameter of the effect back at its off value."""
         return resolve("lf", self.off, base=base)
 
+    @property
+    def tested(self) -> str | None:
+        """The parameter the healthy null tests (:attr:`statistic`, or the one fitted
+        parameter); None for an effect of several parameters without one (the flapper
+        dynamics) or of none."""
+        if self.statistic:
+            return self.statistic
+        return next(iter(self.bounds)) if len(self.bounds) == 1 else None
+
     def shift(self, values: Mapping[str, float]) -> float:
-        """How far the fitted parameter in ``values`` is from its off value (its unit): the
-        statistic the residual loop tests against the healthy null (:mod:`eha.explain.null`).
-        An effect of several parameters (the flapper dynamics) has none: nan."""
-        if len(self.bounds) != 1:
+        """How far the tested parameter (:attr:`tested`) in ``values`` is from its off value
+        (its unit): the statistic the residual loop tests against the healthy null
+        (:mod:`eha.explain.null`). An effect without one (the flapper dynamics): nan."""
+        name = self.tested
+        if name is None:
             return math.nan
-        (name,) = self.bounds
         return abs(float(values[name]) - self.off[name])
 
     def shift_at(self, params: LFParams) -> float:
@@ -131,7 +151,8 @@ EFFECTS: dict[str, Effect] = {}
 
 def register(effect: Effect) -> Effect:
     """Add ``effect`` to :data:`EFFECTS` (its parameters must be LF parameters)."""
-    for name in (*effect.bounds, *effect.switch, *effect.probe):
+    for name in (*effect.bounds, *effect.switch, *effect.probe,
+                 *(n for start in effect.other_starts for n in start)):
         spec = SPECS.get(name)
         if spec is None or "lf" not in spec.models:
             raise ParameterError(f"effect {effect.name}: {name} is not an LF parameter")
@@ -139,6 +160,9 @@ def register(effect: Effect) -> Effect:
         if name not in EFFECTS:
             raise ParameterError(f"effect {effect.name}: requires {name}, not a registered "
                                  f"effect")
+    if effect.statistic and effect.statistic not in effect.bounds:
+        raise ParameterError(f"effect {effect.name}: statistic {effect.statistic} is not one of "
+                             f"its fitted parameters")
     for name, (lo, hi) in effect.bounds.items():
         spec = SPECS[name]
         if not (spec.lo <= lo < hi <= spec.hi):
@@ -182,8 +206,10 @@ register(Effect("motor_gain", "torque-motor gain change (demagnetisation)",
                 bounds={"GM": (0.002, 0.02)}, probe={"GM": 0.009}))
 register(Effect("clogging", "first-stage filter clogging: lower first-stage pressure gain",
                 bounds={"Kintas": (0.0, 0.95)}, probe={"Kintas": 0.3}))
-register(Effect("supply_pressure", "supply-pressure change",
-                bounds={"PSR": (5e6, 3e7)}, probe={"PSR": 1.8e7}, requires=("orifice_law",)))
+register(Effect("supply_pressure", "supply-pressure change (and its law, XSSK)",
+                bounds={"PSR": (5e6, 3e7), "XSSK": (0.0, 1.0)},
+                probe={"PSR": 1.8e7, "XSSK": 0.0}, requires=("orifice_law",),
+                other_starts=({"XSSK": 1.0},), statistic="PSR"))
 register(Effect("flapper_dynamics", "second-order first stage (flapper inertia and damping) "
                 "instead of a static one", bounds={"SNF": (300.0, 2e4), "ZF": (0.1, 2.0)},
                 probe={"SNF": 2513.0, "ZF": 0.6}))

@@ -59,10 +59,10 @@ class FinalCheck:
             start, free = self.candidate_start(members)
             for st in self.steps:           # every parameter of the final model free
                 free.update(EFFECTS[st.effect].bounds)
-            local = self.local_test(start, free, members)
+            local, _ = self.local_test(start, free, members)
             size = detectable.get(effect.name, math.inf)
             if effect.shift_at(local) > size:
-                (param,) = effect.params
+                param = effect.tested
                 out.append({"effect": effect.name, "param": param,
                             "value": float(getattr(local, param)),
                             "shift": float(effect.shift_at(local)),

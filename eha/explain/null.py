@@ -56,7 +56,7 @@ from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
-NULL_FORMAT = 5   # 5: the compass polish before least squares stops at 1e-4 of each range
+NULL_FORMAT = 6   # 6: the supply pressure's law (XSSK); the local test's other starts
 
 
 def noise_class(noise: float) -> float:
@@ -241,7 +241,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
             continue
         members = [EFFECTS[n] for n in missing_requirements(effect, loop.current)] + [effect]
         start, free_e = loop.candidate_start(members)
-        local = loop.local_test(start, free_e, members)
+        local, _ = loop.local_test(start, free_e, members)
         shifts[effect.name] = effect.shift_at(local)
         ev = loop.evaluate([local])[0]
         gains[effect.name] = (1.0 - ev.rmse_score / loop.cur.rmse_score
@@ -358,18 +358,19 @@ def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
     units, resolution = {}, {}
     for name in effects:
         effect = EFFECTS[name]
-        (param, (lo, hi)), = effect.bounds.items()
+        param = effect.tested
+        lo, hi = effect.bounds[param]
         units[name] = effect.units()[param]
         resolution[name] = RESOLUTION * (hi - lo)
     return units, resolution
 
 
 def covered_effects(effects: Sequence[str]) -> list[str]:
-    """The effects a null covers: those with exactly one fitted parameter that are not the
-    model's known structure."""
+    """The effects a null covers: those with a tested parameter
+    (:attr:`~eha.explain.effects.Effect.tested`) that are not the model's known structure."""
     from eha.explain.effects import EFFECTS
 
-    return [n for n in effects if n not in STRUCTURAL and len(EFFECTS[n].params) == 1]
+    return [n for n in effects if n not in STRUCTURAL and EFFECTS[n].tested is not None]
 
 
 def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str],

@@ -193,7 +193,7 @@ class ExplainResult:
             if name in added or not math.isfinite(e["detectable"]):
                 continue
             effect = EFFECTS[name]
-            (param,) = effect.params
+            param = effect.tested
             lines.append(f"{name}: not detectable on this command below a change of "
                          f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
                          f"{effect.off[param]:.4g})")

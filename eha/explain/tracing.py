@@ -1,6 +1,7 @@
 """Tracing the residual (step b of the loop): how much of it each effect's *signature* could
-explain (the change of the LF output when the effect is switched on at its probe value, a
-secant sensitivity, all effects in one batch of LF runs), and its correlation with signals.
+explain (the change of the LF output when the effect is switched on at its probe value, and at
+its other starts (:attr:`~eha.explain.effects.Effect.other_starts`), a secant sensitivity, all
+effects in one batch of LF runs), and its correlation with signals.
 """
 
 from __future__ import annotations
@@ -72,9 +73,18 @@ def trace_residual(record: Record, cur: Evaluation, free: Mapping[str, tuple[flo
         coef, *_ = np.linalg.lstsq(A, r, rcond=1e-10)
         return float(np.clip(1.0 - float(np.sum((r - A @ coef) ** 2)) / rr, 0.0, 1.0))
 
+    # an effect with other starts (the supply pressure's two laws) spans the signature of
+    # each: its probe's alone would hide the law it does not take
+    other = [(i, switch_on_with_requirements(e, cur.params).replace(**values))
+             for i, e in enumerate(effects) for values in e.other_starts]
+    columns = {i: [S[i]] for i in range(len(effects))}
+    if other:
+        xu = record.run([cur.params, *(params for _, params in other)])
+        for (i, _), row in zip(other, xu[1:]):
+            columns[i].append((row - xu[0])[:n_fit])
     base_explained = explained(J)
     cands = [Candidate(e.name, corr(r, S[i]) if np.all(np.isfinite(S[i])) else 0.0,
-                       max(explained(np.vstack([J, S[i:i + 1]])) - base_explained, 0.0))
+                       max(explained(np.vstack([J, *columns[i]])) - base_explained, 0.0))
              for i, e in enumerate(effects)]
     full = record.full(cur.params)
     dxj = full["dxj"][:n_fit]

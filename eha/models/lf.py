@@ -68,7 +68,9 @@ def _lf_loop(p, com, steps_per_out, out, orifice, dynamic_flapper):
     inv_cs = 1.0 / (p[LF.CSV] + asv * asv * gpfe / p[LF.GQF])
     xsm = p[LF.XSM]; fss = p[LF.FSS]; fds = fss / p[LF.FSDS]; eps = p[LF.eps]
     psr = p[LF.PSR]; gp = p[LF.GP]; gq = p[LF.GQ]; clk = p[LF.Clk]
-    xss = p[LF.PSR0] / gp
+    # the saturation opening's law in the supply pressure (the thesis' listing: PSR0/GP,
+    # its text: PSR/GP; XSSK interpolates, docs/model.md)
+    xss = p[LF.PSR0] / gp * (psr / p[LF.PSR0]) ** p[LF.XSSK]
     gpq_xss = gp / gq * xss
     den0 = gpq_xss * clk
     # linear law with leakage = small-opening limit of the orifice law (docs/model.md)

@@ -115,6 +115,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # fluid
     ParamSpec("PSR", "Pa", 2e7, 1e5, 1e8, "supply-return pressure"),
     ParamSpec("PSR0", "Pa", 2e7, 1e5, 1e8, "pressure at which GP and GQ are defined"),
+    ParamSpec("XSSK", "-", 0.0, 0.0, 1.0,
+              "supply-pressure law: spool saturation opening XSS = PSR0/GP*(PSR/PSR0)^XSSK "
+              "(0: the thesis' listing, flow at no load in proportion to PSR; 1: its text, "
+              "XSS = PSR/GP, flow independent of PSR; 0.5: an orifice's sqrt(PSR))"),
     ParamSpec("PRV", "Pa", 1e6, 0.0, 1e7, "return (tank) pressure"),
     ParamSpec("PVap", "Pa", 1e3, 0.0, 1e6, "oil vapour pressure"),
     ParamSpec("GP", "Pa/m", 1e11, 1e6, 1e14, "valve pressure gain", fault=True),

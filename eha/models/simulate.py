@@ -18,7 +18,7 @@ from eha.models.params import ModelParams, ParameterError, resolve
 #: Recorded sample period [s] (thesis: 100*DT).
 OUTPUT_DT = 1e-3
 #: Bumped whenever a kernel's equations change; part of every campaign run key.
-MODEL_VERSION = "1"
+MODEL_VERSION = "2"   # 2: XSSK, the supply-pressure law
 
 
 @dataclass(frozen=True)
