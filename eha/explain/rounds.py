@@ -167,16 +167,17 @@ class Rounds:
         ranked = sorted(rnd.candidates, key=lambda c: -c.explained)
         chosen = ranked if s.candidates <= 0 else ranked[:s.candidates]
         names_left = {e.name for e in remaining}
+        room = s.max_steps - len(self.steps)    # a combination adds one step per member
         for cand in chosen:
             # an effect that needs structure the model lacks is tried with it (its signature
             # was traced so): the supply pressure with the orifice law
             needed = missing_requirements(EFFECTS[cand.effect], self.current)
-            if needed and not set(needed) <= names_left:
-                continue        # the structure it needs is fixed off or not a candidate
+            if needed and (not set(needed) <= names_left or len(needed) + 1 > room):
+                continue        # the structure it needs is fixed off, not a candidate, or
+                                # there is no room for both
             if needed:
                 cand.effect = "+".join((*needed, cand.effect))
             self.try_candidate(cand)
-        room = s.max_steps - len(self.steps)    # a combination adds one step per member
         for combo in COMBINATIONS:
             if not set(combo) <= names_left or len(combo) > room:
                 continue
