@@ -12,7 +12,10 @@ sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noi
    declared faults drawn as the null draws them, seeds ``100000 + 1000 * command index + k``,
    disjoint from the null's) with the effect injected at its predicted detectable size, each
    put through the loop's local test (:func:`eha.explain.null.healthy_statistics`); the
-   fraction whose shift passes the threshold is the measured power of the gate at that size.
+   fraction whose shift passes the threshold is the measured power of the gate at that size;
+3. where that power is below 90 %, the same records again with the effect at 2, 4 and 8 times
+   the predicted size (``--escalate``), until 90 % of them pass: the smallest size tried that
+   does is the *measured* minimum detectable change (none when even 8 times does not).
 
 The gate is necessary for the loop to add an effect; the full loop also asks for a
 significant, specific gain, so the loop's own power can only be lower at a given size (the
@@ -77,6 +80,19 @@ def template(name: str):
     return from_arrays(df.t, df.com, df.xu, source=name, command_hold=hold)
 
 
+def injected_value(effect: str, size: float) -> float:
+    """The effect's parameter moved ``size`` from off in its direction of interest, within
+    the effect's and the parameter table's bounds."""
+    from eha.explain.effects import EFFECTS
+    from eha.models.params import SPECS
+
+    (param,) = EFFECTS[effect].params
+    off = EFFECTS[effect].off[param]
+    lo, hi = EFFECTS[effect].bounds[param]
+    return float(np.clip(off + DIRECTION.get(effect, 1.0) * size,
+                         max(lo, SPECS[param].lo), min(hi, SPECS[param].hi)))
+
+
 def _one(args):
     data, fit, effect, value, seed, settings = args
     from eha.explain.effects import EFFECTS
@@ -105,11 +121,17 @@ def plot(rows, path: Path) -> None:
             (param,) = EFFECTS[e].params
             x.append(r["detectable"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
                      if r else np.nan)
-        ax.barh(y, x, width, label=c)
+        bars = ax.barh(y, x, width, label=c)
         for yi, xi, e in zip(y, x, effects):
             r = next((r for r in rows if r["effect"] == e and r["command"] == c), None)
-            if r and np.isfinite(xi):   # the gate's measured power at that size
-                ax.text(xi * 1.05, yi, f"{r['power']:.0%}", va="center", fontsize=6)
+            if not (r and np.isfinite(xi)):
+                continue
+            ax.text(xi * 1.05, yi, f"{r['power']:.0%}", va="center", fontsize=6)
+            if r.get("measured_detectable") and r["measured_multiple"] > 1:
+                # the measured size (90 % of the records passed), where the prediction fell short
+                ax.plot(r["measured_detectable"] / abs(EFFECTS[e].probe[EFFECTS[e].params[0]]
+                                                       - EFFECTS[e].off[EFFECTS[e].params[0]]),
+                        yi, marker="|", ms=7, mew=2, color=bars.patches[0].get_facecolor())
     ax.set_xscale("log")
     ax.axvline(1.0, color="k", lw=0.8, ls="--")
     ax.set_yticks(range(len(effects)), effects)
@@ -117,7 +139,8 @@ def plot(rows, path: Path) -> None:
     ax.grid(True, axis="x", alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title("Residual loop: predicted smallest effect a 1-s record shows (alpha 0.05, "
-                 "90 % power);\nlabels: the gate's measured power at that size", fontsize=10)
+                 "90 % power);\nlabels: the gate's measured power at that size; ticks: the "
+                 "size where 90 % was measured", fontsize=10)
     fig.tight_layout()
     save(fig, path)
 
@@ -130,13 +153,14 @@ def main(argv=None) -> int:
     ap.add_argument("--records", type=int, default=5, help="records per effect and command")
     ap.add_argument("--alpha", type=float, default=0.05)
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--escalate", default="2,4,8",
+                    help="multiples of the predicted size tried where it falls short of 90 %%")
     ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_power")))
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
     from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.null import covered_effects, simulated_null
-    from eha.models.params import SPECS
 
     names = covered_effects(a.effects.split(",") if a.effects else list(EFFECTS))
     settings = LoopSettings(alpha=a.alpha)
@@ -150,47 +174,71 @@ def main(argv=None) -> int:
                               actuators=a.actuators, workers=a.workers)
         null_s = time.perf_counter() - t0
         thr, det = null.thresholds(a.alpha), null.detectable(a.alpha)
-        jobs, where = [], []
+        # level 1 is the predicted size; each further level only for the cells still short
+        sizes = {e: [] for e in names}            # (multiple, injected, power, shifts, gains)
+        todo = list(names)
+        for multiple in [1.0] + [float(m) for m in a.escalate.split(",") if m]:
+            jobs, where = [], []
+            for effect in todo:
+                value = injected_value(effect, multiple * det[effect])
+                if sizes[effect] and value == sizes[effect][-1][1]:
+                    continue                      # clipped at a bound: no larger size exists
+                for k in range(a.records):
+                    seed = 100000 + 1000 * COMMANDS.index(cname) + k
+                    jobs.append((data, fit, effect, value, seed, settings))
+                    where.append((effect, value))
+            if not jobs:
+                break
+            with ProcessPoolExecutor(a.workers, mp_context=get_context("spawn")) as pool:
+                results = list(pool.map(_one, jobs))
+            for effect in {e for e, _ in where}:
+                got = [r for (e, _), r in zip(where, results) if e == effect]
+                value = next(v for e, v in where if e == effect)
+                shifts = np.array([sh for sh, _ in got])
+                sizes[effect].append((multiple, value, float(np.mean(shifts > thr[effect])),
+                                      shifts, [g for _, g in got]))
+            todo = [e for e in todo if sizes[e] and sizes[e][-1][2] < 0.9]
         for effect in names:
+            multiple, value, power, shifts, gains = sizes[effect][0]
+            reached = next((lv for lv in sizes[effect] if lv[2] >= 0.9), None)
             (param,) = EFFECTS[effect].params
-            off = EFFECTS[effect].off[param]
-            lo, hi = EFFECTS[effect].bounds[param]
-            value = float(np.clip(off + DIRECTION.get(effect, 1.0) * det[effect],
-                                  max(lo, SPECS[param].lo), min(hi, SPECS[param].hi)))
-            for k in range(a.records):
-                seed = 100000 + 1000 * COMMANDS.index(cname) + k
-                jobs.append((data, fit, effect, value, seed, settings))
-                where.append((effect, value))
-        with ProcessPoolExecutor(a.workers, mp_context=get_context("spawn")) as pool:
-            results = list(pool.map(_one, jobs))
-        for effect in names:
-            got = [r for (e, _), r in zip(where, results) if e == effect]
-            value = next(v for e, v in where if e == effect)
-            shifts = np.array([s for s, _ in got])
-            row = {"command": cname, "effect": effect, "param": EFFECTS[effect].params[0],
+            row = {"command": cname, "effect": effect, "param": param,
                    "unit": null.units[effect], "threshold": thr[effect],
                    "detectable": det[effect], "injected": value,
-                   "power": float(np.mean(shifts > thr[effect])), "records": len(got),
+                   "power": power, "records": len(shifts),
                    "shift_median": float(np.median(shifts)),
-                   "gain_median": float(np.median([g for _, g in got])),
+                   "gain_median": float(np.median(gains)),
+                   "measured_detectable": (abs(reached[1] - EFFECTS[effect].off[param])
+                                           if reached else None),
+                   "measured_multiple": reached[0] if reached else None,
+                   "levels": [{"multiple": m, "injected": v, "power": pw}
+                              for m, v, pw, _, _ in sizes[effect]],
                    "null_seconds": null_s, "null_actuators": null.records}
             rows.append(row)
+            found = (f"{row['measured_detectable']:.3g} ({reached[0]:g}x)" if reached
+                     else f"> {sizes[effect][-1][0]:g}x")
             print(f"{cname:10s} {effect:17s} threshold {thr[effect]:9.3g} detectable "
                   f"{det[effect]:9.3g} {null.units[effect]:12s} power "
-                  f"{row['power']:.0%} of {len(got)} (median shift {row['shift_median']:.3g})",
-                  flush=True)
+                  f"{power:.0%} of {len(shifts)}; 90 % reached at {found}", flush=True)
         print(f"{cname}: null {null_s:.0f} s ({null.records} actuators)", flush=True)
     powers = [r["power"] for r in rows]
     summary = {"cells": len(rows), "median_power": float(np.median(powers)) if rows else None,
                "cells_at_90": int(sum(p >= 0.9 for p in powers)),
+               "cells_measured": int(sum(r["measured_detectable"] is not None for r in rows)),
+               "multiples": {str(m): int(sum(r["measured_multiple"] == m for r in rows))
+                             for m in sorted({r["measured_multiple"] for r in rows
+                                              if r["measured_multiple"] is not None})},
                "seconds": time.perf_counter() - t_start}
     print(f"{summary['cells_at_90']} of {len(rows)} cells reach 90 % power at the predicted "
-          f"size; median power {summary['median_power']:.0%}; {summary['seconds']:.0f} s")
+          f"size; median power {summary['median_power']:.0%}; 90 % reached within "
+          f"{a.escalate.split(',')[-1]}x in {summary['cells_measured']} (multiples "
+          f"{summary['multiples']}); {summary['seconds']:.0f} s")
     if a.plot:
         plot(rows, Path(a.plot))
     if a.json:
         out = {"benchmark": "bench_explain_power",
                "settings": {"alpha": a.alpha, "actuators": a.actuators, "records": a.records,
+                            "escalate": a.escalate,
                             "noise_m": NOISE, "commands": commands},
                "summary": summary, "rows": rows}
         write_result(Path(a.json), out)
