@@ -86,7 +86,7 @@ def injected_value(effect: str, size: float) -> float:
     from eha.explain.effects import EFFECTS
     from eha.models.params import SPECS
 
-    (param,) = EFFECTS[effect].params
+    param = EFFECTS[effect].tested
     off = EFFECTS[effect].off[param]
     lo, hi = EFFECTS[effect].bounds[param]
     return float(np.clip(off + DIRECTION.get(effect, 1.0) * size,
@@ -98,7 +98,7 @@ def _one(args):
     from eha.explain.effects import EFFECTS
     from eha.explain.null import healthy_record, healthy_statistics
 
-    (param,) = EFFECTS[effect].params
+    param = EFFECTS[effect].tested
     rec, _ = healthy_record(data, fit, seed, {param: value})
     shifts, gains, _ = healthy_statistics(rec, fit, [effect], settings)
     return shifts[effect], gains[effect]
@@ -118,7 +118,7 @@ def plot(rows, path: Path) -> None:
         x = []
         for e in effects:
             r = next((r for r in rows if r["effect"] == e and r["command"] == c), None)
-            (param,) = EFFECTS[e].params
+            param = EFFECTS[e].tested
             x.append(r["detectable"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
                      if r else np.nan)
         bars = ax.barh(y, x, width, label=c)
@@ -129,9 +129,11 @@ def plot(rows, path: Path) -> None:
             ax.text(xi * 1.05, yi, f"{r['power']:.0%}", va="center", fontsize=6)
             if r.get("measured_detectable") and r["measured_multiple"] > 1:
                 # the measured size (90 % of the records passed), where the prediction fell short
-                ax.plot(r["measured_detectable"] / abs(EFFECTS[e].probe[EFFECTS[e].params[0]]
-                                                       - EFFECTS[e].off[EFFECTS[e].params[0]]),
-                        yi, marker="|", ms=7, mew=2, color=bars.patches[0].get_facecolor())
+                param = EFFECTS[e].tested
+                ax.plot(r["measured_detectable"] / abs(EFFECTS[e].probe[param]
+                                                       - EFFECTS[e].off[param]),
+                        yi, marker="d", ms=6, mec="k", mew=0.8, ls="none",
+                        color=bars.patches[0].get_facecolor())
     ax.set_xscale("log")
     ax.axvline(1.0, color="k", lw=0.8, ls="--")
     ax.set_yticks(range(len(effects)), effects)
@@ -139,7 +141,7 @@ def plot(rows, path: Path) -> None:
     ax.grid(True, axis="x", alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title("Residual loop: predicted smallest effect a 1-s record shows (alpha 0.05, "
-                 "90 % power);\nlabels: the gate's measured power at that size; ticks: the "
+                 "90 % power);\nlabels: the gate's measured power at that size; diamonds: the "
                  "size where 90 % was measured", fontsize=10)
     fig.tight_layout()
     save(fig, path)
@@ -201,7 +203,7 @@ def main(argv=None) -> int:
         for effect in names:
             multiple, value, power, shifts, gains = sizes[effect][0]
             reached = next((lv for lv in sizes[effect] if lv[2] >= 0.9), None)
-            (param,) = EFFECTS[effect].params
+            param = EFFECTS[effect].tested
             row = {"command": cname, "effect": effect, "param": param,
                    "unit": null.units[effect], "threshold": thr[effect],
                    "detectable": det[effect], "injected": value,
