@@ -235,8 +235,7 @@ def main(argv=None) -> int:
           f"size; median power {summary['median_power']:.0%}; 90 % reached within "
           f"{a.escalate.split(',')[-1]}x in {summary['cells_measured']} (multiples "
           f"{summary['multiples']}); {summary['seconds']:.0f} s")
-    if a.plot:
-        plot(rows, Path(a.plot))
+    # the result file first: its provenance checks the tree before the plot changes it
     if a.json:
         out = {"benchmark": "bench_explain_power",
                "settings": {"alpha": a.alpha, "actuators": a.actuators, "records": a.records,
@@ -244,6 +243,8 @@ def main(argv=None) -> int:
                             "noise_m": NOISE, "commands": commands},
                "summary": summary, "rows": rows}
         write_result(Path(a.json), out)
+    if a.plot:
+        plot(rows, Path(a.plot))
     return 0
 
 
