@@ -7,12 +7,15 @@ sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noi
 1. the healthy null of the command (:func:`eha.explain.null.simulated_null`, ``--actuators``
    healthy HF actuators, cached like ``eha explain``'s), its threshold per effect at
    ``--alpha`` and its predicted minimum detectable effect (``Null.detectable``: the size that
-   the local test is predicted to push past the threshold in 90 % of records);
+   the local test is predicted to push past the threshold in 90 % of records; for an effect
+   tested by its footprint, the supply pressure, the drop whose footprint on the nominal
+   model is that size, :func:`parameter_size`);
 2. the check of that prediction: ``--records`` new HF records per effect (healthy scatter and
    declared faults drawn as the null draws them, seeds ``100000 + 1000 * command index + k``,
    disjoint from the null's) with the effect injected at its predicted detectable size, each
    put through the loop's local test (:func:`eha.explain.null.healthy_statistics`); the
-   fraction whose shift passes the threshold is the measured power of the gate at that size;
+   fraction whose statistic passes the threshold is the measured power of the gate at that
+   size;
 3. where that power is below 90 %, the same records again with the effect at 2, 4 and 8 times
    the predicted size (``--escalate``), until 90 % of them pass: the smallest size tried that
    does is the *measured* minimum detectable change (none when even 8 times does not).
@@ -93,6 +96,37 @@ def injected_value(effect: str, size: float) -> float:
                          max(lo, SPECS[param].lo), min(hi, SPECS[param].hi)))
 
 
+def parameter_size(data, effect: str, footprint: float) -> float:
+    """The size (from off, in the tested parameter's unit) at which an effect tested by its
+    footprint (the supply pressure) changes the nominal LF model's position on ``data`` by
+    ``footprint`` m RMS: the null's predicted detectable footprint as a change a user reads
+    (a supply-pressure drop with the HF's law, the listing's). Bisection between off and the
+    effect's bound; the bound when even it leaves a smaller footprint."""
+    from eha.explain.effects import EFFECTS
+    from eha.explain.record import Record, initial_position
+    from eha.explain.settings import STRUCTURAL
+    from eha.models.params import LFParams
+
+    e = EFFECTS[effect]
+    base = initial_position(data, LFParams())
+    for name in STRUCTURAL:                 # the null's baseline carries the structure
+        base = EFFECTS[name].switch_on(base)
+    record = Record(data, base)
+    off = e.off[e.tested]
+
+    def footprint_of(size: float) -> float:
+        return record.footprint(e, base.replace(**{e.tested: injected_value(effect, size)}))
+
+    top = abs(injected_value(effect, np.inf) - off)
+    if footprint_of(top) < footprint:
+        return top
+    lo, hi = 0.0, top
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if footprint_of(mid) < footprint else (lo, mid)
+    return hi
+
+
 def _one(args):
     data, fit, effect, value, seed, settings = args
     from eha.explain.effects import EFFECTS
@@ -119,7 +153,7 @@ def plot(rows, path: Path) -> None:
         for e in effects:
             r = next((r for r in rows if r["effect"] == e and r["command"] == c), None)
             param = EFFECTS[e].tested
-            x.append(r["detectable"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
+            x.append(r["predicted"] / abs(EFFECTS[e].probe[param] - EFFECTS[e].off[param])
                      if r else np.nan)
         bars = ax.barh(y, x, width, label=c)
         for yi, xi, e in zip(y, x, effects):
@@ -176,13 +210,16 @@ def main(argv=None) -> int:
                               actuators=a.actuators, workers=a.workers)
         null_s = time.perf_counter() - t0
         thr, det = null.thresholds(a.alpha), null.detectable(a.alpha)
+        # the predicted size in the tested parameter (a footprint's as the change making it)
+        predicted = {e: parameter_size(data, e, det[e]) if EFFECTS[e].footprint else det[e]
+                     for e in names}
         # level 1 is the predicted size; each further level only for the cells still short
         sizes = {e: [] for e in names}            # (multiple, injected, power, shifts, gains)
         todo = list(names)
         for multiple in [1.0] + [float(m) for m in a.escalate.split(",") if m]:
             jobs, where = [], []
             for effect in todo:
-                value = injected_value(effect, multiple * det[effect])
+                value = injected_value(effect, multiple * predicted[effect])
                 if sizes[effect] and value == sizes[effect][-1][1]:
                     continue                      # clipped at a bound: no larger size exists
                 for k in range(a.records):
@@ -206,7 +243,8 @@ def main(argv=None) -> int:
             param = EFFECTS[effect].tested
             row = {"command": cname, "effect": effect, "param": param,
                    "unit": null.units[effect], "threshold": thr[effect],
-                   "detectable": det[effect], "injected": value,
+                   "detectable": det[effect], "predicted": predicted[effect],
+                   "predicted_unit": EFFECTS[effect].units()[param], "injected": value,
                    "power": power, "records": len(shifts),
                    "shift_median": float(np.median(shifts)),
                    "gain_median": float(np.median(gains)),
@@ -220,7 +258,8 @@ def main(argv=None) -> int:
             found = (f"{row['measured_detectable']:.3g} ({reached[0]:g}x)" if reached
                      else f"> {sizes[effect][-1][0]:g}x")
             print(f"{cname:10s} {effect:17s} threshold {thr[effect]:9.3g} detectable "
-                  f"{det[effect]:9.3g} {null.units[effect]:12s} power "
+                  f"{det[effect]:9.3g} {null.units[effect]:12s} ({param} "
+                  f"{predicted[effect]:9.3g}) power "
                   f"{power:.0%} of {len(shifts)}; 90 % reached at {found}", flush=True)
         print(f"{cname}: null {null_s:.0f} s ({null.records} actuators)", flush=True)
     powers = [r["power"] for r in rows]

@@ -151,6 +151,36 @@ def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
                                                                                  {"FRC": 0.0})
 
 
+def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
+    """The supply pressure's statistic is what it does to the record, not its PSR: zero when
+    off, tens of µm for a 4 MPa drop with the listing's law (the flow falls with the supply),
+    and under 1 µm for the same drop with the text's law on a small sine that never nears
+    the pressure limit (PSR only bounds P12 there, so its fit moves freely on a healthy
+    record). The gate compares it with the null's threshold in metres."""
+    from eha.explain.effects import EFFECTS
+    from eha.explain import LoopSettings, ResidualLoop
+    from eha.identification.measured import from_arrays
+
+    t = np.arange(401) * 1e-3
+    com = 1e-3 * np.sin(2 * np.pi * 3 * t)
+    data = from_arrays(t, com, com + np.random.default_rng(1).normal(0, 1e-6, t.size))
+    supply = EFFECTS["supply_pressure"]
+    assert supply.footprint and supply.statistic_unit == "m" and supply.tested == "PSR"
+    null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6]})
+    loop = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=null)
+    base = EFFECTS["orifice_law"].switch_on(loop.current)
+    assert loop.statistic_at(supply, base) == 0.0
+    listing = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    text = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert listing > 1e-5 and text < 1e-6, (listing, text)
+    from eha.explain.null import _units
+    assert _units(["supply_pressure"]) == ({"supply_pressure": "m"}, {"supply_pressure": 1e-7})
+    assert loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert not loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    # a parameter-shift effect is tested as before
+    assert loop.statistic_at(EFFECTS["external_load"], base.replace(FRC=-30.0)) == 30.0
+
+
 def test_undetectable_lines_name_each_effect_not_added():
     from eha.explain import ExplainResult
 
@@ -162,6 +192,12 @@ def test_undetectable_lines_name_each_effect_not_added():
     assert len(lines) == 2 and lines[1].startswith("viscous_friction: not detectable on this "
                                                    "command below a change of")
     assert "in CJ (healthy 50)" in lines[1]
+    # an effect tested by its footprint states it in µm of position
+    res.null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6]}).summary(0.05)
+    (line,) = res.undetectable()
+    assert line.startswith("supply_pressure: not detectable on this command below a "
+                           "footprint of ") and " µm (the RMS change of the position that "\
+        "PSR+XSSK as fitted make against healthy PSR 2e+07 Pa)" in line, line
 
 
 def test_healthy_folder_needs_five_readable_records(tmp_path):

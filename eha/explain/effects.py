@@ -56,9 +56,19 @@ class Effect:
         pressure's law (``XSSK``), whose two ends are the thesis' two laws; from the probe's
         end alone least squares stays in that law's basin.
     statistic : str
-        The parameter whose distance from off the healthy null tests (:meth:`shift`), when
-        the effect fits more than one (the supply pressure, not its law); default: the one
-        fitted parameter.
+        The parameter a size of the effect is stated in (:attr:`tested`: injected by the
+        benchmarks, named in the report), when the effect fits more than one (the supply
+        pressure, not its law); default: the one fitted parameter. Unless ``footprint``, the
+        healthy null tests its distance from off (:meth:`shift`).
+    footprint : bool
+        The healthy null tests the effect's *footprint* on the record instead of a
+        parameter's shift: the RMS change of the simulated position when the effect is
+        switched off in the fitted model (:meth:`eha.explain.record.Record.footprint`, m).
+        For an effect whose parameters trade so that no one of them is identified on every
+        command: with the supply pressure's law near the text's (``XSSK`` 1) the pressure
+        ``PSR`` only bounds P12, so on a record that never reaches that bound a healthy fit
+        moves it by megapascals at no cost (healthy shifts up to 1.7-8.8 MPa), which hid a
+        real 4 MPa drop; its footprint stays under 2 µm there (docs/explain.md).
     """
 
     name: str
@@ -69,6 +79,7 @@ class Effect:
     requires: tuple[str, ...] = ()
     other_starts: tuple[Mapping[str, float], ...] = ()
     statistic: str = ""
+    footprint: bool = False
 
     @property
     def params(self) -> tuple[str, ...]:
@@ -83,6 +94,12 @@ class Effect:
 
     def units(self) -> dict[str, str]:
         return {n: SPECS[n].unit for n in self.bounds}
+
+    @property
+    def statistic_unit(self) -> str:
+        """Unit of the statistic the healthy null tests: m for a footprint, else the tested
+        parameter's."""
+        return "m" if self.footprint else self.units()[self.tested]
 
     def switch_on(self, base: LFParams, values: Mapping[str, float] | None = None) -> LFParams:
         """``base`` with the effect on: the switches set, fitted parameters at ``values``.
@@ -209,7 +226,7 @@ register(Effect("clogging", "first-stage filter clogging: lower first-stage pres
 register(Effect("supply_pressure", "supply-pressure change (and its law, XSSK)",
                 bounds={"PSR": (5e6, 3e7), "XSSK": (0.0, 1.0)},
                 probe={"PSR": 1.8e7, "XSSK": 0.0}, requires=("orifice_law",),
-                other_starts=({"XSSK": 1.0},), statistic="PSR"))
+                other_starts=({"XSSK": 1.0},), statistic="PSR", footprint=True))
 register(Effect("flapper_dynamics", "second-order first stage (flapper inertia and damping) "
                 "instead of a static one", bounds={"SNF": (300.0, 2e4), "ZF": (0.1, 2.0)},
                 probe={"SNF": 2513.0, "ZF": 0.6}))

@@ -61,13 +61,15 @@ class FinalCheck:
                 free.update(EFFECTS[st.effect].bounds)
             local, _ = self.local_test(start, free, members)
             size = detectable.get(effect.name, math.inf)
-            if effect.shift_at(local) > size:
+            statistic = self.statistic_at(effect, local)
+            if statistic > size:
                 param = effect.tested
                 out.append({"effect": effect.name, "param": param,
                             "value": float(getattr(local, param)),
-                            "shift": float(effect.shift_at(local)),
+                            "value_unit": effect.units()[param],
+                            "shift": float(statistic),
                             "threshold": float(self.thresholds[effect.name]),
-                            "detectable": float(size), "unit": effect.units()[param]})
+                            "detectable": float(size), "unit": effect.statistic_unit})
         return out
 
     def prune(self) -> list[Dismissal]:

@@ -36,10 +36,23 @@ class Fitting:
                    for n, (lo, hi) in effect.bounds.items())
 
     def within_healthy_at(self, effect: Effect, params: LFParams) -> bool:
-        """:meth:`within_healthy` of the effect's parameters in ``params`` (False for a
-        switch: a fit cannot put it back)."""
-        return bool(effect.params) and self.within_healthy(
-            effect, {n: getattr(params, n) for n in effect.params})
+        """:meth:`within_healthy` of the effect as fitted in ``params`` (False for a
+        switch: a fit cannot put it back); an effect tested by its footprint
+        (:attr:`~eha.explain.effects.Effect.footprint`) compares that with the threshold."""
+        if not effect.params:
+            return False
+        threshold = (self.thresholds or {}).get(effect.name)
+        if threshold is not None and effect.footprint:
+            return self.statistic_at(effect, params) <= threshold
+        return self.within_healthy(effect, {n: getattr(params, n) for n in effect.params})
+
+    def statistic_at(self, effect: Effect, params: LFParams) -> float:
+        """The statistic the healthy null tests for ``effect`` as fitted in ``params``: its
+        footprint on the record (m) or its tested parameter's shift from off
+        (:meth:`~eha.explain.effects.Effect.shift_at`)."""
+        if effect.footprint:
+            return self.record.footprint(effect, params)
+        return effect.shift_at(params)
 
     # -- evaluation and fitting ------------------------------------------------------------
     def evaluate(self, params: list[LFParams]) -> list[Evaluation]:

@@ -19,7 +19,9 @@ never fits above a few hundred). The null is
    added the structure), then each library effect refitted on top by the loop's local test
    (:meth:`eha.explain.loop.ResidualLoop.local_test`: least squares from the effect off and
    from its probe, the better fit); the statistic is the parameter's distance from its off value
-   (:meth:`eha.explain.effects.Effect.shift`);
+   (:meth:`eha.explain.effects.Effect.shift`), or for an effect whose parameters trade (the
+   supply pressure and its law) its footprint on the record, the RMS change of the position
+   it makes (:attr:`eha.explain.effects.Effect.footprint`);
 3. per effect, the threshold of the shared detection engine
    (:func:`eha.identification.healthy.tail_threshold`): a normal tail with probability ``alpha /
    m`` for ``m`` effects, so that a healthy record passes *any* effect's gate with probability at
@@ -49,6 +51,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_POWER,
+                                  FOOTPRINT_RESOLUTION,
                                   MIN_RECORDS, NOISE_CLASSES_PER_DECADE, RATIO_SPREAD,
                                   RESOLUTION, STRUCTURAL)
 from eha.errors import InputError
@@ -56,7 +59,7 @@ from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
-NULL_FORMAT = 6   # 6: the supply pressure's law (XSSK); the local test's other starts
+NULL_FORMAT = 7   # 7: the supply pressure tested by its footprint; 6: its law (XSSK)
 
 
 def noise_class(noise: float) -> float:
@@ -242,7 +245,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         members = [EFFECTS[n] for n in missing_requirements(effect, loop.current)] + [effect]
         start, free_e = loop.candidate_start(members)
         local, _ = loop.local_test(start, free_e, members)
-        shifts[effect.name] = effect.shift_at(local)
+        shifts[effect.name] = loop.statistic_at(effect, local)
         ev = loop.evaluate([local])[0]
         gains[effect.name] = (1.0 - ev.rmse_score / loop.cur.rmse_score
                               if loop.cur.rmse_score > 0 else 0.0)
@@ -358,10 +361,12 @@ def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
     units, resolution = {}, {}
     for name in effects:
         effect = EFFECTS[name]
-        param = effect.tested
-        lo, hi = effect.bounds[param]
-        units[name] = effect.units()[param]
-        resolution[name] = RESOLUTION * (hi - lo)
+        units[name] = effect.statistic_unit
+        if effect.footprint:
+            resolution[name] = FOOTPRINT_RESOLUTION
+        else:
+            lo, hi = effect.bounds[effect.tested]
+            resolution[name] = RESOLUTION * (hi - lo)
     return units, resolution
 
 

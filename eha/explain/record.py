@@ -47,6 +47,14 @@ class Record:
         return simulate_lf_batch(rows, self.com, self.steps_per_out, self.n_out, self.base,
                                  self.recorded_start, with_p12=with_p12)
 
+    def footprint(self, effect, params: LFParams) -> float:
+        """The effect's footprint on this record [m]: the RMS difference of the recorded
+        position between ``params`` and ``params`` with ``effect`` switched off (what the
+        effect as fitted does to the record, whatever its parameters trade;
+        :attr:`eha.explain.effects.Effect.footprint`)."""
+        xu = self.run([params, effect.switch_off(params)])
+        return rmse(xu[0], xu[1]) if np.all(np.isfinite(xu)) else math.inf
+
     def full(self, params: LFParams):
         if self.recorded_start is not None:
             params = params.replace(XJ0=float(xj0_for_recorded(

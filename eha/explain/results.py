@@ -137,6 +137,14 @@ class Round:
     candidates: list[Candidate]
 
 
+def _beyond(excluded: dict[str, Any]) -> str:
+    """How far a rival of the exclusion check went (:attr:`ExplainResult.not_excluded`)."""
+    if excluded["unit"] == "m" and excluded.get("value_unit", "m") != "m":
+        return (f"a footprint of {1e6 * excluded['shift']:.3g} µm, beyond the "
+                f"{1e6 * excluded['detectable']:.3g} µm this command shows")
+    return f"a change beyond the {excluded['detectable']:.3g} this command shows"
+
+
 @dataclass
 class ExplainResult:
     """Outcome of :func:`explain` (RMSE in metres)."""
@@ -194,9 +202,15 @@ class ExplainResult:
                 continue
             effect = EFFECTS[name]
             param = effect.tested
-            lines.append(f"{name}: not detectable on this command below a change of "
-                         f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
-                         f"{effect.off[param]:.4g})")
+            if effect.footprint:
+                lines.append(f"{name}: not detectable on this command below a footprint of "
+                             f"{1e6 * e['detectable']:.3g} µm (the RMS change of the position "
+                             f"that {'+'.join(effect.params)} as fitted make against healthy "
+                             f"{param} {effect.off[param]:.4g} {effect.units()[param]})")
+            else:
+                lines.append(f"{name}: not detectable on this command below a change of "
+                             f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
+                             f"{effect.off[param]:.4g})")
         return lines
 
     @property
@@ -226,8 +240,8 @@ class ExplainResult:
                 text += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
             return text + tentative
         if self.not_excluded:
-            rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} {e['unit']}, "
-                               f"a change beyond the {e['detectable']:.3g} this command shows)"
+            rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} "
+                               f"{e.get('value_unit', e['unit'])}, {_beyond(e)})"
                                for e in self.not_excluded)
             return (f"not uniquely explained: residual {1e6 * self.rmse_after:.3g} µm "
                     f"({ratio:.1f}× noise) with {'+'.join(self.effects) or 'the faults'}, "

@@ -63,7 +63,7 @@ class Rounds:
         added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
         cand.n_eff = ev.n_eff
         cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
-        cand.shifts = {e.name: e.shift_at(local) for e in tested}
+        cand.shifts = {e.name: self.statistic_at(e, local) for e in tested}
         if any(e.params and (self.within_healthy_at(e, local) if e in tested else
                              self.within_healthy(e, cand.params)) for e in members):
             # the fit left an effect within the band healthy actuators reach on this command:

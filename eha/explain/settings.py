@@ -134,6 +134,9 @@ DETECTION_POWER = 0.9
 #: otherwise give a zero threshold that any optimizer step crosses). It is the old
 #: "switched off" margin of the loop (0.1 % of the range).
 RESOLUTION = 1e-4
+#: Resolution of a footprint statistic (:attr:`eha.explain.effects.Effect.footprint`) [m]:
+#: a tenth of the 1 µm position noise of a typical record.
+FOOTPRINT_RESOLUTION = 1e-7
 #: Without a null (records made by the LF model itself) an effect is refused only when its fit
 #: switched it off: within this fraction of its search range from off (0.1 %, the loop's rule
 #: for effects without a tolerance before the null).
