@@ -148,6 +148,17 @@ def test_an_unspecific_round_names_what_it_set_aside_and_a_pair_that_stands_out_
     lone = choose([cand("delay", 0.40, p_value=0.2, n_eff=5)], SETTINGS, no_split,
                   never_refit)
     assert lone.best is None and lone.unspecific == []
+    # ... but names it as set aside for chance, which the loop's look-ahead extends on an
+    # unexplained record (supply + load on `mixed`: 12-13 % each, p 0.02 on 21 samples)
+    assert lone.insignificant == ["delay"]
+    load, supply = (cand("external_load", 0.132, p_value=0.02, n_eff=21),
+                    cand("supply_pressure", 0.118, p_value=0.03, n_eff=21, params=2))
+    both = choose([load, supply], SETTINGS, no_split, never_refit)
+    # (the supply's penalised score is below min_gain: only the load is set aside for chance)
+    assert both.best is None and both.insignificant == ["external_load"]
+    pair = cand("external_load+supply_pressure", 0.93, params=3, n_eff=21)
+    again = choose([load, supply, pair], SETTINGS, no_split, never_refit)
+    assert again.best is pair
 
 
 def test_a_large_gain_is_specific_even_with_an_equivalent_rival():

@@ -70,6 +70,9 @@ class Choice:
     #: candidates set aside because unrelated effects explain as much (:func:`unspecific`),
     #: best first
     unspecific: list[str] = field(default_factory=list)
+    #: candidates set aside because their gain was not significant on the record's effective
+    #: samples, best first
+    insignificant: list[str] = field(default_factory=list)
 
 
 NOTHING_IMPROVED = ("no candidate improved the model (every refit left its effect within its "
@@ -106,6 +109,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
         return Choice(None, stop=NOTHING_IMPROVED)
     superseded: set[str] = set()
     set_aside: list[str] = []
+    chance: list[str] = []
     known = {c.effect: c for c in tried}
     while True:
         pool = [c for c in tried if c.effect not in superseded]
@@ -131,8 +135,7 @@ def choose(tried: list[Candidate], settings: LoopSettings,
             # effects match: set it aside and try the next one; the reason of the last one
             # set aside is the stop reason when nothing else can win
             superseded.add(best.effect)
-            if rivals:
-                set_aside.append(best.effect)
+            (set_aside if rivals else chance).append(best.effect)
             if all(c.effect in superseded or c.score < settings.min_gain
                    or c.p_value >= settings.significance for c in tried):
                 why = (f"not significant on this record (p = {best.p_value:.2g} >= alpha "
@@ -144,7 +147,8 @@ def choose(tried: list[Candidate], settings: LoopSettings,
                 kind = "significant" if not rivals else "specific"
                 return Choice(None, superseded, stop=(
                     f"no {kind} effect left: best candidate {best.effect} reduces the RMSE "
-                    f"by {best.gain:.1%}, {why}"), unspecific=set_aside)
+                    f"by {best.gain:.1%}, {why}"), unspecific=set_aside,
+                    insignificant=chance)
             continue
         if len(names) == 1:
             break

@@ -227,7 +227,8 @@ class Rounds:
 
     def look_ahead(self, rnd: Round, tried: list[Candidate], choice: Choice) -> Choice:
         """(d) A round whose best candidates were all set aside as unspecific (unrelated
-        effects explain as much) may hold one of two effects that only stand out together:
+        effects explain as much), or as not significant on a record the model leaves
+        unexplained, may hold one of two effects that only stand out together:
         with a sensor bias found, a torque-motor hysteresis and a first-stage clogging each
         take a chirp's residual from 16 to 5.5 µm, a hinge moment alone nothing, hysteresis
         and hinge moment together 1.8 µm. For the :data:`LOOK_AHEAD` best set-aside
@@ -238,7 +239,7 @@ class Rounds:
         combination's split, then the confirmation). Returns the new choice, or ``choice``."""
         s = self.settings
         names_left = {e.name for e in self.remaining()}
-        heads = [name for name in choice.unspecific
+        heads = [name for name in [*choice.unspecific, *choice.insignificant]
                  if len(set(name.split("+")) - STRUCTURAL) == 1][:LOOK_AHEAD]
         room = s.max_steps - len(self.steps)
         known = {frozenset(c.effect.split("+")) for c in [*tried, *rnd.candidates]}
