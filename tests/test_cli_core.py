@@ -4,6 +4,8 @@ import subprocess
 import sys
 
 import pytest
+
+from helpers import invoke_eha
 from typer.testing import CliRunner
 
 from eha.cli import app
@@ -43,13 +45,24 @@ def test_simulate_writes_plot(tmp_path):
     (["--model", "lf", "--set", "GAI=0.1"], "GAI: not a parameter of the LF model"),
 ])
 def test_simulate_bad_input_fails_in_one_line_and_writes_nothing(tmp_path, args, message):
+    # in this process (typer's runner); the real process is checked once below
     out = tmp_path / "t.parquet"
-    proc = subprocess.run([sys.executable, "-m", "eha", "simulate", "--out", str(out), *args],
-                          capture_output=True, text=True)
+    proc = invoke_eha("simulate", "--out", str(out), *args)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], proc.stderr
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_bad_input_in_a_real_process_is_one_line_without_a_traceback(tmp_path):
+    out = tmp_path / "t.parquet"
+    proc = subprocess.run([sys.executable, "-m", "eha", "simulate", "--out", str(out),
+                           "--set", "BKL=1"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "BKL=1 is out of range; allowed range [0, 0.1] m" in lines[0], \
+        lines
+    assert not list(tmp_path.iterdir())
 
 
 def test_params_and_commands_list_everything():

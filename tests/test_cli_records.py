@@ -119,8 +119,8 @@ def test_a_record_in_millimetres_loads_through_the_command_line(tmp_path):
                    "lm", "--json", out, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "reference: " in proc.stdout and out.exists()
-    proc = run_eha("fdi", "--data", rec, "--columns", "t=time_s,signal=command_mm", "--json",
-                   tmp_path / "y.json")
+    proc = invoke_eha("fdi", "--data", rec, "--columns", "t=time_s,signal=command_mm", "--json",
+                      tmp_path / "y.json")
     assert "unknown signal 'signal'" in error_line(proc, 2)
     assert not (tmp_path / "y.json").exists()
 

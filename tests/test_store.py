@@ -9,6 +9,7 @@ import time
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from helpers import invoke_eha
 from typer.testing import CliRunner
 
 from eha.cli import app
@@ -128,17 +129,15 @@ def test_locked_database_gives_one_line_not_a_traceback(results, tmp_path):
         assert holder.stdout.readline().strip() == "locked"
         with pytest.raises(StoreError, match=f"locked by another process \\(PID {holder.pid}"):
             ResultStore(results)
+        # the commands in this process (the lock is the other process's, as for a user)
         for args in (["query", "SELECT 1"], ["export", "runs", "--csv", str(tmp_path / "r.csv")]):
-            proc = subprocess.run([sys.executable, "-m", "eha", *args, "--results", str(results)],
-                                  capture_output=True, text=True)
+            proc = invoke_eha(*args, "--results", str(results))
             lines = proc.stderr.strip().splitlines()
             assert proc.returncode == 2 and len(lines) == 1, proc.stderr
             assert f"is locked by another process (PID {holder.pid}" in lines[0]
         (tmp_path / "c.toml").write_text(SMALL)
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "eha", "campaign", "run",
-                               str(tmp_path / "c.toml"), "--results", str(results)],
-                              capture_output=True, text=True)
+        proc = invoke_eha("campaign", "run", str(tmp_path / "c.toml"), "--results", str(results))
         assert proc.returncode == 2 and "locked by another process" in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
         assert time.perf_counter() - t0 < 30
