@@ -177,6 +177,12 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     assert _units(["supply_pressure"]) == ({"supply_pressure": "m"}, {"supply_pressure": 1e-7})
     assert loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert not loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    # the size that makes a footprint: a drop with the listing's law; none with the text's
+    # (its PSR only bounds P12, which this small sine never nears)
+    (listing_law, psr), (text_law, none) = loop.record.footprint_size(supply, 5e-6, base)
+    assert listing_law == {"XSSK": 0.0} and text_law == {"XSSK": 1.0} and none is None
+    assert 1.5e7 < psr < 2e7
+    assert loop.statistic_at(supply, base.replace(PSR=psr)) == pytest.approx(5e-6, rel=1e-3)
     # a parameter-shift effect is tested as before
     assert loop.statistic_at(EFFECTS["external_load"], base.replace(FRC=-30.0)) == 30.0
 
@@ -194,10 +200,15 @@ def test_undetectable_lines_name_each_effect_not_added():
     assert "in CJ (healthy 50)" in lines[1]
     # an effect tested by its footprint states it in µm of position
     res.null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6]}).summary(0.05)
+    res.null["effects"]["supply_pressure"]["detectable_as"] = [
+        {"setting": {"XSSK": 0.0}, "param": "PSR", "value": 1.71e7},
+        {"setting": {"XSSK": 1.0}, "param": "PSR", "value": None}]
     (line,) = res.undetectable()
+    assert line.endswith("; made by PSR 1.71e+07 Pa at XSSK 0; no PSR down to 5e+06 Pa at "
+                         "XSSK 1)"), line
     assert line.startswith("supply_pressure: not detectable on this command below a "
                            "footprint of ") and " µm (the RMS change of the position that "\
-        "PSR+XSSK as fitted make against healthy PSR 2e+07 Pa)" in line, line
+        "PSR+XSSK as fitted make against healthy PSR 2e+07 Pa; made by" in line, line
 
 
 def test_healthy_folder_needs_five_readable_records(tmp_path):

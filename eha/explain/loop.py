@@ -11,7 +11,7 @@ import time
 from dataclasses import fields, replace
 from typing import Any, Callable, Iterable
 
-from eha.explain.effects import EFFECTS, Effect, get as get_effects
+from eha.explain.effects import EFFECTS, Effect, get as get_effects, missing_requirements
 from eha.explain.decide import edge_of_spread
 from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitting
@@ -334,7 +334,28 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             beyond_healthy=flagged, not_excluded=self.rivals,
             interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
-            null=self.null.summary(s.alpha) if self.null is not None else None)
+            null=self.null_summary())
+
+    def null_summary(self) -> dict | None:
+        """The null's summary at ``alpha`` (:meth:`eha.explain.null.Null.summary`), with, for
+        an effect tested by its footprint, the parameter values that make the detectable
+        footprint on this record from the final model (``detectable_as``: a user reads a
+        supply pressure, not micrometres)."""
+        if self.null is None:
+            return None
+        summary = self.null.summary(self.settings.alpha)
+        for name, entry in summary["effects"].items():
+            effect = EFFECTS.get(name)
+            if effect is None or not effect.footprint or not math.isfinite(entry["detectable"]):
+                continue
+            base = self.current
+            for needed in missing_requirements(effect, base):
+                base = EFFECTS[needed].switch_on(base)
+            entry["detectable_as"] = [
+                {"setting": setting, "param": effect.tested, "value": value}
+                for setting, value in self.record.footprint_size(
+                    effect, entry["detectable"], effect.switch_off(base))]
+        return summary
 
     def final_intervals(self) -> tuple[dict[str, tuple[float, float]], tuple[str, ...], float,
                                        bool]:

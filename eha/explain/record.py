@@ -55,6 +55,38 @@ class Record:
         xu = self.run([params, effect.switch_off(params)])
         return rmse(xu[0], xu[1]) if np.all(np.isfinite(xu)) else math.inf
 
+    def footprint_size(self, effect, footprint: float, base: LFParams
+                       ) -> list[tuple[dict[str, float], float | None]]:
+        """The tested parameter's value (:attr:`~eha.explain.effects.Effect.tested`, moved
+        from off towards its lower bound: a supply-pressure drop) at which ``effect`` leaves
+        a footprint of ``footprint`` m on this record from ``base``, for each setting of its
+        other parameters the loop starts from (the probe's and ``other_starts``: the supply
+        pressure's two laws). Bisection; None where even the bound leaves less.
+
+        Returns
+        -------
+        list of (setting, value)
+            ``setting`` the other parameters' values, ``value`` the tested parameter's.
+        """
+        name = effect.tested
+        off, lo = effect.off[name], effect.bounds[name][0]
+        out = []
+        for start in (effect.probe, *effect.other_starts):
+            setting = {p: v for p, v in {**effect.probe, **start}.items() if p != name}
+
+            def fp(value: float) -> float:
+                return self.footprint(effect, effect.switch_on(base, {**setting, name: value}))
+
+            if not fp(lo) >= footprint:
+                out.append((setting, None))
+                continue
+            near, far = off, lo
+            for _ in range(24):             # 1e-7 of the range: well below any fit's spread
+                mid = 0.5 * (near + far)
+                near, far = (mid, far) if fp(mid) < footprint else (near, mid)
+            out.append((setting, far))
+        return out
+
     def full(self, params: LFParams):
         if self.recorded_start is not None:
             params = params.replace(XJ0=float(xj0_for_recorded(

@@ -203,10 +203,17 @@ class ExplainResult:
             effect = EFFECTS[name]
             param = effect.tested
             if effect.footprint:
+                unit = effect.units()[param]
+                sizes = "; ".join(
+                    (f"{param} {a['value']:.3g} {unit}" if a["value"] is not None else
+                     f"no {param} down to {effect.bounds[param][0]:.3g} {unit}")
+                    + "".join(f" at {k} {v:g}" for k, v in a["setting"].items())
+                    for a in e.get("detectable_as", []))
                 lines.append(f"{name}: not detectable on this command below a footprint of "
                              f"{1e6 * e['detectable']:.3g} µm (the RMS change of the position "
                              f"that {'+'.join(effect.params)} as fitted make against healthy "
-                             f"{param} {effect.off[param]:.4g} {effect.units()[param]})")
+                             f"{param} {effect.off[param]:.4g} {unit}"
+                             + (f"; made by {sizes}" if sizes else "") + ")")
             else:
                 lines.append(f"{name}: not detectable on this command below a change of "
                              f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
