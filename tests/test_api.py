@@ -72,6 +72,7 @@ def test_every_exported_function_has_an_example():
     assert missing == []
 
 
+@pytest.mark.slow   # end to end: the examples run as written (a campaign, a pool)
 def test_api_doc_quick_examples_run(tmp_path):
     quick = [c for slow, c in _blocks() if not slow]
     assert len(quick) >= 4

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: What a reference to a file outside the repository looks like (the specification and the
@@ -78,6 +80,7 @@ def _command_lines() -> list[str]:
     return [ln for ln in lines if ln and not ln.startswith("#")]
 
 
+@pytest.mark.slow   # end to end: the README run as written in a real process
 def test_readme_python_snippets_run(tmp_path):
     blocks = _readme_blocks("python")
     assert blocks
@@ -86,6 +89,7 @@ def test_readme_python_snippets_run(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
+@pytest.mark.slow   # end to end: the README run as written in a real process
 def test_readme_cheap_commands_run(tmp_path):
     lines = _command_lines()
     for cmd in RUN:
