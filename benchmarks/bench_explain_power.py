@@ -99,9 +99,9 @@ def injected_value(effect: str, size: float) -> float:
 def parameter_size(data, effect: str, footprint: float) -> float:
     """The size (from off, in the tested parameter's unit) at which an effect tested by its
     footprint (the supply pressure) changes the nominal LF model's position on ``data`` by
-    ``footprint`` m RMS: the null's predicted detectable footprint as a change a user reads
-    (a supply-pressure drop with the HF's law, the listing's). Bisection between off and the
-    effect's bound; the bound when even it leaves a smaller footprint."""
+    ``footprint`` m RMS, with its other parameters at their probe (the supply pressure's
+    law at the listing's, the HF's): :meth:`eha.explain.record.Record.footprint_size`; the
+    effect's bound when even it leaves a smaller footprint."""
     from eha.explain.effects import EFFECTS
     from eha.explain.record import Record, initial_position
     from eha.explain.settings import STRUCTURAL
@@ -111,20 +111,9 @@ def parameter_size(data, effect: str, footprint: float) -> float:
     base = initial_position(data, LFParams())
     for name in STRUCTURAL:                 # the null's baseline carries the structure
         base = EFFECTS[name].switch_on(base)
-    record = Record(data, base)
+    (_, value), *_ = Record(data, base).footprint_size(e, footprint, base)
     off = e.off[e.tested]
-
-    def footprint_of(size: float) -> float:
-        return record.footprint(e, base.replace(**{e.tested: injected_value(effect, size)}))
-
-    top = abs(injected_value(effect, np.inf) - off)
-    if footprint_of(top) < footprint:
-        return top
-    lo, hi = 0.0, top
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if footprint_of(mid) < footprint else (lo, mid)
-    return hi
+    return abs((value if value is not None else e.bounds[e.tested][0]) - off)
 
 
 def _one(args):
