@@ -124,7 +124,8 @@ def _one(args):
     param = EFFECTS[effect].tested
     rec, _ = healthy_record(data, fit, seed, {param: value})
     shifts, gains, _ = healthy_statistics(rec, fit, [effect], settings)
-    return shifts[effect], gains[effect]
+    second = EFFECTS[effect].shift_key
+    return shifts[effect], gains[effect], (shifts[second] if second else None)
 
 
 def plot(rows, path: Path) -> None:
@@ -222,9 +223,14 @@ def main(argv=None) -> int:
             for effect in {e for e, _ in where}:
                 got = [r for (e, _), r in zip(where, results) if e == effect]
                 value = next(v for e, v in where if e == effect)
-                shifts = np.array([sh for sh, _ in got])
-                sizes[effect].append((multiple, value, float(np.mean(shifts > thr[effect])),
-                                      shifts, [g for _, g in got]))
+                shifts = np.array([sh for sh, _, _ in got])
+                # the gate: the statistic past its threshold, or (an effect tested by its
+                # footprint) its parameter's shift past that one's
+                second = EFFECTS[effect].shift_key
+                passed = [sh > thr[effect] or (second is not None and other > thr[second])
+                          for sh, _, other in got]
+                sizes[effect].append((multiple, value, float(np.mean(passed)),
+                                      shifts, [g for _, g, _ in got]))
             todo = [e for e in todo if sizes[e] and sizes[e][-1][2] < 0.9]
         for effect in names:
             multiple, value, power, shifts, gains = sizes[effect][0]

@@ -173,10 +173,24 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     listing = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
     text = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert listing > 1e-5 and text < 1e-6, (listing, text)
-    from eha.explain.null import _units
-    assert _units(["supply_pressure"]) == ({"supply_pressure": "m"}, {"supply_pressure": 1e-7})
+    from eha.explain.null import _units, statistic_keys
+    units, resolution = _units(["supply_pressure"])
+    assert units == {"supply_pressure": "m", "supply_pressure.PSR": "Pa"}
+    assert resolution == {"supply_pressure": 1e-7, "supply_pressure.PSR": pytest.approx(2500.0)}
     assert loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert not loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    # with the PSR shift as second statistic (each at half the level) a drop the footprint
+    # misses passes by its shift: 4 MPa against a healthy spread of ~1 MPa
+    assert statistic_keys(["leakage", "supply_pressure"]) == [
+        "leakage", "supply_pressure", "supply_pressure.PSR"]
+    both = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6],
+                  "supply_pressure.PSR": [1e5, 8e5, 3e5, 6e5, 2e5]})
+    loop2 = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=both)
+    assert not loop2.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert loop2.within_healthy_at(supply, base.replace(PSR=1.95e7, XSSK=1.0))
+    summary = both.summary(0.05)
+    assert list(summary["effects"]) == ["supply_pressure"]
+    assert summary["effects"]["supply_pressure"]["shift"]["param"] == "PSR"
     # the size that makes a footprint: a drop with the listing's law; none with the text's
     # (its PSR only bounds P12, which this small sine never nears)
     (listing_law, psr), (text_law, none) = loop.record.footprint_size(supply, 5e-6, base)
@@ -199,13 +213,14 @@ def test_undetectable_lines_name_each_effect_not_added():
                                                    "command below a change of")
     assert "in CJ (healthy 50)" in lines[1]
     # an effect tested by its footprint states it in µm of position
-    res.null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6]}).summary(0.05)
+    res.null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6],
+                      "supply_pressure.PSR": [1e5, 8e5, 3e5, 6e5, 2e5]}).summary(0.05)
     res.null["effects"]["supply_pressure"]["detectable_as"] = [
         {"setting": {"XSSK": 0.0}, "param": "PSR", "value": 1.71e7},
         {"setting": {"XSSK": 1.0}, "param": "PSR", "value": None}]
     (line,) = res.undetectable()
-    assert line.endswith("; made by PSR 1.71e+07 Pa at XSSK 0; no PSR down to 5e+06 Pa at "
-                         "XSSK 1)"), line
+    assert "; made by PSR 1.71e+07 Pa at XSSK 0; no PSR down to 5e+06 Pa at XSSK 1) and a "\
+        "change of " in line and line.endswith(" in PSR"), line
     assert line.startswith("supply_pressure: not detectable on this command below a "
                            "footprint of ") and " µm (the RMS change of the position that "\
         "PSR+XSSK as fitted make against healthy PSR 2e+07 Pa; made by" in line, line
@@ -264,7 +279,10 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     names = covered_effects(list(EFFECTS))
     null = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
                           workers=1, fdi_options=opts)
-    assert set(null.statistics) == set(names) and null.records == 5
+    from eha.explain.null import statistic_keys
+    keys = statistic_keys(names)            # the supply pressure's footprint and PSR shift
+    assert set(null.statistics) == set(keys) and "supply_pressure.PSR" in keys
+    assert null.records == 5
     assert all(len(v) == 5 and all(x >= 0 for x in v) for v in null.statistics.values())
     assert list((tmp_path / "cache" / "explain-null").glob("*.json"))
     again = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
@@ -278,7 +296,7 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     healthy, _ = healthy_record(data, DEFAULT_FAULT_BOUNDS, 777)
     shifts, _, _ = healthy_statistics(healthy, DEFAULT_FAULT_BOUNDS, names, settings,
                                    fdi_options=opts)
-    assert set(shifts) == set(names) and all(math.isfinite(v) for v in shifts.values())
+    assert set(shifts) == set(keys) and all(math.isfinite(v) for v in shifts.values())
 
 
 def test_residual_limit_is_the_healthy_ratio_tail_capped_at_the_flag_ratio():

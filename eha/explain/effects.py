@@ -61,9 +61,11 @@ class Effect:
         pressure, not its law); default: the one fitted parameter. Unless ``footprint``, the
         healthy null tests its distance from off (:meth:`shift`).
     footprint : bool
-        The healthy null tests the effect's *footprint* on the record instead of a
-        parameter's shift: the RMS change of the simulated position when the effect is
-        switched off in the fitted model (:meth:`eha.explain.record.Record.footprint`, m).
+        The healthy null also tests the effect's *footprint* on the record: the RMS change of
+        the simulated position when the effect is switched off in the fitted model
+        (:meth:`eha.explain.record.Record.footprint`, m), beside the tested parameter's shift
+        (:attr:`shift_key`); the effect passes the gate when either passes its threshold,
+        each at half the level (union bound).
         For an effect whose parameters trade so that no one of them is identified on every
         command: with the supply pressure's law near the text's (``XSSK`` 1) the pressure
         ``PSR`` only bounds P12, so on a record that never reaches that bound a healthy fit
@@ -94,6 +96,12 @@ class Effect:
 
     def units(self) -> dict[str, str]:
         return {n: SPECS[n].unit for n in self.bounds}
+
+    @property
+    def shift_key(self) -> str | None:
+        """For an effect tested by its footprint, the null's key of its second statistic,
+        the tested parameter's shift (``"supply_pressure.PSR"``); else None."""
+        return f"{self.name}.{self.tested}" if self.footprint else None
 
     @property
     def statistic_unit(self) -> str:

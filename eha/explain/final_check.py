@@ -62,7 +62,10 @@ class FinalCheck:
             local, _ = self.local_test(start, free, members)
             size = detectable.get(effect.name, math.inf)
             statistic = self.statistic_at(effect, local)
-            if statistic > size:
+            beyond = statistic > size or (
+                effect.shift_key is not None
+                and effect.shift_at(local) > detectable.get(effect.shift_key, math.inf))
+            if beyond:
                 param = effect.tested
                 out.append({"effect": effect.name, "param": param,
                             "value": float(getattr(local, param)),

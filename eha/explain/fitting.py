@@ -4,6 +4,7 @@ effect's fit must leave: the :class:`Fitting` part of :class:`eha.explain.loop.R
 
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import numpy as np
@@ -41,9 +42,13 @@ class Fitting:
         (:attr:`~eha.explain.effects.Effect.footprint`) compares that with the threshold."""
         if not effect.params:
             return False
-        threshold = (self.thresholds or {}).get(effect.name)
+        thresholds = self.thresholds or {}
+        threshold = thresholds.get(effect.name)
         if threshold is not None and effect.footprint:
-            return self.statistic_at(effect, params) <= threshold
+            # either statistic past its threshold passes the gate (each at half the level)
+            shift_threshold = thresholds.get(effect.shift_key, math.inf)
+            return (self.statistic_at(effect, params) <= threshold
+                    and effect.shift_at(params) <= shift_threshold)
         return self.within_healthy(effect, {n: getattr(params, n) for n in effect.params})
 
     def statistic_at(self, effect: Effect, params: LFParams) -> float:

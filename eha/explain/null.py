@@ -59,7 +59,7 @@ from eha.models import use_one_numba_thread
 from eha.identification.healthy import command_signature, draw_actuator, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).
-NULL_FORMAT = 7   # 7: the supply pressure tested by its footprint; 6: its law (XSSK)
+NULL_FORMAT = 8   # 8: the supply pressure's footprint and PSR shift; 6: its law (XSSK)
 
 
 def noise_class(noise: float) -> float:
@@ -124,8 +124,10 @@ class Null:
     format: int = NULL_FORMAT
 
     def thresholds(self, alpha: float) -> dict[str, float]:
-        """Per effect, the statistic a healthy record exceeds with probability ``alpha / m``
-        (``m`` effects; :func:`eha.identification.healthy.tail_threshold`)."""
+        """Per statistic (an effect's, and the second of one tested by its footprint: its
+        :attr:`~eha.explain.effects.Effect.shift_key`), the value a healthy record exceeds
+        with probability ``alpha / m`` (``m`` statistics;
+        :func:`eha.identification.healthy.tail_threshold`)."""
         m = max(len(self.statistics), 1)
         return {name: tail_threshold(values, alpha / m, self.resolution.get(name, 0.0))[0]
                 for name, values in self.statistics.items()}
@@ -160,16 +162,24 @@ class Null:
     def summary(self, alpha: float) -> dict[str, Any]:
         """The JSON of the null for a report: source, thresholds, detectable sizes."""
         thr, det = self.thresholds(alpha), self.detectable(alpha)
+        effects = {name: {"threshold": thr[name], "detectable": det[name],
+                          "unit": self.units.get(name, ""),
+                          "healthy_max": float(np.max(v)) if v else math.nan}
+                   for name, v in self.statistics.items() if "." not in name}
+        for key, v in self.statistics.items():
+            if "." in key and key.split(".")[0] in effects:
+                name, param = key.split(".", 1)
+                effects[name]["shift"] = {"param": param, "threshold": thr[key],
+                                          "detectable": det[key],
+                                          "unit": self.units.get(key, ""),
+                                          "healthy_max": float(np.max(v)) if v else math.nan}
         return {"source": self.source, "key": self.key, "records": self.records,
                 "alpha": alpha, "seconds": self.seconds,
                 "healthy_residual_ratio": [float(np.min(self.residual_ratios)),
                                            float(np.max(self.residual_ratios))]
                 if self.residual_ratios else None,
                 "residual_limit": self.residual_limit(alpha),
-                "effects": {name: {"threshold": thr[name], "detectable": det[name],
-                                   "unit": self.units.get(name, ""),
-                                   "healthy_max": float(np.max(v)) if v else math.nan}
-                            for name, v in self.statistics.items()}}
+                "effects": effects}
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -246,6 +256,8 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         start, free_e = loop.candidate_start(members)
         local, _ = loop.local_test(start, free_e, members)
         shifts[effect.name] = loop.statistic_at(effect, local)
+        if effect.shift_key:
+            shifts[effect.shift_key] = effect.shift_at(local)
         ev = loop.evaluate([local])[0]
         gains[effect.name] = (1.0 - ev.rmse_score / loop.cur.rmse_score
                               if loop.cur.rmse_score > 0 else 0.0)
@@ -355,18 +367,32 @@ def _changed(base) -> dict[str, float]:
             if f.name != "XJ0" and getattr(base, f.name) != getattr(nominal, f.name)}
 
 
+def statistic_keys(effects: Sequence[str]) -> list[str]:
+    """The null's statistics of ``effects``: each effect's name, and for one tested by its
+    footprint also its parameter's shift (:attr:`~eha.explain.effects.Effect.shift_key`)."""
+    from eha.explain.effects import EFFECTS
+
+    keys = []
+    for name in effects:
+        keys.append(name)
+        if EFFECTS[name].shift_key:
+            keys.append(EFFECTS[name].shift_key)
+    return keys
+
+
 def _units(effects: Sequence[str]) -> tuple[dict[str, str], dict[str, float]]:
     from eha.explain.effects import EFFECTS
 
     units, resolution = {}, {}
     for name in effects:
         effect = EFFECTS[name]
+        param = effect.tested
+        lo, hi = effect.bounds[param]
         units[name] = effect.statistic_unit
-        if effect.footprint:
-            resolution[name] = FOOTPRINT_RESOLUTION
-        else:
-            lo, hi = effect.bounds[effect.tested]
-            resolution[name] = RESOLUTION * (hi - lo)
+        resolution[name] = FOOTPRINT_RESOLUTION if effect.footprint else RESOLUTION * (hi - lo)
+        if effect.shift_key:
+            units[effect.shift_key] = effect.units()[param]
+            resolution[effect.shift_key] = RESOLUTION * (hi - lo)
     return units, resolution
 
 
@@ -446,7 +472,8 @@ def _assemble(source: str, key: str, names: Sequence[str],
               results: Sequence[tuple[dict[str, float], dict[str, float], float]],
               seconds: float) -> Null:
     units, resolution = _units(names)
-    stats = {n: [float(r[0][n]) for r in results if n in r[0]] for n in names}
+    keys = statistic_keys(names)
+    stats = {n: [float(r[0][n]) for r in results if n in r[0]] for n in keys}
     gains = {n: [float(r[1][n]) for r in results if n in r[1]] for n in names}
     return Null(source=source, key=key, statistics=stats, gains=gains, resolution=resolution,
                 units=units, records=len(results), seconds=seconds,
@@ -494,5 +521,6 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
 
 
 __all__ = ["Null", "NullError", "simulated_null", "records_null", "healthy_statistics",
+           "statistic_keys",
            "healthy_record", "load_null", "cache_dir", "null_key", "covered_effects",
            "noise_class", "NULL_FORMAT"]

@@ -209,11 +209,14 @@ class ExplainResult:
                      f"no {param} down to {effect.bounds[param][0]:.3g} {unit}")
                     + "".join(f" at {k} {v:g}" for k, v in a["setting"].items())
                     for a in e.get("detectable_as", []))
+                shift = e.get("shift")
+                also = (f" and a change of {shift['detectable']:.3g} {shift['unit']} in "
+                        f"{shift['param']}" if shift else "")
                 lines.append(f"{name}: not detectable on this command below a footprint of "
                              f"{1e6 * e['detectable']:.3g} µm (the RMS change of the position "
                              f"that {'+'.join(effect.params)} as fitted make against healthy "
                              f"{param} {effect.off[param]:.4g} {unit}"
-                             + (f"; made by {sizes}" if sizes else "") + ")")
+                             + (f"; made by {sizes}" if sizes else "") + ")" + also)
             else:
                 lines.append(f"{name}: not detectable on this command below a change of "
                              f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "

@@ -64,6 +64,7 @@ class Rounds:
         cand.n_eff = ev.n_eff
         cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
         cand.shifts = {e.name: self.statistic_at(e, local) for e in tested}
+        cand.shifts.update({e.shift_key: e.shift_at(local) for e in tested if e.shift_key})
         if any(e.params and (self.within_healthy_at(e, local) if e in tested else
                              self.within_healthy(e, cand.params)) for e in members):
             # the fit left an effect within the band healthy actuators reach on this command:
