@@ -13,7 +13,7 @@ sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noi
 2. the check of that prediction: ``--records`` new HF records per effect (healthy scatter and
    declared faults drawn as the null draws them, seeds ``100000 + 1000 * command index + k``,
    disjoint from the null's) with the effect injected at its predicted detectable size, each
-   put through the loop's local test (:func:`eha.explain.null.healthy_statistics`); the
+   put through the loop's local test (:func:`eha.explain.healthy_fleet.healthy_statistics`); the
    fraction whose statistic passes the threshold is the measured power of the gate at that
    size;
 3. where that power is below 90 %, the same records again with the effect at 2, 4 and 8 times
@@ -35,7 +35,6 @@ provenance: commit, date, machine, cores, load).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -119,7 +118,7 @@ def parameter_size(data, effect: str, footprint: float) -> float:
 def _one(args):
     data, fit, effect, value, seed, settings = args
     from eha.explain.effects import EFFECTS
-    from eha.explain.null import healthy_record, healthy_statistics
+    from eha.explain.healthy_fleet import healthy_record, healthy_statistics
 
     param = EFFECTS[effect].tested
     rec, _ = healthy_record(data, fit, seed, {param: value})

@@ -1,7 +1,5 @@
 """Campaign files: expansion, run keys, validation (one line per problem), CLI validate/plan."""
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -10,6 +8,7 @@ from typer.testing import CliRunner
 import eha.models.simulate
 from eha.campaigns.files import CampaignError, build_campaign, load_campaign, plan
 from eha.cli import app
+from helpers import invoke_eha
 
 CAMPAIGNS = Path(__file__).resolve().parents[1] / "campaigns"
 runner = CliRunner()
@@ -120,12 +119,10 @@ def test_cli_validate_bad_file_one_line_per_problem_exit_2(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('name = "x"\nmodels = ["hf"]\ncommands = ["mixed", "square"]\n'
                    "t_end = 1\n[faults]\ngrid = {BKL = [], FDJ = [1e9]}\n")
-    proc = subprocess.run([sys.executable, "-m", "eha", "campaign", "validate", str(bad)],
-                          capture_output=True, text=True)
+    proc = invoke_eha("campaign", "validate", bad)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 3, proc.stderr
     assert all(line.startswith("error: ") for line in lines)
-    missing = subprocess.run([sys.executable, "-m", "eha", "campaign", "validate",
-                              str(tmp_path / "none.toml")], capture_output=True, text=True)
+    missing = invoke_eha("campaign", "validate", tmp_path / "none.toml")
     assert missing.returncode == 2 and "cannot read the campaign file" in missing.stderr

@@ -111,12 +111,13 @@ def test_columns_and_units_need_a_record_in_fdi(tmp_path):
 
 
 def test_a_record_in_millimetres_loads_through_the_command_line(tmp_path):
-    """End to end in a real process: `eha fdi --data` on a time_s,command_mm,position_mm file
-    with --columns identifies (least squares, one parameter: a second or two)."""
+    """Through the command line (in process): `eha fdi --data` on a time_s,command_mm,
+    position_mm file with --columns identifies (least squares, one parameter: a second or
+    two)."""
     rec = _record(tmp_path / "rec.csv")
     out = tmp_path / "fit.json"
-    proc = run_eha("fdi", "--data", rec, "--columns", COLUMNS, "--fit", "FDJ", "--method",
-                   "lm", "--json", out, timeout=300)
+    proc = invoke_eha("fdi", "--data", rec, "--columns", COLUMNS, "--fit", "FDJ", "--method",
+                      "lm", "--json", out)
     assert proc.returncode == 0, proc.stderr
     assert "reference: " in proc.stdout and out.exists()
     proc = invoke_eha("fdi", "--data", rec, "--columns", "t=time_s,signal=command_mm", "--json",

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from eha.identification.healthy import DetectionError, tail_threshold
-from eha.explain.null import (Null, NullError, covered_effects, load_null, noise_class, null_key,
+from eha.explain.healthy_fleet import noise_class
+from eha.explain.null import (Null, NullError, covered_effects, load_null, null_key,
                               records_null)
 
 
@@ -188,6 +189,16 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     loop2 = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=both)
     assert not loop2.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert loop2.within_healthy_at(supply, base.replace(PSR=1.95e7, XSSK=1.0))
+    # the one union rule, against any bars (thresholds or detectable sizes): either
+    # statistic past its own bar; a statistic without a bar is never past it
+    drop = base.replace(PSR=1.6e7, XSSK=1.0)
+    assert loop2.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6})
+    assert not loop2.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 5e6})
+    assert loop2.past(supply, drop.replace(XSSK=0.0), {"supply_pressure": 1e-5})
+    assert not loop2.past(supply, drop, {})
+    # the footprint is simulated once per fitted parameters (the gate and the report ask)
+    assert loop2.record.footprint(supply, drop) == loop2.statistic_at(supply, drop)
+    assert ("supply_pressure", drop) in loop2.record._footprints
     summary = both.summary(0.05)
     assert list(summary["effects"]) == ["supply_pressure"]
     assert summary["effects"]["supply_pressure"]["shift"]["param"] == "PSR"
@@ -266,7 +277,8 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     off)."""
     from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.explain.null import healthy_record, healthy_statistics, simulated_null
+    from eha.explain.healthy_fleet import healthy_record, healthy_statistics
+    from eha.explain.null import simulated_null
 
     monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))
     t = np.arange(401) * 1e-3

@@ -16,6 +16,7 @@ from eha.campaigns.files import CampaignError, load_campaign
 from eha.reports.thesis import thesis_report
 from eha.campaigns.runner import run_campaign
 from eha.campaigns.query import query
+from helpers import invoke_eha
 from eha.campaigns.store import StoreError
 
 CAMPAIGN = """
@@ -113,7 +114,7 @@ def test_thesis_report_files(campaign_results, tmp_path):
 def test_report_without_results_is_a_clear_error(tmp_path):
     with pytest.raises(StoreError, match="no result database"):
         thesis_report(tmp_path / "none")
-    proc = _eha("report", "thesis", "--results", str(tmp_path / "none"))
+    proc = invoke_eha("report", "thesis", "--results", tmp_path / "none")
     assert proc.returncode == 1 and "no result database" in proc.stderr
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helpers import (close, error_line, files_under, invoke_eha, run_eha,
+from helpers import (close, error_line, files_under, invoke_eha,
                       write_campaign)
 from eha.identification.measured import load
 
@@ -104,7 +104,7 @@ def test_option_parser_errors_are_one_line_naming_the_option(tmp_path):
 def test_campaign_file_that_is_not_utf8_text(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_bytes(b'name = "caf\xe9"\nmodels = ["hf"]\n')
-    line = error_line(run_eha("campaign", "validate", bad), 2)
+    line = error_line(invoke_eha("campaign", "validate", bad), 2)
     assert "not UTF-8 text" in line and str(bad) in line
 
 
@@ -224,7 +224,7 @@ def test_time_in_milliseconds_without_a_unit_is_refused(tmp_path):
     """t in ms read as seconds: a 200-s record at 1 Hz, which the models cannot resolve
     (it used to run for minutes in gigabytes)."""
     path = record_csv(tmp_path / "ms.csv", t_scale=1e3)
-    proc = run_eha("explain", path, "--results", tmp_path / "r", "--no-progress", timeout=60)
+    proc = invoke_eha("explain", path, "--results", tmp_path / "r", "--no-progress")
     line = error_line(proc, 2)
     assert "sampling period 1 s" in line and "at most 0.01 s" in line and "t [ms]" in line
     assert not (tmp_path / "r").exists()
@@ -261,7 +261,7 @@ def huge_grid(n):
 def test_job_limit_is_checked_before_expansion(tmp_path):
     """A 10^7-run grid (2 models x 2 commands x 1581^2 fault sets) is refused in seconds."""
     camp = write_campaign(tmp_path, huge_grid(1581))
-    proc = run_eha("campaign", "validate", camp, timeout=60)
+    proc = invoke_eha("campaign", "validate", camp)
     line = error_line(proc, 2)
     assert "expands to up to 9998248 jobs; the limit is 200000" in line
 

@@ -62,10 +62,7 @@ class FinalCheck:
             local, _ = self.local_test(start, free, members)
             size = detectable.get(effect.name, math.inf)
             statistic = self.statistic_at(effect, local)
-            beyond = statistic > size or (
-                effect.shift_key is not None
-                and effect.shift_at(local) > detectable.get(effect.shift_key, math.inf))
-            if beyond:
+            if self.past(effect, local, detectable):
                 param = effect.tested
                 out.append({"effect": effect.name, "param": param,
                             "value": float(getattr(local, param)),

@@ -39,17 +39,25 @@ class Fitting:
     def within_healthy_at(self, effect: Effect, params: LFParams) -> bool:
         """:meth:`within_healthy` of the effect as fitted in ``params`` (False for a
         switch: a fit cannot put it back); an effect tested by its footprint
-        (:attr:`~eha.explain.effects.Effect.footprint`) compares that with the threshold."""
+        (:attr:`~eha.explain.effects.Effect.footprint`) is within unless :meth:`past` its
+        thresholds."""
         if not effect.params:
             return False
-        thresholds = self.thresholds or {}
-        threshold = thresholds.get(effect.name)
-        if threshold is not None and effect.footprint:
-            # either statistic past its threshold passes the gate (each at half the level)
-            shift_threshold = thresholds.get(effect.shift_key, math.inf)
-            return (self.statistic_at(effect, params) <= threshold
-                    and effect.shift_at(params) <= shift_threshold)
+        if effect.footprint and effect.name in (self.thresholds or {}):
+            return not self.past(effect, params, self.thresholds)
         return self.within_healthy(effect, {n: getattr(params, n) for n in effect.params})
+
+    def past(self, effect: Effect, params: LFParams, bars: dict[str, float]) -> bool:
+        """Whether the effect as fitted in ``params`` is past its bar in ``bars`` (the null's
+        thresholds or its detectable sizes, keyed as :meth:`eha.explain.null.Null.summary`):
+        its statistic (:meth:`statistic_at`) or, for an effect tested by its footprint, its
+        parameter's shift too (:attr:`~eha.explain.effects.Effect.shift_key`): either one
+        past its bar is enough, each being one statistic of the union bound. A statistic
+        without a bar is never past it; one that is not a number (a diverged fit) is."""
+        if not self.statistic_at(effect, params) <= bars.get(effect.name, math.inf):
+            return True
+        return (effect.shift_key is not None
+                and not effect.shift_at(params) <= bars.get(effect.shift_key, math.inf))
 
     def statistic_at(self, effect: Effect, params: LFParams) -> float:
         """The statistic the healthy null tests for ``effect`` as fitted in ``params``: its

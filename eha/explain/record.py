@@ -40,6 +40,9 @@ class Record:
         self.t_end = (len(data) - 1) * OUTPUT_DT
         self.steps_per_out, self.n_out, t_steps = grid(base, self.t_end)
         self.com = command_on_grid(data.command, t_steps)
+        # footprints already simulated, by (effect, parameters): a candidate's gate and its
+        # reported statistic ask for the same one
+        self._footprints: dict[tuple[str, LFParams], float] = {}
 
     def run(self, params: Sequence[LFParams], with_p12: bool = False):
         """Recorded xu of each parameter set, shape (n, n_out) (and P12 with ``with_p12``)."""
@@ -52,8 +55,13 @@ class Record:
         position between ``params`` and ``params`` with ``effect`` switched off (what the
         effect as fitted does to the record, whatever its parameters trade;
         :attr:`eha.explain.effects.Effect.footprint`)."""
-        xu = self.run([params, effect.switch_off(params)])
-        return rmse(xu[0], xu[1]) if np.all(np.isfinite(xu)) else math.inf
+        key = (effect.name, params)
+        if key not in self._footprints:
+            if len(self._footprints) > 4096:    # a bound, not a policy: rarely reached
+                self._footprints.clear()
+            xu = self.run([params, effect.switch_off(params)])
+            self._footprints[key] = rmse(xu[0], xu[1]) if np.all(np.isfinite(xu)) else math.inf
+        return self._footprints[key]
 
     def footprint_size(self, effect, footprint: float, base: LFParams
                        ) -> list[tuple[dict[str, float], float | None]]:
