@@ -297,6 +297,9 @@ def result_json(data, result, seconds: float) -> dict:
         "final_params": {p: getattr(result.after.params, p) for s in result.steps
                          for p in s.params},
         "faults_before": dict(result.faults_before), "faults_after": dict(result.faults_after),
+        # every parameter of the final model (the flow-gain spread GQ fitted with the faults
+        # too): bench_explain_coverage recomputes its intervals from them
+        "params_after": result.after.params.as_dict(),
         "rmse_before": result.rmse_before, "rmse_after": result.rmse_after,
         "rmse_fit_after": result.after.rmse_fit, "rmse_hold_after": result.after.rmse_hold,
         "noise_rmse": result.noise_rmse, "noise_stop": noise_stop(result),
