@@ -23,7 +23,6 @@ def noise_class(noise: float) -> float:
     return float(10.0 ** (k / NOISE_CLASSES_PER_DECADE))
 
 
-
 # ------------------------------------------------------------------------------------------
 # the statistic on one healthy record
 
