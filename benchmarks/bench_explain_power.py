@@ -183,6 +183,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_power")))
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
+    from eha.explain.decide import past_any
     from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.null import covered_effects, simulated_null
@@ -223,10 +224,10 @@ def main(argv=None) -> int:
                 got = [r for (e, _), r in zip(where, results) if e == effect]
                 value = next(v for e, v in where if e == effect)
                 shifts = np.array([sh for sh, _, _ in got])
-                # the gate: the statistic past its threshold, or (an effect tested by its
-                # footprint) its parameter's shift past that one's
+                # the loop's gate (eha.explain.decide.past_any): the statistic past its
+                # threshold, or (an effect tested by its footprint) its parameter's shift
                 second = EFFECTS[effect].shift_key
-                passed = [sh > thr[effect] or (second is not None and other > thr[second])
+                passed = [past_any({effect: sh, **({second: other} if second else {})}, thr)
                           for sh, _, other in got]
                 sizes[effect].append((multiple, value, float(np.mean(passed)),
                                       shifts, [g for _, g, _ in got]))

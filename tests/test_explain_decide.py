@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from eha.explain.decide import choose, keeps_effect, significance, unspecific
+from eha.explain.decide import choose, keeps_effect, past_any, significance, unspecific
 from eha.explain.results import Candidate
 from eha.explain.settings import ExplainError, LoopSettings
 
@@ -466,3 +466,16 @@ def test_split_combination_keeps_the_members_that_pay_in_the_order_they_help():
     run = evaluations(gains)
     kept = split_combination(members, run([params])[0], run, penalty=0.02)
     assert [e.name for e in kept] == ["leakage"]
+
+
+def test_any_statistic_past_its_own_bar_is_enough():
+    """The union bound's rule (the supply pressure's footprint or its PSR shift): one statistic
+    past its own bar passes; a statistic without a bar, or not computed, never does; one that
+    is not a number (a diverged fit) does."""
+    bars = {"supply_pressure": 5e-6, "supply_pressure.PSR": 4e6}
+    assert not past_any({"supply_pressure": 4e-6, "supply_pressure.PSR": 3e6}, bars)
+    assert past_any({"supply_pressure": 6e-6, "supply_pressure.PSR": 3e6}, bars)
+    assert past_any({"supply_pressure": 4e-6, "supply_pressure.PSR": 5e6}, bars)
+    assert not past_any({"supply_pressure": 4e-6, "supply_pressure.PSR": None}, bars)
+    assert not past_any({"leakage": 1.0}, bars)
+    assert past_any({"supply_pressure": math.nan}, bars)

@@ -180,7 +180,7 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     assert resolution == {"supply_pressure": 1e-7, "supply_pressure.PSR": pytest.approx(2500.0)}
     assert loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert not loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
-    # with the PSR shift as second statistic (each at half the level) a drop the footprint
+    # with the PSR shift as second statistic (each one of the union bound's) a drop the footprint
     # misses passes by its shift: 4 MPa against a healthy spread of ~1 MPa
     assert statistic_keys(["leakage", "supply_pressure"]) == [
         "leakage", "supply_pressure", "supply_pressure.PSR"]

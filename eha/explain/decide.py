@@ -6,7 +6,8 @@ effective samples) and on candidates already scored, unit-tested without simulat
 for itself next to the others), :func:`trades_position` (a gain on P12 bought with the
 position), :func:`split_combination` (the members of a combination that pay), and the
 passes' rules: :func:`edge_of_spread` / :func:`flow_gain_at_edge` (a flow gain at the edge of
-its healthy spread) and :func:`better_pass`. Where a rule needs a model evaluation it is
+its healthy spread) and :func:`better_pass`; :func:`past_any` (an effect's statistics against
+the null's bars). Where a rule needs a model evaluation it is
 handed in as a callable.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -78,6 +79,15 @@ class Choice:
 NOTHING_IMPROVED = ("no candidate improved the model (every refit left its effect within its "
                     "healthy band on this command or fitted the pressure at the position's "
                     "expense)")
+
+
+def past_any(statistics: Mapping[str, float | None], bars: Mapping[str, float]) -> bool:
+    """Whether any of an effect's statistics is past its bar (the null's thresholds or its
+    detectable sizes, by the null's statistic keys): with the union bound each statistic is
+    one of the ``m``, so one past its own bar is enough (the supply pressure's footprint or
+    its PSR shift). A statistic without a bar, or None, is never past it; one that is not a
+    number (a diverged fit) is."""
+    return any(v is not None and not v <= bars.get(k, math.inf) for k, v in statistics.items())
 
 
 def choose(tried: list[Candidate], settings: LoopSettings,

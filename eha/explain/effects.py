@@ -65,7 +65,7 @@ class Effect:
         the simulated position when the effect is switched off in the fitted model
         (:meth:`eha.explain.record.Record.footprint`, m), beside the tested parameter's shift
         (:attr:`shift_key`); the effect passes the gate when either passes its threshold,
-        each at half the level (union bound).
+        each one of the union bound's statistics.
         For an effect whose parameters trade so that no one of them is identified on every
         command: with the supply pressure's law near the text's (``XSSK`` 1) the pressure
         ``PSR`` only bounds P12, so on a record that never reaches that bound a healthy fit

@@ -4,7 +4,6 @@ effect's fit must leave: the :class:`Fitting` part of :class:`eha.explain.loop.R
 
 from __future__ import annotations
 
-import math
 from typing import Mapping
 
 import numpy as np
@@ -50,14 +49,15 @@ class Fitting:
     def past(self, effect: Effect, params: LFParams, bars: dict[str, float]) -> bool:
         """Whether the effect as fitted in ``params`` is past its bar in ``bars`` (the null's
         thresholds or its detectable sizes, keyed as :meth:`eha.explain.null.Null.summary`):
-        its statistic (:meth:`statistic_at`) or, for an effect tested by its footprint, its
-        parameter's shift too (:attr:`~eha.explain.effects.Effect.shift_key`): either one
-        past its bar is enough, each being one statistic of the union bound. A statistic
-        without a bar is never past it; one that is not a number (a diverged fit) is."""
-        if not self.statistic_at(effect, params) <= bars.get(effect.name, math.inf):
-            return True
-        return (effect.shift_key is not None
-                and not effect.shift_at(params) <= bars.get(effect.shift_key, math.inf))
+        :func:`~eha.explain.decide.past_any` of its statistic (:meth:`statistic_at`) and, for
+        an effect tested by its footprint, its parameter's shift
+        (:attr:`~eha.explain.effects.Effect.shift_key`)."""
+        from eha.explain.decide import past_any
+
+        statistics = {effect.name: self.statistic_at(effect, params)}
+        if effect.shift_key is not None:
+            statistics[effect.shift_key] = effect.shift_at(params)
+        return past_any(statistics, bars)
 
     def statistic_at(self, effect: Effect, params: LFParams) -> float:
         """The statistic the healthy null tests for ``effect`` as fitted in ``params``: its
