@@ -11,6 +11,9 @@ error_line, invoke_eha``); the fixtures are in conftest.py, which no test import
   message that shows the worst element (``numpy.testing.assert_allclose``).
 - ``files_under(folder)``: every file under a folder (to check that nothing was written).
 - ``SMALL_FLEET``: the TOML of a two-actuator fleet (prognostics and report tests).
+- ``Inline``: an executor of :func:`eha.campaigns.runner.run_campaign` that runs every task in
+  this process, for tests of what a campaign writes rather than of the worker pool (a spawned
+  worker costs 2-3 s of imports and kernel loading).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+
+from eha.campaigns.executors import Executor
 
 
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
@@ -102,3 +107,13 @@ initial = 200
 laws = ["linear"]
 rate = {median = 1.0, sigma = 0.0}
 """
+
+
+class Inline(Executor):
+    """Runs every task in this process, in order (``run_campaign(..., executor=Inline())``)."""
+
+    workers = 1
+
+    def map_unordered(self, fn, payloads):
+        for p in payloads:
+            yield fn(p)

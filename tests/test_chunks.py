@@ -18,8 +18,8 @@ import time
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from helpers import Inline
 
-from eha.campaigns.executors import Executor
 from eha.campaigns.runner import run_campaign
 from eha.campaigns.query import query
 from eha.campaigns.traces import read_trace
@@ -35,16 +35,6 @@ CHUNKY = textwrap.dedent("""
     nominal = true
     single = {BKL = [1e-4, 5e-4, 1e-3]}
 """)   # 256 runs: 4 per chunk (MIN_TASKS = 64), each chunk two HF/LF cases
-
-
-class Inline(Executor):
-    """Runs every task in this process, in order."""
-
-    workers = 1
-
-    def map_unordered(self, fn, payloads):
-        for p in payloads:
-            yield fn(p)
 
 
 def state(results):

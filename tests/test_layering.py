@@ -4,6 +4,7 @@ the domain's packages import one way, models -> identification -> explain -> hea
 prognostics -> reports -> cli (the import-graph tests at the end)."""
 
 import ast
+import functools
 import json
 import subprocess
 import sys
@@ -114,8 +115,10 @@ def _part(module: str) -> str | None:
     return parts[1] if len(parts) > 1 else None
 
 
+@functools.lru_cache(maxsize=1)
 def _graph() -> dict[str, set[str]]:
-    """``eha/<part>/...py`` -> the parts under eha it imports."""
+    """``eha/<part>/...py`` -> the parts under eha it imports (parsed once per session: the
+    tests only read it)."""
     graph = {}
     for path in sorted(ROOT.rglob("*.py")):
         rel = path.relative_to(ROOT.parent).with_suffix("")

@@ -143,11 +143,14 @@ def test_fleet_verdicts_follow_the_limit_and_the_interval(tmp_path):
 
 
 def test_a_truth_given_with_truth_replaces_the_one_beside_the_records(canned, tmp_path):
+    """Through the command line, which also prints where the report is and its sections."""
     results, _, _ = canned
     (tmp_path / "eol.csv").write_text("actuator,eol\nA1,1111\nA2,2222\nA3,\n")
     res = invoke_eha("report", "html", "--results", results, "--out", tmp_path / "t.html",
                      "--truth", tmp_path / "eol.csv")
     assert res.returncode == 0, res.stderr
+    assert "t.html" in res.stdout and "fleet, health" in res.stdout
+    assert (tmp_path / "t.html").stat().st_size > 1_000_000
     rows = {r["actuator"]: r for r in
             parse(tmp_path / "t.html").tables[f"fleet {report_data.FLEET_RUN}"]}
     assert [num(rows[a]["true_eol"]) for a in ("A1", "A2", "A3")] == [1111.0, 2222.0, None]
@@ -245,14 +248,6 @@ def test_missing_or_empty_results_folder_is_one_line_and_exit_2(tmp_path):
     assert "unsupported file type" in error_line(res, 2)
     with pytest.raises(ReportError):
         build_report(tmp_path / "nope", tmp_path / "r.html")
-
-
-def test_cli_prints_where_the_report_is(canned, tmp_path):
-    results, _, _ = canned
-    proc = invoke_eha("report", "html", "--results", results, "--out", tmp_path / "x.html")
-    assert proc.returncode == 0, proc.stderr
-    assert "x.html" in proc.stdout and "fleet, health" in proc.stdout
-    assert (tmp_path / "x.html").stat().st_size > 1_000_000
 
 
 # ----------------------------------------------------------------------------- in a browser

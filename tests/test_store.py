@@ -9,7 +9,7 @@ import time
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from helpers import invoke_eha
+from helpers import Inline, invoke_eha
 from typer.testing import CliRunner
 
 from eha.cli import app
@@ -38,7 +38,8 @@ SMALL = textwrap.dedent("""
 def results(tmp_path_factory):
     root = tmp_path_factory.mktemp("store")
     (root / "small.toml").write_text(SMALL)
-    summary = run_campaign(root / "small.toml", root / "results", workers=2, progress=False)
+    summary = run_campaign(root / "small.toml", root / "results", executor=Inline(),
+                           progress=False)
     assert summary.done == 8 and summary.failed == 0
     return root / "results"
 
