@@ -26,9 +26,17 @@ os.environ["COLUMNS"] = "200"
 @pytest.fixture(autouse=True, scope="session")
 def _explain_null_cache(tmp_path_factory):
     """The residual loop's healthy nulls (eha.explain.null) are cached for the session in a
-    temporary folder: never in the user's cache, shared by the tests of one command."""
+    temporary folder: never in the user's cache, shared by the tests of one command. Under
+    pytest-xdist (CI's ``-n 2``) the workers share one folder (the run's base folder, above
+    each worker's own): a null one worker calibrated is read by the other (the cache file is
+    written atomically, so two calibrating alike both succeed)."""
     old = os.environ.get("EHA_CACHE_DIR")
-    os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = tmp_path_factory.getbasetemp().parent / "eha-cache"
+        shared.mkdir(exist_ok=True)
+        os.environ["EHA_CACHE_DIR"] = str(shared)
+    else:
+        os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))
     yield
     if old is None:
         os.environ.pop("EHA_CACHE_DIR", None)
