@@ -96,6 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     proc = subprocess.run([sys.executable, str(a.scorer), "--out", str(a.out),
                            "--jobs", str(a.jobs)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        # nothing is written: a failed scorer (e.g. no `eha` on PATH) is not a result
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        print(f"error: {a.scorer.name} exited {proc.returncode}: {last}", file=sys.stderr)
+        return 1
     table = proc.stdout
     summary = [ln for ln in table.splitlines()
                if ln.split()[:1] and ln.split()[0] in ("single", "two", "none", "outside",
