@@ -318,6 +318,27 @@ def test_choose_needs_a_p_value_strictly_below_the_significance_level():
     assert at.best is None and "not significant" in at.stop and "offset" in at.superseded
 
 
+def test_a_rival_within_its_healthy_band_sets_a_small_gain_aside_only_within_the_healthy_residual():
+    # offset 0.015 mA on `mixed` (bench_explain_loop_power, seed 100000, measured): with the
+    # structure in, the offset takes 44.9 % off (p 5e-32, past its gate), a sensor bias of
+    # 1.6 µm 43.9 %, within its healthy band. Within what healthy actuators leave, that rival
+    # says a healthy-size change does as well; beyond it (the record at 1.88x noise, the
+    # healthy limit 1.6x) it does not, and only admissible rivals count
+    def round_():
+        bias = cand("sensor_bias", 0.439)
+        bias.score = -math.inf
+        return [cand("offset", 0.449), bias, cand("external_load", 0.302)]
+
+    within = choose(round_(), SETTINGS, no_split, never_refit)
+    assert within.best is None and within.unspecific[0] == "offset"
+    beyond = choose(round_(), SETTINGS, no_split, never_refit, beyond_healthy=True)
+    assert beyond.best.effect == "offset"
+    # an admissible rival still sets it aside beyond the healthy residual
+    load = round_()
+    load[2] = cand("external_load", 0.44)
+    assert choose(load, SETTINGS, no_split, never_refit, beyond_healthy=True).best is None
+
+
 def test_a_refused_candidate_is_never_chosen_nor_an_alternative():
     """A refit refused (score -inf: its effect stayed within its healthy band, or it traded
     the position for P12) is out of the choice however large its gain; a candidate that was

@@ -92,7 +92,8 @@ def past_any(statistics: Mapping[str, float | None], bars: Mapping[str, float]) 
 
 def choose(tried: list[Candidate], settings: LoopSettings,
            split: Callable[[Candidate], list[str]],
-           refit_members: Callable[[Candidate, list[str]], Candidate | None]) -> Choice:
+           refit_members: Callable[[Candidate, list[str]], Candidate | None],
+           beyond_healthy: bool = False) -> Choice:
     """Pick the effect (or combination) to add from the refitted candidates of a round.
 
     The best-scoring candidate wins when its penalised gain reaches ``settings.min_gain``, its
@@ -105,6 +106,11 @@ def choose(tried: list[Candidate], settings: LoopSettings,
     A candidate made only of the model's known structure (:data:`STRUCTURAL`) that clears
     ``min_gain`` and is significant is chosen before any other effect: the structure first.
 
+    ``beyond_healthy``: the model the round extends leaves more than faults and structure
+    leave on healthy actuators of this command (:meth:`ResidualLoop.unexplained`). A rival
+    refused by its gate then no longer counts against ``best``'s specificity
+    (:func:`unspecific`).
+
     Pure choice logic: ``split`` and ``refit_members`` hold every model evaluation, so the
     logic is unit-tested on canned candidates.
 
@@ -113,7 +119,8 @@ def choose(tried: list[Candidate], settings: LoopSettings,
     Choice
         ``best`` None with ``stop`` set when nothing is added.
     """
-    everything = [c for c in tried if c.refit and math.isfinite(c.gain)]
+    everything = [c for c in tried if c.refit and math.isfinite(c.gain)
+                  and not (beyond_healthy and c.score == -math.inf)]
     tried = [c for c in tried if c.refit and c.score > -math.inf]
     if not tried:
         return Choice(None, stop=NOTHING_IMPROVED)
@@ -221,9 +228,12 @@ def unspecific(best: Candidate, candidates: Sequence[Candidate]) -> list[str]:
     evidence for any of them: it is what the LF model's known structure and a healthy
     actuator's spread leave. ``best`` is unspecific when its gain is below
     :data:`SPECIFIC_GAIN` and a candidate sharing none of its non-structural effects gains
-    within :data:`RIVAL_MARGIN` of it — counting refits rejected because their effect stayed
-    within its healthy band (they show a healthy-size change does as well). Structural
-    candidates (only :data:`STRUCTURAL` members) are always specific.
+    within :data:`RIVAL_MARGIN` of it. :func:`choose` passes refits rejected because their
+    effect stayed within its healthy band too (they show that a healthy-size change does as
+    well) while the model is within what healthy actuators leave; beyond it that argument
+    fails (healthy actuators, fitted, do not leave such a residual) and only admissible
+    rivals count. Structural candidates (only :data:`STRUCTURAL` members) are always
+    specific.
 
     Returns
     -------

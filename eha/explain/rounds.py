@@ -224,7 +224,8 @@ class Rounds:
             rnd.candidates.append(cand)
             return cand
 
-        return choose(list(tried), self.settings, split, refit_members)
+        return choose(list(tried), self.settings, split, refit_members,
+                      beyond_healthy=self.unexplained())
 
     def look_ahead(self, rnd: Round, tried: list[Candidate], choice: Choice) -> Choice:
         """(d) A round whose best candidates were all set aside as unspecific (unrelated
