@@ -20,7 +20,8 @@ the gate's size (the fraction found) and, where it falls short of 90 %, the same
     python benchmarks/bench_explain_loop_power.py --commands mixed --json    # the result file
 
 ``--json`` writes ``benchmarks/results/bench_explain_loop_power.json`` (one current file, with
-provenance). A record takes 0.5-2 min on one core; a command's 12 cells of 5 records about
+provenance; each row names the commit it was measured at). ``--merge EARLIER.json`` keeps the
+earlier file's cells that this run does not redo (a rerun of the cells a change can touch). A record takes 0.5-2 min on one core; a command's 12 cells of 5 records about
 25 min on 2 cores.
 """
 
@@ -39,7 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _results import result_path, write_result  # noqa: E402
+from _results import provenance, result_path, write_result  # noqa: E402
 from bench_explain_power import COMMANDS, injected_value, template  # noqa: E402
 
 
@@ -80,6 +81,9 @@ def main(argv=None) -> int:
     ap.add_argument("--gate", default=str(result_path("bench_explain_power")),
                     help="the gate's result file (bench_explain_power.py --json)")
     ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_loop_power")))
+    ap.add_argument("--merge", default=None,
+                    help="an earlier result file whose cells not rerun here are kept "
+                         "(each row says its commit)")
     a = ap.parse_args(argv)
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.api import healthy_null
@@ -148,6 +152,18 @@ def main(argv=None) -> int:
                             "power": float(np.mean([g["found"] for g in got])),
                             "records": got} for m, v, got in levels[effect]],
                 "null_seconds": null_s})
+    commit = provenance()["commit"]
+    for r in rows:
+        r["commit"] = commit
+    if a.merge:
+        # the cells not rerun keep their rows (each with the commit it was measured at)
+        kept = json.loads(Path(a.merge).read_text())
+        for r in kept["rows"]:
+            r.setdefault("commit", kept["provenance"]["commit"])
+        done = {(r["command"], r["effect"]) for r in rows}
+        rows = [r for r in kept["rows"] if (r["command"], r["effect"]) not in done] + rows
+        rows.sort(key=lambda r: (COMMANDS.index(r["command"]), r["effect"]))
+        skipped += [s for s in kept["summary"]["skipped_gate_not_reached"] if s not in skipped]
     seconds = [g["seconds"] for r in rows for lv in r["levels"] for g in lv["records"]]
     summary = {"cells": len(rows),
                "cells_at_90": int(sum(r["loop_power"] >= 0.9 for r in rows)),
@@ -167,6 +183,7 @@ def main(argv=None) -> int:
     if a.json:
         write_result(Path(a.json), {
             "settings": {"records": a.records, "escalate": a.escalate, "commands": commands,
+                         "merged_from": a.merge,
                          "gate_file": str(a.gate), "gate_commit":
                          gate.get("provenance", {}).get("commit"),
                          "fit": sorted(DEFAULT_FAULT_BOUNDS)},
