@@ -21,8 +21,8 @@ sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noi
    does is the *measured* minimum detectable change (none when even 8 times does not).
 
 The gate is necessary for the loop to add an effect; the full loop also asks for a
-significant, specific gain, so the loop's own power can only be lower at a given size (the
-foreign validation set measures the loop end to end).
+significant, specific gain, so the loop's own power can only be lower at a given size
+(``bench_explain_loop_power.py`` runs the whole loop on these records at the gate's size).
 
     python benchmarks/bench_explain_power.py                       # 4 commands, 12 effects
     python benchmarks/bench_explain_power.py --commands mixed --records 3
