@@ -23,6 +23,8 @@ WORKER_NUMBA_THREADS = 1
 #: own dynamic maxima).
 MALLOC_MMAP_THRESHOLD = 32 << 20
 MALLOC_TRIM_THRESHOLD = 64 << 20
+#: After Ctrl-C or SIGTERM, how long the parent waits for its terminated workers to end [s].
+ABORT_WAIT_S = 10.0
 
 
 # =========================================================================== worker side
@@ -235,10 +237,32 @@ class LocalPoolExecutor(Executor):
         self._pool.shutdown(wait=False, cancel_futures=True)
 
     def abort(self) -> None:
-        for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
+        from multiprocessing.connection import wait
+
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        for proc in procs:
             try:
                 proc.terminate()
             except (OSError, ValueError, AttributeError):  # already gone
+                pass
+        # A worker stopped while it sends a result leaves half a message in the result pipe:
+        # the pool's manager thread then waits for the rest for good, and so does the exit of
+        # the interpreter, which joins that thread (CPython 3.11; a SIGTERM test hung so in
+        # CI). Once the workers are gone, the parent's own write end is the pipe's last:
+        # closing it gives the thread end-of-file, it marks the pool broken and ends.
+        try:
+            sentinels = [p.sentinel for p in procs]
+        except (ValueError, AttributeError):  # pragma: no cover - a process not started
+            return
+        deadline = time.monotonic() + ABORT_WAIT_S
+        while sentinels and time.monotonic() < deadline:
+            gone = wait(sentinels, timeout=max(0.0, deadline - time.monotonic()))
+            sentinels = [s for s in sentinels if s not in gone]
+        writer = getattr(getattr(self._pool, "_result_queue", None), "_writer", None)
+        if procs and not sentinels and writer is not None:
+            try:
+                writer.close()
+            except OSError:  # pragma: no cover - closed already
                 pass
 
 

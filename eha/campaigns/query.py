@@ -64,7 +64,8 @@ def query(results: str | Path, sql: str,
     con = connect(results, read_only=True)
     try:
         _create_traces_view(con, results)
-        return (con.execute(sql, params) if params is not None else con.execute(sql)).df()
+        return _interruptible(con, lambda: (con.execute(sql, params) if params is not None
+                                            else con.execute(sql)).df())
     except duckdb.Error as exc:
         first = str(exc).splitlines()[0]
         if ".parquet" in first:  # a stored trace is damaged: the resume re-runs it
@@ -75,6 +76,39 @@ def query(results: str | Path, sql: str,
         raise StoreError(f"query: {first}") from None
     finally:
         con.close()
+
+
+def _interruptible(con, work):
+    """``work()`` (a query on ``con``) on a helper thread, the main thread waiting: Ctrl-C and
+    SIGTERM run their handlers in the main thread only, never while it sits inside a DuckDB
+    call (a long query ran to its end before a SIGTERM was seen). On either, DuckDB is told
+    to stop (``interrupt``) and the signal's exception goes on."""
+    import threading
+
+    out: dict[str, Any] = {}
+    finished = threading.Event()
+
+    def run() -> None:
+        try:
+            out["value"] = work()
+        except BaseException as exc:  # handed to the main thread
+            out["error"] = exc
+        finally:
+            finished.set()
+
+    threading.Thread(target=run, name="eha-query", daemon=True).start()
+    # an Event, not Thread.join: a join that a handler interrupts marks the thread as ended
+    # (CPython 3.11), and the exit then aborts DuckDB in the middle of its query
+    try:
+        while not finished.wait(0.05):
+            pass
+    except BaseException:
+        con.interrupt()
+        finished.wait(10.0)
+        raise
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
 
 
 def tables(results: str | Path) -> list[str]:

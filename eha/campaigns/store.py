@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import json
 import re
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
@@ -36,6 +37,52 @@ class StoreError(EhaError, RuntimeError):
     The command line exits 2: the results folder or the query given is at fault."""
 
     exit_code = BAD_INPUT
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold Ctrl-C and SIGTERM while the block runs; their handlers run right after it.
+
+    Run inside a DuckDB statement, a handler that raises interrupts the statement itself and
+    DuckDB reports its own error ("Query interrupted"; after an interrupted COMMIT even the
+    ROLLBACK fails) instead of the signal. Only handlers set in Python are held (the default
+    SIGTERM still ends the process: the write-ahead log keeps the file whole).
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield  # handlers only run in the main thread, between its statements
+        return
+    held: list[int] = []
+    previous = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        if callable(signal.getsignal(signum)):
+            previous[signum] = signal.signal(signum, lambda n, _frame: held.append(n))
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(held):
+            previous[signum](signum, None)
+
+
+@contextmanager
+def _transaction(con) -> Iterator[None]:
+    """One transaction on ``con``, committed or rolled back whole, with Ctrl-C and SIGTERM
+    held until it has ended (:func:`_signals_held`; a commit of runs takes milliseconds)."""
+    with _signals_held():
+        con.execute("BEGIN")
+        try:
+            yield
+            con.execute("COMMIT")
+        except BaseException:
+            try:
+                con.execute("ROLLBACK")
+            except Exception:  # the transaction ended already (a failed COMMIT)
+                pass
+            raise
 
 
 class StoreWriteError(StoreError):
@@ -151,7 +198,8 @@ class ResultStore:
         if self.con is not None:
             con, self.con = self.con, None
             try:
-                con.execute("CHECKPOINT")
+                with _signals_held():
+                    con.execute("CHECKPOINT")
             except Exception as exc:
                 # e.g. a full disk: the committed rows are in the write-ahead log, which the
                 # next connection replays; say so in one line instead of a traceback
@@ -177,12 +225,13 @@ class ResultStore:
         """Insert or update a ``campaigns`` row (keeps ``created_at`` of an existing one)."""
         self.con.register("_c", _arrow([row]))
         try:
-            self.con.execute("""
-                INSERT INTO campaigns BY NAME SELECT * FROM _c
-                ON CONFLICT (name) DO UPDATE SET description = excluded.description,
-                    source = excluded.source, spec_hash = excluded.spec_hash,
-                    model_version = excluded.model_version, n_runs = excluded.n_runs,
-                    definition = excluded.definition, updated_at = excluded.updated_at""")
+            with _signals_held():
+                self.con.execute("""
+                    INSERT INTO campaigns BY NAME SELECT * FROM _c
+                    ON CONFLICT (name) DO UPDATE SET description = excluded.description,
+                        source = excluded.source, spec_hash = excluded.spec_hash,
+                        model_version = excluded.model_version, n_runs = excluded.n_runs,
+                        definition = excluded.definition, updated_at = excluded.updated_at""")
         finally:
             self.con.unregister("_c")
 
@@ -203,17 +252,13 @@ class ResultStore:
         if gone:
             self.con.register("_gone", _frame([{"run_key": k} for k in gone]))
             self.con.register("_reset", _frame([{"run_key": k} for k in reset or ["-"]]))
-            self.con.execute("BEGIN")
             try:
-                for table in RESULT_TABLES + ("runs",):
-                    self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
-                                     "(SELECT run_key FROM _gone)")
-                self.con.execute("UPDATE runs SET status = 'pending', trace_path = NULL "
-                                 "WHERE run_key IN (SELECT run_key FROM _reset)")
-                self.con.execute("COMMIT")
-            except BaseException:
-                self.con.execute("ROLLBACK")
-                raise
+                with _transaction(self.con):
+                    for table in RESULT_TABLES + ("runs",):
+                        self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
+                                         "(SELECT run_key FROM _gone)")
+                    self.con.execute("UPDATE runs SET status = 'pending', trace_path = NULL "
+                                     "WHERE run_key IN (SELECT run_key FROM _reset)")
             finally:
                 self.con.unregister("_gone")
                 self.con.unregister("_reset")
@@ -267,7 +312,8 @@ class ResultStore:
             return
         self.con.register("_p", _arrow(rows))
         try:
-            self.con.execute("INSERT OR IGNORE INTO runs BY NAME SELECT * FROM _p")
+            with _signals_held():
+                self.con.execute("INSERT OR IGNORE INTO runs BY NAME SELECT * FROM _p")
         finally:
             self.con.unregister("_p")
 
@@ -307,8 +353,7 @@ class ResultStore:
             if table not in RESULT_TABLES:
                 raise StoreError(f"result table {table!r} is not in the schema "
                                  f"({', '.join(RESULT_TABLES)})")
-        self.con.execute("BEGIN")
-        try:
+        with _transaction(self.con):
             for obj in runs:
                 self.con.register("_u", obj)
                 cols = [c for c in _columns(obj) if c != "run_key"]
@@ -318,17 +363,14 @@ class ResultStore:
                 self.con.unregister("_u")
             for table, obj in parts:
                 self._upsert(table, obj)
-            self.con.execute("COMMIT")
-        except BaseException:
-            self.con.execute("ROLLBACK")
-            raise
 
     def upsert(self, table: str, rows: Sequence[Mapping[str, Any]]) -> None:
         """Insert or replace rows of a result table (by ``run_key``); columns by name."""
         if table not in RESULT_TABLES:
             raise StoreError(f"{table!r} is not a result table ({', '.join(RESULT_TABLES)})")
         if rows:
-            self._upsert(table, _frame(rows))
+            with _signals_held():
+                self._upsert(table, _frame(rows))
 
     def _upsert(self, table: str, obj) -> None:
         """Upsert a pandas frame or Arrow table (one bulk statement)."""
@@ -395,8 +437,7 @@ def _replace(results: str | Path,
             raise StoreError(f"{table!r} is not a table of the schema")
     con = connect(results)
     try:
-        con.execute("BEGIN")
-        try:
+        with _transaction(con):
             for table, rows, key in parts:
                 where = " AND ".join(f"{c} = ?" for c in key)
                 con.execute(f"DELETE FROM {table} WHERE {where}", list(key.values()))
@@ -404,10 +445,6 @@ def _replace(results: str | Path,
                     con.register("_r", _frame(rows))
                     con.execute(f"INSERT INTO {table} BY NAME SELECT * FROM _r")
                     con.unregister("_r")
-            con.execute("COMMIT")
-        except BaseException:
-            con.execute("ROLLBACK")
-            raise
     finally:
         con.close()
     return db_path(results)

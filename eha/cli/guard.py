@@ -47,17 +47,49 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM received: unwinds like Ctrl-C (every ``finally`` commits what is finished)."""
 
 
+#: The signals received by this process's guard (SIGINT, SIGTERM), in order.
+_RECEIVED: list[int] = []
+
+
 def _on_sigterm(signum, frame):  # pragma: no cover - exercised by subprocess tests
+    _RECEIVED.append(signal.SIGTERM)
     raise Terminated()
 
 
-def _handle_sigterm():
-    """Turn SIGTERM into :class:`Terminated`; returns the previous handler (None when it
-    cannot be set: not the main thread, e.g. an embedding application)."""
+def _on_sigint(signum, frame):  # pragma: no cover - exercised by subprocess tests
+    _RECEIVED.append(signal.SIGINT)
+    raise KeyboardInterrupt()
+
+
+def _handle_signals() -> dict:
+    """Turn SIGTERM into :class:`Terminated` and Ctrl-C into KeyboardInterrupt, both noted in
+    :data:`_RECEIVED`; returns the previous handlers (empty when they cannot be set: not the
+    main thread, e.g. an embedding application). A SIGINT that is ignored (a job started in
+    the background) stays ignored."""
+    previous = {}
     try:
-        return signal.signal(signal.SIGTERM, _on_sigterm)
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _on_sigterm)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            previous[signal.SIGINT] = signal.signal(signal.SIGINT, _on_sigint)
     except ValueError:
+        pass
+    return previous
+
+
+def _restore(previous: dict) -> None:
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
+
+
+def _signal_line() -> tuple[str, int] | None:
+    """After Ctrl-C or SIGTERM, any error is its consequence: a library that runs the
+    signal's handler inside its own code may report the interruption as its own error (DuckDB:
+    "Query interrupted"). The line and exit status of the last signal received, else None."""
+    if not _RECEIVED:
         return None
+    if _RECEIVED[-1] == signal.SIGTERM:
+        return _TERMINATED_LINE, TERMINATED
+    return _INTERRUPTED_LINE, INTERRUPTED
 
 
 def error_line(message: str) -> None:
@@ -157,7 +189,7 @@ class GuardedGroup(TyperGroup):
     exit 2."""
 
     def invoke(self, ctx):
-        previous = _handle_sigterm()
+        previous = _handle_signals()
         try:
             return super().invoke(ctx)
         except (typer.Exit, typer.Abort, _CLICK.ClickException):
@@ -168,26 +200,31 @@ class GuardedGroup(TyperGroup):
         except KeyboardInterrupt:
             error_line(_INTERRUPTED_LINE)
             raise typer.Exit(INTERRUPTED)
-        except EhaError as exc:  # anticipated: its own words, one line a problem
-            for line in exc.lines():
-                error_line(line)
-            raise typer.Exit(exc.exit_code)
         except Exception as exc:
+            signalled = _signal_line()
+            if signalled is not None:
+                _traceback()
+                error_line(signalled[0])
+                raise typer.Exit(signalled[1])
+            if isinstance(exc, EhaError):  # anticipated: its own words, one line a problem
+                for line in exc.lines():
+                    error_line(line)
+                raise typer.Exit(exc.exit_code)
             _traceback()
             if isinstance(exc, OSError) and stdout_failed():
                 exc = OSError(exc.errno, exc.strerror, "standard output")
             error_line(_unexpected(exc))
             raise typer.Exit(FAILURE)
         finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+            _restore(previous)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
              **extra):
         if not standalone_mode:
             return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                                 standalone_mode=False, **extra)
-        previous = _handle_sigterm()  # from here on: parsing reads defaults from the library
+        _RECEIVED.clear()  # a new command line (in-process callers run several)
+        previous = _handle_signals()  # from here on: parsing reads defaults from the library
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                               standalone_mode=False, **extra)
@@ -207,17 +244,21 @@ class GuardedGroup(TyperGroup):
         except KeyboardInterrupt:
             error_line(_INTERRUPTED_LINE)
             sys.exit(INTERRUPTED)
-        except EhaError as exc:
-            for line in exc.lines():
-                error_line(line)
-            sys.exit(exc.exit_code)
         except Exception as exc:  # e.g. a default read from the library failed to import
+            signalled = _signal_line()
+            if signalled is not None:
+                _traceback(args)
+                error_line(signalled[0])
+                sys.exit(signalled[1])
+            if isinstance(exc, EhaError):
+                for line in exc.lines():
+                    error_line(line)
+                sys.exit(exc.exit_code)
             _traceback(args)
             error_line(_unexpected(exc))
             sys.exit(FAILURE)
         finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+            _restore(previous)
         if stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
             error_line("the output could not be written to standard output")
             sys.exit(FAILURE)
