@@ -92,6 +92,22 @@ def _signal_line() -> tuple[str, int] | None:
     return _INTERRUPTED_LINE, INTERRUPTED
 
 
+def _report_known(exc: Exception, args=None) -> int | None:
+    """Print the line(s) of an error whose cause is known and return the exit status: one
+    that followed Ctrl-C or SIGTERM (:func:`_signal_line`), or one the library anticipated
+    (:class:`EhaError`: its own words, one line a problem). None for any other error."""
+    signalled = _signal_line()
+    if signalled is not None:
+        _traceback(args)
+        error_line(signalled[0])
+        return signalled[1]
+    if isinstance(exc, EhaError):
+        for line in exc.lines():
+            error_line(line)
+        return exc.exit_code
+    return None
+
+
 def error_line(message: str) -> None:
     """``error: message`` on stderr, as text (escaped: "[fdi]", "[0, 0.1] m" are not markup)."""
     err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
@@ -201,15 +217,9 @@ class GuardedGroup(TyperGroup):
             error_line(_INTERRUPTED_LINE)
             raise typer.Exit(INTERRUPTED)
         except Exception as exc:
-            signalled = _signal_line()
-            if signalled is not None:
-                _traceback()
-                error_line(signalled[0])
-                raise typer.Exit(signalled[1])
-            if isinstance(exc, EhaError):  # anticipated: its own words, one line a problem
-                for line in exc.lines():
-                    error_line(line)
-                raise typer.Exit(exc.exit_code)
+            code = _report_known(exc)
+            if code is not None:
+                raise typer.Exit(code)
             _traceback()
             if isinstance(exc, OSError) and stdout_failed():
                 exc = OSError(exc.errno, exc.strerror, "standard output")
@@ -245,15 +255,9 @@ class GuardedGroup(TyperGroup):
             error_line(_INTERRUPTED_LINE)
             sys.exit(INTERRUPTED)
         except Exception as exc:  # e.g. a default read from the library failed to import
-            signalled = _signal_line()
-            if signalled is not None:
-                _traceback(args)
-                error_line(signalled[0])
-                sys.exit(signalled[1])
-            if isinstance(exc, EhaError):
-                for line in exc.lines():
-                    error_line(line)
-                sys.exit(exc.exit_code)
+            code = _report_known(exc, args)
+            if code is not None:
+                sys.exit(code)
             _traceback(args)
             error_line(_unexpected(exc))
             sys.exit(FAILURE)
