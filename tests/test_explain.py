@@ -88,7 +88,10 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
-                        "undetectable", "not_excluded"}
+                        "undetectable", "not_excluded",
+                        # the verdict's kind, facts and finding (issue 42)
+                        "verdict_kind", "at_noise", "within_healthy_band",
+                        "unique_explanation", "found"}
     assert all(e["shift"] > e["detectable"] > e["threshold"] for e in doc["not_excluded"])
     assert doc["unexplained"] or not doc["not_excluded"]
     assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05
@@ -105,8 +108,11 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     # rival (a 20 µs delay beside a 5-actuator null here): nothing added for it either way
     assert doc["level"] == 0.9 and doc["unexplained"] is bool(doc["not_excluded"])
     assert doc["beyond_healthy"] is False
-    assert doc["verdict"].startswith("not uniquely explained: residual" if doc["not_excluded"]
-                                     else "explained: residual")
+    # the verdict opens with its kind and what was found (issue 42; was "not uniquely
+    # explained: residual" / "explained: residual")
+    assert doc["verdict"].startswith("explained, ambiguous: found " if doc["not_excluded"]
+                                     else "explained: found ")
+    assert doc["at_noise"] is True and doc["unique_explanation"] is not doc["not_excluded"]
     lo, hi = doc["intervals"]["FDJ"]
     assert lo <= doc["faults_after"]["FDJ"] <= hi
     assert doc["steps"][0]["effect"] == "orifice_law"

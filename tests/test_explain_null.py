@@ -230,11 +230,12 @@ def test_undetectable_lines_name_each_effect_not_added():
         {"setting": {"XSSK": 0.0}, "param": "PSR", "value": 1.71e7},
         {"setting": {"XSSK": 1.0}, "param": "PSR", "value": None}]
     (line,) = res.undetectable()
-    assert "; made by PSR 1.71e+07 Pa at XSSK 0; no PSR down to 5e+06 Pa at XSSK 1) and a "\
-        "change of " in line and line.endswith(" in PSR"), line
+    # in the pressure's display unit, MPa (issue 42: one display unit per quantity; was Pa)
+    assert "; made by PSR 17.1 MPa at XSSK 0; no PSR down to 5 MPa at XSSK 1) and a "\
+        "change of " in line and line.endswith(" MPa in PSR"), line
     assert line.startswith("supply_pressure: not detectable on this command below a "
                            "footprint of ") and " µm (the RMS change of the position that "\
-        "PSR+XSSK as fitted make against healthy PSR 2e+07 Pa; made by" in line, line
+        "PSR+XSSK as fitted make against healthy PSR 20 MPa; made by" in line, line
 
 
 def test_healthy_folder_needs_five_readable_records(tmp_path):

@@ -1,10 +1,13 @@
-"""The residual loop's three verdicts (:attr:`eha.explain.results.ExplainResult.verdict`), on
-results built by hand: no simulation.
+"""The residual loop's verdict (:mod:`eha.explain.verdict`), on results built by hand: no
+simulation.
 
-A residual at the noise level is "explained"; above it but within what healthy actuators leave
-on the command it is "not explained to the noise" (``unexplained`` True, ``beyond_healthy``
-False: the added effects are tentative, the intervals are not widened); beyond the healthy
-band the leads speak.
+Four kinds from three facts (docs/explain.md, "The verdict"): "explained" (at the noise,
+unique), "explained, ambiguous" (at the noise, a rival the record cannot rule out), "partly
+explained" (above the noise, within what healthy actuators leave on the command: ``unexplained``
+True, ``beyond_healthy`` False, the added effects tentative, the intervals not widened) and
+"unexplained" (beyond the healthy band: the leads speak). Every verdict opens with what was
+found, in display units with its interval; the JSON, the database row and the HTML report's tag
+come from the same facts.
 """
 
 import math
@@ -19,8 +22,9 @@ from eha.models.params import LFParams
 NOISE = 1e-6
 
 
-def result(rmse_after: float, unexplained: bool, beyond: bool, steps=()) -> ExplainResult:
-    p = LFParams()
+def result(rmse_after: float, unexplained: bool, beyond: bool, steps=(), params=None,
+           intervals=None) -> ExplainResult:
+    p = LFParams() if params is None else params
     ev = lambda r: Evaluation(p, np.zeros(3), r, r, r)  # noqa: E731
     leads = LeadReport(rmse_after, NOISE, rmse_after / NOISE, (), 0.0, {})
     return ExplainResult(
@@ -28,27 +32,34 @@ def result(rmse_after: float, unexplained: bool, beyond: bool, steps=()) -> Expl
         before=ev(10 * rmse_after), after=ev(rmse_after), steps=list(steps), rounds=[],
         noise_rmse=NOISE, stop_reason="", holdout="", t=np.zeros(3), measured=np.zeros(3),
         settings={}, seconds=0.0, unexplained=unexplained, beyond_healthy=beyond,
-        leads=leads, null={"residual_limit": 3.0, "effects": {}})
+        leads=leads, null={"residual_limit": 3.0, "effects": {}}, intervals=intervals or {},
+        level=0.9 if intervals else None)
 
 
-def step(name: str) -> Step:
-    return Step(name, {}, 1.0, 0.5, 1.0, 0.5, 1.0, 0.5, {}, {}, 0.5, 0.5)
+def step(name: str, params=None) -> Step:
+    return Step(name, dict(params or {}), 1.0, 0.5, 1.0, 0.5, 1.0, 0.5, {}, {}, 0.5, 0.5)
 
 
 def test_at_the_noise_level_the_record_is_explained():
     r = result(1.1e-6, unexplained=False, beyond=False)
-    assert r.verdict == "explained: residual 1.1 µm (1.1× noise)"
+    assert r.verdict == ("explained: found nothing beyond the healthy band; residual 1.1 µm "
+                         "(1.1× noise), at the noise (1 µm)")
     doc = r.to_json()
     assert doc["unexplained"] is False and doc["beyond_healthy"] is False
+    assert doc["verdict_kind"] == "explained"
+    assert (doc["at_noise"], doc["within_healthy_band"], doc["unique_explanation"]) == \
+        (True, True, True)
 
 
-def test_above_the_noise_within_the_healthy_band_is_not_explained_to_the_noise():
-    r = result(1.6e-6, unexplained=True, beyond=False, steps=[step("leakage")])
+def test_above_the_noise_within_the_healthy_band_is_partly_explained():
+    r = result(1.6e-6, unexplained=True, beyond=False, steps=[step("leakage", {"Clk": 0.0})])
     text = r.verdict
-    assert text.startswith("not explained to the noise: residual 1.6 µm (1.6× noise)")
-    assert "up to 3×" in text and "tentative" in text
+    assert text.startswith("partly explained: found internal leakage 0 m³/(Pa·s) (tentative); "
+                           "residual 1.6 µm (1.6× noise), above the noise (1 µm)"), text
+    assert "up to 3×" in text
     doc = r.to_json()
     assert doc["unexplained"] is True and doc["beyond_healthy"] is False
+    assert doc["verdict_kind"] == "partly explained" and doc["at_noise"] is False
     assert all(s["tentative"] for s in doc["steps"])
 
 
@@ -57,7 +68,9 @@ def test_beyond_the_healthy_band_the_leads_speak():
     assert r.verdict.startswith("unexplained residual 8 µm (8× noise)")
     assert "healthy actuators leave up to 3× noise" in r.verdict
     assert r.to_json()["beyond_healthy"] is True
-    assert r.run_row("id", "x.csv", None)["beyond_healthy"] is True
+    row = r.run_row("id", "x.csv", None)
+    assert row["beyond_healthy"] is True and row["verdict_kind"] == "unexplained"
+    assert row["within_healthy_band"] is False
 
 
 @pytest.mark.parametrize("ratio", [0.9, 1.25])
@@ -67,21 +80,51 @@ def test_the_verdict_states_the_ratio_it_rests_on(ratio):
     assert math.isclose(r.rmse_after / r.noise_rmse, ratio)
 
 
-def test_an_effect_the_record_cannot_rule_out_makes_it_not_uniquely_explained():
-    """At the noise level, an effect outside the model that fits as well beyond the size the
-    command shows (``not_excluded``) turns "explained" into "not uniquely explained", names
-    the effect, its value and the detectable size, and is in the JSON."""
-    rival = {"effect": "viscous_friction", "param": "CJ", "value": 9300.0, "shift": 9250.0,
-             "threshold": 1860.0, "detectable": 2540.0, "unit": "N*s/m"}
-    r = result(1.03e-6, unexplained=True, beyond=False, steps=[step("motor_gain")])
+def test_a_finding_opens_the_verdict_with_its_value_unit_and_interval():
+    """f01 of the foreign set (an undeclared 800 N load, an offset the record cannot rule
+    out): the verdict says what was found, then the rival with its value and unit. Before
+    issue 42 it opened with "not uniquely explained" and named FRC nowhere."""
+    rival = {"effect": "offset", "param": "Ofs", "value": -0.00905, "shift": 0.00905,
+             "threshold": 0.005, "detectable": 0.00734, "unit": "mA"}
+    r = result(1.03e-6, unexplained=True, beyond=False, params=LFParams().replace(FRC=829.4),
+               steps=[step("orifice_law"), step("external_load", {"FRC": 800.0})],
+               intervals={"FRC": (818.2, 839.4)})
     r.not_excluded = [rival]
-    text = r.verdict
-    assert text.startswith("not uniquely explained: residual 1.03 µm (1.0× noise) with "
-                           "motor_gain, but viscous_friction (CJ 9.3e+03 N*s/m, a change "
-                           "beyond the 2.54e+03 this command shows) also fits as well")
-    assert not text.startswith("explained")
+    assert r.verdict == (
+        "explained, ambiguous: found external load 829 N [818, 839] (90 %); residual 1.03 µm "
+        "(1.0× noise), at the noise (1 µm); cannot be told apart on this command from a "
+        "motor offset of -0.00905 mA (beyond the 0.00734 mA change this command shows)")
     doc = r.to_json()
     assert doc["not_excluded"] == [rival] and doc["unexplained"] is True
+    assert doc["verdict_kind"] == "explained, ambiguous" and doc["at_noise"] is True
+    assert doc["unique_explanation"] is False
+    (found,) = doc["found"]
+    assert found["effect"] == "external_load" and found["text"] == "829 N"
+    assert found["interval"] == [818.2, 839.4]
+    row = r.run_row("id", "x.csv", None)
+    assert (row["verdict"], row["verdict_kind"], row["at_noise"], row["unique_explanation"]) \
+        == (doc["verdict"], doc["verdict_kind"], True, False)
     r.not_excluded = []
     r.unexplained = False
-    assert r.verdict.startswith("explained") and r.to_json()["not_excluded"] == []
+    assert r.verdict.startswith("explained: found external load 829 N")
+    assert r.to_json()["not_excluded"] == []
+
+
+def test_the_report_tags_by_the_residual_not_by_uniqueness():
+    """The HTML report's state is the verdict's residual: an ambiguous record at the noise is
+    "explained" (its kind says "explained, ambiguous"), not "above noise" (as it was before
+    issue 42)."""
+    from eha.reports.html.sections import _explain_state
+
+    rival = {"effect": "offset", "param": "Ofs", "value": -0.009, "shift": 0.009,
+             "threshold": 0.005, "detectable": 0.007, "unit": "mA"}
+    r = result(1.03e-6, unexplained=True, beyond=False)
+    r.not_excluded = [rival]
+    assert _explain_state(r.run_row("id", "x.csv", None)) == "explained"
+    partly = result(1.6e-6, unexplained=True, beyond=False)
+    assert _explain_state(partly.run_row("id", "x.csv", None)) == "above noise"
+    far = result(8e-6, unexplained=True, beyond=True)
+    assert _explain_state(far.run_row("id", "x.csv", None)) == "unexplained"
+    # a database row from before the verdict's facts keeps its old reading
+    assert _explain_state({"unexplained": False}) == "explained"
+    assert _explain_state({"unexplained": True, "beyond_healthy": False}) == "above noise"

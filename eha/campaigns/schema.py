@@ -147,6 +147,13 @@ ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (("fdi_results", "level", "DOU
                                                    # above the healthy band, not only the
                                                    # noise (issue 24)
                                                    ("explain_runs", "beyond_healthy",
+                                                    "BOOLEAN"),
+                                                   # the verdict's kind and facts (issue 42)
+                                                   ("explain_runs", "verdict_kind", "VARCHAR"),
+                                                   ("explain_runs", "at_noise", "BOOLEAN"),
+                                                   ("explain_runs", "within_healthy_band",
+                                                    "BOOLEAN"),
+                                                   ("explain_runs", "unique_explanation",
                                                     "BOOLEAN"))
 #: Tables whose rows belong to one run each (key ``run_key``); filled from worker results.
 RESULT_TABLES: tuple[str, ...] = ("metrics", "fdi_results")

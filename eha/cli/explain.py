@@ -144,28 +144,44 @@ class _progress_bar:
 
 
 def _render(res) -> None:
-    """The steps table, the alternatives, the final check, the verdict and the null's
-    undetectable sizes."""
-    console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held out: "
-                  f"{res.holdout}")
+    """The steps table, the notes, the verdict (what was found first, then what the record
+    cannot rule out, then what it could not have shown, folded to one line)."""
+    from eha.explain.verdict import structure_note, unseen_summary
+    from eha.models.units import show, show_interval
+
+    console.print(f"record: {escape(str(res.source))} ({len(res.t)} samples at 1 kHz); held "
+                  f"out: {res.holdout}", highlight=False)
     console.print(_steps_table(res))
-    for line in _notes(res):
-        console.print(line)
+    note = structure_note(res)
+    for line in ([note] if note else []) + _notes(res):
+        console.print(escape(line), highlight=False)
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
-                  f"level {1e6 * res.noise_rmse:.3g} µm; unexplained (above noise) "
-                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}")
+                  f"level {1e6 * res.noise_rmse:.3g} µm; above the noise "
+                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {escape(res.stop_reason)}",
+                  highlight=False)
     if res.intervals:
+        flow = "GQ" in res.intervals and res.settings.get("flow_gain_fitted")
         console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
-            f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
-            for k, (lo, hi) in res.intervals.items()))
-    console.print(f"verdict: {escape(res.verdict)}", highlight=False)
-    if res.null:
-        console.print(f"decisions at alpha {res.null['alpha']:g} against {res.null['source']}"
-                      f" on this command; what this record could not have shown (the null's "
-                      f"prediction, a lower bound: measured power in docs/explain.md):",
+            f"{k} {show(k, getattr(res.after.params, k))} {show_interval(k, lo, hi)}"
+            + (" (valve flow gain, fitted within a healthy spread)" if k == "GQ" and flow
+               else "")
+            for k, (lo, hi) in res.intervals.items()), highlight=False)
+    facts = res.verdict_facts
+    console.print(f"verdict ({facts.kind}): {escape(facts.finding)}", highlight=False)
+    for rival in facts.rivals:
+        console.print(f"  cannot be told apart on this command from {escape(rival)}",
                       highlight=False)
-        for line in res.undetectable():
-            console.print(f"  {escape(line)}", highlight=False)
+    if res.null:
+        lines = res.undetectable()
+        if lines:
+            console.print("  " + escape(unseen_summary(lines)), highlight=False)
+        console.print(f"  decisions at alpha {res.null['alpha']:g} against "
+                      f"{escape(res.null['source'])} on this command", highlight=False)
+    _warn(res)
+
+
+def _warn(res) -> None:
+    """A warning on stderr when the verdict is not a clean one."""
     if res.beyond_healthy:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "
@@ -181,17 +197,29 @@ def _render(res) -> None:
 
 
 def _steps_table(res) -> Table:
-    table = Table("step", "effect", "parameters", "RMSE fit [µm]", "RMSE held-out [µm]",
-                  "RMSE all [µm]", "faults after")
-    table.add_row("0", "(declared faults)", "-", f"{1e6 * res.before.rmse_fit:.3g}",
-                  f"{1e6 * res.before.rmse_hold:.3g}", f"{1e6 * res.rmse_before:.3g}",
-                  ", ".join(f"{k}={v:.4g}" for k, v in res.faults_before.items()))
-    for row, s in zip(res.steps_table(), res.steps):
-        table.add_row(str(row["step"]), s.effect, row["params"],
-                      f"{1e6 * s.rmse_fit_before:.3g} → {1e6 * s.rmse_fit_after:.3g}",
-                      f"{1e6 * s.rmse_hold_before:.3g} → {1e6 * s.rmse_hold_after:.3g}",
-                      f"{1e6 * s.rmse_before:.3g} → {1e6 * s.rmse_after:.3g}",
-                      row["faults_after"])
+    """Readable at 80 columns: the effect's name whole, parameters in display units, the
+    RMSE before→after of each part; the faults go in the final model's line."""
+    from rich import box
+
+    from eha.explain.settings import STRUCTURAL
+    from eha.models.units import show
+
+    table = Table("#", "effect", "parameters", "fit µm", "held-out µm", "all µm",
+                  box=box.SIMPLE_HEAD, pad_edge=False)
+    table.columns[1].overflow = "fold"
+    table.columns[1].min_width = 11
+    table.add_row("0", "declared faults", ", ".join(
+        f"{k} {show(k, v)}" for k, v in res.faults_before.items()) or "-",
+        f"{1e6 * res.before.rmse_fit:.3g}", f"{1e6 * res.before.rmse_hold:.3g}",
+        f"{1e6 * res.rmse_before:.3g}")
+    for i, s in enumerate(res.steps):
+        params = ", ".join(f"{k} {show(k, v)}" for k, v in res.final_params(s).items())
+        if s.effect in STRUCTURAL:
+            params = (params + " " if params else "") + "(structure)"
+        table.add_row(str(i + 1), s.effect, params or "-",
+                      f"{1e6 * s.rmse_fit_before:.3g}→{1e6 * s.rmse_fit_after:.3g}",
+                      f"{1e6 * s.rmse_hold_before:.3g}→{1e6 * s.rmse_hold_after:.3g}",
+                      f"{1e6 * s.rmse_before:.3g}→{1e6 * s.rmse_after:.3g}")
     return table
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from eha.explain.effects import EFFECTS
 from eha.explain.leads import LeadReport
 from eha.models.params import LFParams
+from eha.models.units import number, show
 
 
 @dataclass
@@ -137,14 +138,6 @@ class Round:
     candidates: list[Candidate]
 
 
-def _beyond(excluded: dict[str, Any]) -> str:
-    """How far a rival of the exclusion check went (:attr:`ExplainResult.not_excluded`)."""
-    if excluded["unit"] == "m" and excluded.get("value_unit", "m") != "m":
-        return (f"a footprint of {1e6 * excluded['shift']:.3g} µm, beyond the "
-                f"{1e6 * excluded['detectable']:.3g} µm this command shows")
-    return f"a change beyond the {excluded['detectable']:.3g} this command shows"
-
-
 @dataclass
 class ExplainResult:
     """Outcome of :func:`explain` (RMSE in metres)."""
@@ -203,68 +196,50 @@ class ExplainResult:
             effect = EFFECTS[name]
             param = effect.tested
             if effect.footprint:
-                unit = effect.units()[param]
                 sizes = "; ".join(
-                    (f"{param} {a['value']:.3g} {unit}" if a["value"] is not None else
-                     f"no {param} down to {effect.bounds[param][0]:.3g} {unit}")
+                    (f"{param} {show(param, a['value'])}" if a["value"] is not None else
+                     f"no {param} down to {show(param, effect.bounds[param][0])}")
                     + "".join(f" at {k} {v:g}" for k, v in a["setting"].items())
                     for a in e.get("detectable_as", []))
                 shift = e.get("shift")
-                also = (f" and a change of {shift['detectable']:.3g} {shift['unit']} in "
+                also = (f" and a change of {show(shift['param'], shift['detectable'])} in "
                         f"{shift['param']}" if shift else "")
                 lines.append(f"{name}: not detectable on this command below a footprint of "
                              f"{1e6 * e['detectable']:.3g} µm (the RMS change of the position "
                              f"that {'+'.join(effect.params)} as fitted make against healthy "
-                             f"{param} {effect.off[param]:.4g} {unit}"
+                             f"{param} {show(param, effect.off[param])}"
                              + (f"; made by {sizes}" if sizes else "") + ")" + also)
             else:
                 lines.append(f"{name}: not detectable on this command below a change of "
-                             f"{e['detectable']:.3g} {e['unit']} in {param} (healthy "
-                             f"{effect.off[param]:.4g})")
+                             f"{show(param, e['detectable'])} in {param} (healthy "
+                             f"{number(param, effect.off[param], 4)})")
         return lines
 
     @property
+    def verdict_facts(self):
+        """The verdict's facts, kind and lines (:class:`eha.explain.verdict.Verdict`): every
+        output's verdict is made from it."""
+        from eha.explain.verdict import verdict_of
+
+        return verdict_of(self)
+
+    @property
     def verdict(self) -> str:
-        """One line: is the record explained by the library model, and if not, a lead.
+        """One line, ``KIND: what was found; the residual[; the rivals]``
+        (:mod:`eha.explain.verdict`, docs/explain.md):
 
-        Three cases, by the residual after the best library model:
-
-        - at the noise level: ``"explained: residual 1.1 µm (1.1× noise)"``;
-        - above the noise but within what healthy actuators leave on this command (the
-          model's own accuracy there): ``"not explained to the noise: residual 1.6 µm (1.6×
-          noise), within what healthy actuators leave on this command (up to 3×): an effect
+        - ``"explained: found external load 829 N [818, 839] (90 %); residual 1.03 µm, at the
+          noise (1.09 µm)"``;
+        - ``"explained, ambiguous: found ...; cannot be told apart on this command from a
+          motor offset of -0.009 mA (...)"``: at the noise, but an effect outside the model
+          fits as well with a size this command shows;
+        - ``"partly explained: found leakage ... (tentative); residual 1.6 µm, 1.6× the noise
+          (1 µm), within what healthy actuators leave on this command (up to 3×): an effect
           that small may be missing"``;
-        - beyond that: ``"unexplained residual 12.3 µm (8.1× noise), correlated with
-          position_cubed (61 % of it)"`` (the leads).
-
-        In the last two the effects added are tentative (they may stand in for physics the
-        library lacks, or share the residual with an effect it could not separate).
+        - ``"unexplained residual 12.3 µm (8.1× noise), correlated with position_cubed (61 %
+          of it)..."`` (the leads; the effects added are tentative).
         """
-        ratio = self.rmse_after / self.noise_rmse if self.noise_rmse > 0 else math.inf
-        limit = (self.null or {}).get("residual_limit")
-        tentative = ("; the effects added are tentative (they may stand in for physics "
-                     "the library lacks)") if self.steps else ""
-        if self.beyond_healthy and self.leads is not None:
-            text = self.leads.describe()
-            if limit is not None:
-                text += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
-            return text + tentative
-        if self.not_excluded:
-            rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} "
-                               f"{e.get('value_unit', e['unit'])}, {_beyond(e)})"
-                               for e in self.not_excluded)
-            return (f"not uniquely explained: residual {1e6 * self.rmse_after:.3g} µm "
-                    f"({ratio:.1f}× noise) with {'+'.join(self.effects) or 'the faults'}, "
-                    f"but {rivals} also {'fit' if len(self.not_excluded) > 1 else 'fits'} "
-                    f"as well: the record cannot rule "
-                    f"{'them' if len(self.not_excluded) > 1 else 'it'} out")
-        if self.unexplained:
-            band = (f"within what healthy actuators leave on this command (up to "
-                    f"{limit:.2g}×)" if limit is not None else "below the flag ratio")
-            return (f"not explained to the noise: residual {1e6 * self.rmse_after:.3g} µm "
-                    f"({ratio:.1f}× noise), {band}: an effect that small may be missing"
-                    + tentative)
-        return f"explained: residual {1e6 * self.rmse_after:.3g} µm ({ratio:.1f}× noise)"
+        return self.verdict_facts.text
 
     @property
     def rmse_before(self) -> float:
@@ -317,6 +292,7 @@ class ExplainResult:
             "null": self.null,
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
+            **self.verdict_facts.to_json(),
         }
 
     @staticmethod
@@ -331,14 +307,16 @@ class ExplainResult:
     def steps_table(self) -> list[dict[str, Any]]:
         """One row per added effect, for people (CSV / console)."""
         return [{"step": i + 1, "effect": s.effect,
-                 "params": ", ".join(f"{k}={v:.4g}" for k, v in
+                 "params": ", ".join(f"{k} {show(k, v, 4)}" for k, v in
                                      self.final_params(s).items()) or "-",
                  "rmse_fit_before_m": s.rmse_fit_before, "rmse_fit_after_m": s.rmse_fit_after,
                  "rmse_holdout_before_m": s.rmse_hold_before,
                  "rmse_holdout_after_m": s.rmse_hold_after,
                  "rmse_before_m": s.rmse_before, "rmse_after_m": s.rmse_after,
-                 "faults_before": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_before.items()),
-                 "faults_after": ", ".join(f"{k}={v:.4g}" for k, v in s.faults_after.items()),
+                 "faults_before": ", ".join(f"{k} {show(k, v, 4)}"
+                                            for k, v in s.faults_before.items()),
+                 "faults_after": ", ".join(f"{k} {show(k, v, 4)}"
+                                           for k, v in s.faults_after.items()),
                  "gain": s.gain, "score": s.score, "chosen": s.chosen,
                  "chosen_score": s.chosen_score,
                  "alternatives": ", ".join(f"{k} ({v:+.2f})" for k, v in
@@ -371,6 +349,7 @@ class ExplainResult:
                 "effects": self.effects, "stop_reason": self.stop_reason,
                 "seconds": self.seconds, "unexplained": bool(self.unexplained),
                 "beyond_healthy": bool(self.beyond_healthy), "verdict": self.verdict,
+                **{k: v for k, v in self.verdict_facts.to_json().items() if k != "found"},
                 "command_hold": self.settings.get("command_hold"),
                 "leads": self.leads.to_json() if self.leads is not None else None}
 

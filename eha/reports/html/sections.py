@@ -170,14 +170,23 @@ def identification_section(page: Page, ident: Identification) -> str:
 
 # =========================================================================== residual loop
 def _explain_state(run: dict[str, Any]) -> str:
-    """"explained" (at the noise level), "above noise" (within what healthy actuators leave
-    on the command) or "unexplained" (beyond it). A database from before the healthy band
-    (no ``beyond_healthy``) called only the last unexplained."""
+    """The tag of the residual (:mod:`eha.explain.verdict`'s facts): "explained" (at the
+    noise, whether or not a rival fits as well: the verdict kind says that), "above noise"
+    (within what healthy actuators leave on the command) or "unexplained" (beyond it). A
+    database from before the facts: ``unexplained`` then meant "not at the noise or not
+    unique", and one from before the healthy band (no ``beyond_healthy``) called only the
+    last unexplained."""
+    def known(value) -> bool:
+        return value is not None and not (isinstance(value, float) and value != value)
+
+    if known(run.get("at_noise")):
+        if bool(run["at_noise"]):
+            return "explained"
+        return "above noise" if bool(run.get("within_healthy_band")) else "unexplained"
     if not run.get("unexplained"):
         return "explained"
     beyond = run.get("beyond_healthy")
-    known = beyond is not None and not (isinstance(beyond, float) and beyond != beyond)
-    return "above noise" if known and not bool(beyond) else "unexplained"
+    return "above noise" if known(beyond) and not bool(beyond) else "unexplained"
 
 
 def explain_section(page: Page, data: dict[str, Any]) -> str:
@@ -192,6 +201,8 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
                      "rmse_before": r["rmse_before"], "rmse_after": r["rmse_after"],
                      "noise_rmse": r["noise_rmse"],
                      "state": _explain_state(r),
+                     "kind": r.get("verdict_kind") if isinstance(r.get("verdict_kind"), str)
+                     else "-",
                      "verdict": verdict if isinstance(verdict, str) else "-",
                      "stop_reason": r.get("stop_reason") or "-"})
     cols = [Column("source", "record", text=True), Column("created_at", "run", text=True),
@@ -200,7 +211,8 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
             Column("rmse_before", "RMSE before [µm]", fmt_num(3, 1e6)),
             Column("rmse_after", "RMSE after [µm]", fmt_num(3, 1e6)),
             Column("noise_rmse", "noise [µm]", fmt_num(3, 1e6)),
-            Column("state", "state", tag), Column("verdict", "verdict", text=True)]
+            Column("state", "residual", tag), Column("kind", "verdict kind", text=True),
+            Column("verdict", "verdict", text=True)]
     key = lambda r: f"{r['source']} ({r['run_id'][:6]})"  # noqa: E731
     figs = {}
     step_tables = []

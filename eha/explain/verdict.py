@@ -1,0 +1,206 @@
+"""The residual loop's verdict as a finding (docs/explain.md, "The verdict").
+
+Three facts of a run, each its own boolean, make the verdict's kind (:data:`KINDS`):
+
+- ``at_noise``: the final model's position residual is at the record's noise (at most the stop
+  rule's ``noise_factor`` times it);
+- ``within_healthy_band``: the residual is no more than what faults and structure leave on
+  healthy actuators of the record's command (the null's residual limit);
+- ``unique_explanation``: no effect outside the model fits the record as well with a size this
+  command shows (the exclusion check found no rival).
+
+=======================  ==========  ===================  ====================
+kind                     at_noise    within_healthy_band  unique_explanation
+=======================  ==========  ===================  ====================
+explained                yes         yes                  yes
+explained, ambiguous     yes         yes                  no
+partly explained         no          yes                  (not checked)
+unexplained              no          no                   (not checked)
+=======================  ==========  ===================  ====================
+
+Every output (console, ``--json``, the database, the HTML report) is made from
+:class:`Verdict`, so they agree. Its first line says what was found, with values, display units
+(:mod:`eha.models.units`) and intervals; then what the record cannot rule out; then what it
+could not have shown (:meth:`ExplainResult.undetectable`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from eha.explain.effects import EFFECTS
+from eha.explain.settings import STRUCTURAL
+from eha.models.units import show, show_interval
+
+#: the verdict's kinds, best first
+KINDS = ("explained", "explained, ambiguous", "partly explained", "unexplained")
+
+#: how an effect is named in a sentence (default: its name with spaces)
+LABELS = {"offset": "motor offset", "hysteresis": "motor hysteresis",
+          "clogging": "filter clogging", "delay": "position delay",
+          "leakage": "internal leakage"}
+
+#: why the structure is added, in one line (docs/explain.md)
+STRUCTURE_WHY = ("structure, not a finding: the LF model lacks the HF's orifice law and "
+                 "flapper dynamics on any actuator; added to reach the other effects, its own "
+                 "RMSE change may be small or negative")
+
+
+def label(effect: str) -> str:
+    """An effect's name in a sentence: ``external_load`` -> ``external load``."""
+    return LABELS.get(effect, effect.replace("_", " "))
+
+
+def kind_of(at_noise: bool, within_healthy_band: bool, unique_explanation: bool) -> str:
+    """The verdict's kind (:data:`KINDS`) from its three facts."""
+    if not within_healthy_band:
+        return "unexplained"
+    if not at_noise:
+        return "partly explained"
+    return "explained" if unique_explanation else "explained, ambiguous"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A run's verdict: its three facts, its kind and its lines."""
+
+    at_noise: bool
+    within_healthy_band: bool
+    unique_explanation: bool
+    #: first line: what was found and the residual, e.g. ``found external load 829 N [818,
+    #: 839] (90 %); residual 1.03 µm, at the noise (1.09 µm)``
+    finding: str
+    #: the rivals the record cannot rule out, one clause each (empty when unique)
+    rivals: tuple[str, ...]
+    #: the effects found, with value, display unit and interval (``--json`` ``found``)
+    found: tuple[dict[str, Any], ...]
+
+    @property
+    def kind(self) -> str:
+        return kind_of(self.at_noise, self.within_healthy_band, self.unique_explanation)
+
+    @property
+    def text(self) -> str:
+        """One line (the ``verdict`` of the JSON and the database): ``KIND: FINDING[;
+        cannot be told apart on this command from RIVALS]``; an unexplained record opens with
+        its lead (``unexplained residual 12.3 µm (8.1× noise), correlated with ...``)."""
+        head = self.finding if self.kind == "unexplained" else f"{self.kind}: {self.finding}"
+        if self.rivals:
+            head += "; cannot be told apart on this command from " + ", ".join(self.rivals)
+        return head
+
+    def to_json(self) -> dict[str, Any]:
+        return {"verdict_kind": self.kind, "at_noise": self.at_noise,
+                "within_healthy_band": self.within_healthy_band,
+                "unique_explanation": self.unique_explanation, "found": list(self.found)}
+
+
+def _found(res) -> list[dict[str, Any]]:
+    """The non-structural effects of the final model, each parameter with its value, display
+    unit and interval (display unit)."""
+    out = []
+    for step in res.steps:
+        if step.effect in STRUCTURAL:
+            continue
+        for name, value in res.final_params(step).items():
+            lo_hi = res.intervals.get(name)
+            out.append({"effect": step.effect, "param": name, "value": value,
+                        "text": show(name, value),
+                        "interval": list(lo_hi) if lo_hi is not None else None,
+                        "interval_text": show_interval(name, *lo_hi) if lo_hi else ""})
+    return out
+
+
+def _effects_text(found: list[dict[str, Any]], level: float | None) -> str:
+    """``external load 829 N [818, 839] (90 %)``; an effect of several parameters names
+    them: ``supply pressure PSR 17.1 MPa [16.8, 17.4], XSSK 0.02 [0, 0.1] (90 %)``."""
+    by_effect: dict[str, list[dict[str, Any]]] = {}
+    for f in found:
+        by_effect.setdefault(f["effect"], []).append(f)
+    parts = []
+    for effect, items in by_effect.items():
+        values = ", ".join((f"{f['param']} " if len(items) > 1 else "") + f["text"]
+                           + (f" {f['interval_text']}" if f["interval_text"] else "")
+                           for f in items)
+        parts.append(f"{label(effect)} {values}")
+    text = ", ".join(parts)
+    if level and any(f["interval_text"] for f in found):
+        text += f" ({100 * level:g} %)"
+    return text
+
+
+def _residual_text(res, at_noise: bool) -> str:
+    """``residual 1.03 µm (0.9× noise), at the noise (1.09 µm)``, or above it within the
+    healthy band."""
+    noise = 1e6 * res.noise_rmse
+    ratio = res.rmse_after / res.noise_rmse if res.noise_rmse > 0 else math.inf
+    head = f"residual {1e6 * res.rmse_after:.3g} µm ({ratio:.1f}× noise)"
+    if at_noise:
+        return f"{head}, at the noise ({noise:.3g} µm)"
+    limit = (res.null or {}).get("residual_limit")
+    band = (f"within what healthy actuators leave on this command (up to {limit:.2g}×)"
+            if limit is not None else "below the flag ratio")
+    return (f"{head}, above the noise ({noise:.3g} µm) but {band}: an effect that small may "
+            f"be missing")
+
+
+def _rival(e: dict[str, Any]) -> str:
+    """``a motor offset of -0.009 mA (beyond the 0.0073 mA this command shows)``."""
+    param, value = e["param"], e["value"]
+    if e["unit"] == "m" and e.get("value_unit", "m") != "m":        # a footprint
+        beyond = (f"a footprint of {1e6 * e['shift']:.3g} µm, beyond the "
+                  f"{1e6 * e['detectable']:.3g} µm this command shows")
+    else:
+        beyond = f"beyond the {show(param, e['detectable'])} change this command shows"
+    return f"a {label(e['effect'])} of {show(param, value)} ({beyond})"
+
+
+def verdict_of(res) -> Verdict:
+    """The verdict of an :class:`eha.explain.results.ExplainResult`."""
+    within = not res.beyond_healthy
+    at_noise = within and (bool(res.not_excluded) or not res.unexplained)
+    unique = not res.not_excluded
+    found = _found(res)
+    effects = _effects_text(found, res.level)
+    if not within and res.leads is not None:
+        finding = res.leads.describe()
+        limit = (res.null or {}).get("residual_limit")
+        if limit is not None:
+            finding += f"; healthy actuators leave up to {limit:.2g}× noise on this command"
+        if effects:
+            finding += f"; tentative: {effects}"
+    elif not within:
+        finding = (f"unexplained residual {1e6 * res.rmse_after:.3g} µm"
+                   + (f"; tentative: {effects}" if effects else ""))
+    else:
+        what = effects or "nothing beyond the healthy band"
+        finding = (f"found {what}" + ("" if at_noise or not effects else " (tentative)")
+                   + "; " + _residual_text(res, at_noise))
+    return Verdict(at_noise=at_noise, within_healthy_band=within, unique_explanation=unique,
+                   finding=finding, rivals=tuple(_rival(e) for e in res.not_excluded),
+                   found=tuple(found))
+
+
+def unseen_summary(lines: list[str], limit: int = 4) -> str:
+    """The undetectable lines folded to one: ``could not have been seen on this command below
+    the sizes it shows: leakage, hinge moment, ... (11 effects; each size in --json
+    'undetectable')``."""
+    names = [label(line.split(":", 1)[0]) for line in lines]
+    shown = ", ".join(names[:limit]) + (", ..." if len(names) > limit else "")
+    return (f"not visible on this command below the sizes it shows: {shown} "
+            f"({len(names)} effect{'s' if len(names) != 1 else ''}; each size in "
+            f"explain.json 'undetectable')")
+
+
+def structure_note(res) -> str | None:
+    """One line on the structure the model added, or None."""
+    added = [label(s.effect) for s in res.steps if s.effect in STRUCTURAL]
+    if not added:
+        return None
+    return f"{' and '.join(added)}: {STRUCTURE_WHY}"
+
+
+__all__ = ["KINDS", "Verdict", "verdict_of", "kind_of", "label", "unseen_summary",
+           "structure_note"]

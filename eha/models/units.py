@@ -1,0 +1,96 @@
+"""Display units: the one unit a quantity is shown in, wherever it is shown (console, JSON
+names, CSV headers, figures, the report).
+
+Parameters are declared in SI (:data:`eha.models.params.PARAMETERS`, currents in mA); people
+read positions and lengths in µm, pressures in MPa, delays in ms. :func:`display_unit` maps a
+parameter to its display unit and the factor from its declared unit; :func:`show` formats a
+value (and :func:`show_interval` an interval) in it.
+
+Examples
+--------
+>>> display_unit("BKL")
+('µm', 1000000.0)
+>>> show("FRC", 829.4)
+'829 N'
+>>> show("PSR", 1.71e7)
+'17.1 MPa'
+>>> show("Kintas", 0.0741)
+'0.0741'
+>>> show_interval("FRC", 818.2, 839.0)
+'[818, 839]'
+"""
+
+from __future__ import annotations
+
+import math
+
+from eha.models.params import SPECS
+
+#: declared (SI) unit -> (display unit, factor from the declared unit)
+_DISPLAY: dict[str, tuple[str, float]] = {
+    "m": ("µm", 1e6),
+    "Pa": ("MPa", 1e-6),
+    "s": ("ms", 1e3),
+    "-": ("", 1.0),
+    "N*s/m": ("N·s/m", 1.0),
+    "m^3/(Pa*s)": ("m³/(Pa·s)", 1.0),
+    "m^2/s": ("m²/s", 1.0),
+    "m^2": ("m²", 1.0),
+}
+
+#: parameters whose declared unit is not the one people read them in for another reason:
+#: the integration step stays in seconds (a model setting, not a measured quantity)
+_KEEP = {"DT"}
+
+
+def display_unit(name: str) -> tuple[str, float]:
+    """The display unit of parameter ``name`` and the factor from its declared unit
+    (``value_shown = factor * value``): positions and lengths µm, pressures MPa, delays ms,
+    forces N, currents mA, dimensionless ``""``. An unknown name: ``("", 1.0)``."""
+    spec = SPECS.get(name)
+    if spec is None:
+        return "", 1.0
+    if name in _KEEP:
+        return spec.unit, 1.0
+    return _DISPLAY.get(spec.unit, (spec.unit, 1.0))
+
+
+def _number(x: float, digits: int) -> str:
+    if not math.isfinite(x):
+        return str(x)
+    if x == 0:
+        return "0"
+    text = f"{x:.{digits}g}"
+    if "e" in text:         # 1.2e+03 reads worse than 1200: plain up to 1e6, down to 1e-3
+        if 1e-3 <= abs(x) < 1e6:
+            text = f"{x:.{max(digits - 1 - math.floor(math.log10(abs(x))), 0)}f}"
+    return text
+
+
+def number(name: str, value: float, digits: int = 3) -> str:
+    """``value`` of parameter ``name`` in its display unit, without the unit."""
+    return _number(display_unit(name)[1] * float(value), digits)
+
+
+def show(name: str, value: float, digits: int = 3) -> str:
+    """``value`` (declared unit) of parameter ``name`` with its display unit:
+    ``show("BKL", 1.2e-4) == "120 µm"``."""
+    unit = display_unit(name)[0]
+    return number(name, value, digits) + (f" {unit}" if unit else "")
+
+
+def show_interval(name: str, lo: float, hi: float, digits: int = 3) -> str:
+    """An interval in the display unit, without the unit: ``[818, 839]``."""
+    return f"[{number(name, lo, digits)}, {number(name, hi, digits)}]"
+
+
+def unit_suffix(name: str) -> str:
+    """A JSON or CSV name's unit suffix for parameter ``name``: ``"_um"``, ``"_N"``, ``""``
+    for a dimensionless one (ASCII: µm is ``um``)."""
+    unit = display_unit(name)[0]
+    if not unit:
+        return ""
+    return "_" + unit.replace("µ", "u").replace("·", "*").replace("³", "^3").replace("²", "^2")
+
+
+__all__ = ["display_unit", "show", "show_interval", "number", "unit_suffix"]
