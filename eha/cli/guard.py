@@ -22,6 +22,18 @@ from typer.core import TyperGroup
 
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 
+
+
+def _on_broken_pipe(self) -> None:
+    """Rich's reaction to a closed standard output (``eha params | head``), with the
+    conventional status: stdout discarded (the interpreter's final flush must not fail
+    again), exit :data:`PIPE_CLOSED`, nothing printed. Rich (and typer's help, which prints
+    through rich) would exit 1."""
+    discard_stdout()
+    raise SystemExit(PIPE_CLOSED)
+
+
+Console.on_broken_pipe = _on_broken_pipe
 console = Console()
 err_console = Console(stderr=True)
 
@@ -32,13 +44,16 @@ _NO_ARGS = getattr(_CLICK, "NoArgsIsHelpError", ())
 TERMINATED = 143
 #: Exit status after Ctrl-C (128 + SIGINT).
 INTERRUPTED = 130
+#: Exit status when the reader of standard output closed it early (``eha params | head``):
+#: 128 + SIGPIPE, what a shell reports for a process a closed pipe ended; nothing is printed.
+PIPE_CLOSED = 141
 #: ``--debug`` (or EHA_DEBUG=1): unexpected errors show their traceback.
 STATE = {"debug": bool(os.environ.get("EHA_DEBUG"))}
 
 _TERMINATED_LINE = "terminated (SIGTERM); outputs are written only when complete"
 _INTERRUPTED_LINE = "interrupted (Ctrl-C); outputs are written only when complete"
 
-__all__ = ["BAD_INPUT", "FAILURE", "TERMINATED", "INTERRUPTED", "GuardedGroup", "Terminated",
+__all__ = ["BAD_INPUT", "FAILURE", "TERMINATED", "INTERRUPTED", "PIPE_CLOSED", "GuardedGroup", "Terminated",
            "console", "err_console", "error_line", "fail", "fail_lines", "warn", "resumable",
            "discard_stdout", "stdout_failed"]
 
@@ -177,8 +192,29 @@ def stdout_failed() -> bool:
         sys.stdout.flush()
         return False
     except (OSError, ValueError):
+        STATE["pipe_closed"] = stdout_closed()
         discard_stdout()
         return True
+
+
+def stdout_closed() -> bool:
+    """Has the reader of standard output gone (a pipe whose other end is closed: ``| head``)?
+    False when it cannot be told (not a file descriptor: an in-process caller)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _pipe_closed(exc: BaseException) -> bool:
+    """An error from writing to a standard output whose reader has gone."""
+    import errno
+
+    return isinstance(exc, OSError) and exc.errno == errno.EPIPE and stdout_closed()
 
 
 def discard_stdout() -> None:
@@ -217,11 +253,16 @@ class GuardedGroup(TyperGroup):
             error_line(_INTERRUPTED_LINE)
             raise typer.Exit(INTERRUPTED)
         except Exception as exc:
+            if _pipe_closed(exc):       # `eha params | head`: the reader has what it wanted
+                discard_stdout()
+                raise typer.Exit(PIPE_CLOSED)
             code = _report_known(exc)
             if code is not None:
                 raise typer.Exit(code)
             _traceback()
             if isinstance(exc, OSError) and stdout_failed():
+                if STATE.get("pipe_closed"):
+                    raise typer.Exit(PIPE_CLOSED)
                 exc = OSError(exc.errno, exc.strerror, "standard output")
             error_line(_unexpected(exc))
             raise typer.Exit(FAILURE)
@@ -234,6 +275,7 @@ class GuardedGroup(TyperGroup):
             return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                                 standalone_mode=False, **extra)
         _RECEIVED.clear()  # a new command line (in-process callers run several)
+        STATE.pop("pipe_closed", None)
         previous = _handle_signals()  # from here on: parsing reads defaults from the library
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
@@ -241,6 +283,10 @@ class GuardedGroup(TyperGroup):
         except _NO_ARGS as exc:
             exc.show()
             sys.exit(exc.exit_code)
+        except SystemExit as exc:   # typer ends a closed pipe (`--help | head`) with exit 1
+            if exc.code == FAILURE and (stdout_closed() or STATE.get("pipe_closed")):
+                sys.exit(PIPE_CLOSED)
+            raise
         except _CLICK.ClickException as exc:
             where = f"{exc.ctx.command_path}: " if getattr(exc, "ctx", None) else ""
             error_line(where + exc.format_message().replace("\n", " "))
@@ -264,6 +310,8 @@ class GuardedGroup(TyperGroup):
         finally:
             _restore(previous)
         if stdout_failed():  # e.g. `eha params > /dev/full`: say so, not at the final flush
+            if STATE.get("pipe_closed"):
+                sys.exit(PIPE_CLOSED)
             error_line("the output could not be written to standard output")
             sys.exit(FAILURE)
         sys.exit(rv if isinstance(rv, int) else 0)

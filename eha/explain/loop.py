@@ -215,8 +215,9 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             return f"reached max_steps={s.max_steps:g}"
         if cur.rmse_score <= s.noise_factor * self.score_noise:
             what = " with P12" if self.p12_weight else ""
-            return (f"RMSE {cur.rmse_score:.3g} m (fitted and held-out parts{what}) is at the "
-                    f"noise level ({self.score_noise:.3g} m estimated from the record)")
+            return (f"RMSE {1e6 * cur.rmse_score:.3g} µm (fitted and held-out parts{what}) is "
+                    f"at the noise level ({1e6 * self.score_noise:.3g} µm estimated from the "
+                    f"record)")
         if not self.remaining():
             return "every candidate effect is already in the model"
         return ""
