@@ -233,7 +233,11 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
             problems.append(f"{key}: unknown key{_did_you_mean(key, allowed)}; allowed: "
                             f"{', '.join(allowed)}")
     name = table.get("name")
-    if not isinstance(name, str) or not _NAME_RE.match(name):
+    if name is None:
+        problems.append("name: missing; required, 1-80 characters from letters, digits, "
+                        "'_', '.', '-', starting with a letter or digit")
+        name = "?"
+    elif not isinstance(name, str) or not _NAME_RE.match(name):
         problems.append(f"name: {name!r} is not a valid campaign name; required, 1-80 "
                         "characters from letters, digits, '_', '.', '-', starting with a "
                         "letter or digit")
@@ -297,34 +301,62 @@ def _did_you_mean(key: str, allowed: tuple[str, ...] | list[str]) -> str:
 
 
 # --------------------------------------------------------------------------- plan
-def plan(campaign: Campaign, workers: int = 2) -> dict[str, Any]:
+def plan(campaign: Campaign, workers: int = 2,
+         results: str | Path | None = None) -> dict[str, Any]:
     """Counts and an estimated wall time for running ``campaign`` on ``workers`` processes.
 
     The estimate uses measured per-run costs on this project's reference machine: a job kind's
     own estimate where it registers one (simulations: HF about 5 ms and LF about 3 ms per
     simulated second at DT = 1e-5 s, :data:`eha.models.batch.SIM_COST`, plus about 0.5 ms per run
     for metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
-    and about 2 s to start the worker pool; it is a guide, not a promise.
+    and about 2 s to start the worker pool; it is a guide, not a promise. With ``results``, the
+    runs its database already holds as done (``done``) are not run again and count for
+    nothing in ``estimated_s`` (``estimated_all_s``: every job).
     """
     from eha.campaigns.jobs import find_job_kind
 
-    work = 0.0
+    done = _done_keys(results, {j.run_key for j in campaign.jobs})
+    work = todo = 0.0
     estimate: dict[str, Callable | None] = {}  # kind -> its estimate, looked up once
     for j in campaign.jobs:
         if j.kind not in estimate:
             found = find_job_kind(j.kind)
             estimate[j.kind] = found.estimate_s if found is not None else None
         if estimate[j.kind] is not None:
-            work += estimate[j.kind](j.spec)
+            cost = estimate[j.kind](j.spec)
         else:
-            work += float(j.columns.get("estimated_s", 1.0))
+            cost = float(j.columns.get("estimated_s", 1.0))
+        work += cost
+        todo += 0.0 if j.run_key in done else cost
     workers = max(1, int(workers))
-    return {"campaign": campaign.name, "jobs": len(campaign.jobs),
+    return {"campaign": campaign.name, "jobs": len(campaign.jobs), "done": len(done),
             "by_kind": campaign.count_by("kind"), "by_model": campaign.count_by("model"),
             "by_command": campaign.count_by("command"),
             "fault_sets": len({json.dumps(j.columns.get("faults"), sort_keys=True)
                                for j in campaign.jobs}),
-            "workers": workers, "estimated_s": 2.0 + work / workers}
+            "workers": workers,
+            "estimated_s": 0.0 if len(done) == len(campaign.jobs) else 2.0 + todo / workers,
+            "estimated_all_s": 2.0 + work / workers}
+
+
+def _done_keys(results: str | Path | None, keys: set[str]) -> set[str]:
+    """The run keys among ``keys`` that the database under ``results`` holds as done (none
+    without a database)."""
+    from eha.campaigns.schema import DB_NAME
+    from eha.campaigns.store import connect
+
+    if results is None or not (Path(results) / DB_NAME).exists():
+        return set()
+    con = connect(results, read_only=True)
+    try:
+        if not con.execute("SELECT count(*) FROM information_schema.tables WHERE table_name = "
+                           "'runs'").fetchone()[0]:
+            return set()
+        done = {k for (k,) in con.execute("SELECT run_key FROM runs WHERE status = 'done'"
+                                          ).fetchall()}
+    finally:
+        con.close()
+    return done & keys
 
 
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",

@@ -16,8 +16,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, discard_stdout, fail, resumable, warn
-from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
-                             check_out_file)
+from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_database,
+                             check_out_dir, check_out_file)
 
 campaign_app = typer.Typer(no_args_is_help=True,
                            help="Fault campaigns: validate, plan and run TOML campaign files.\n\n"
@@ -43,15 +43,18 @@ def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.
 @campaign_app.command("plan")
 def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
                   workers: WorkersOption = WORKERS,
-                  jobs: bool = typer.Option(False, "--jobs", help="List every job.")):
-    """Show what a campaign would run: job counts and an estimated wall time.
+                  jobs: bool = typer.Option(False, "--jobs", help="List every job."),
+                  results: ResultsOption = RESULTS):
+    """Show what a campaign would run: job counts, how many are already done under
+    --results, and an estimated wall time for the rest.
 
     Example: eha campaign plan campaigns/thesis-single-fault.toml --jobs
     """
     from eha.campaigns.files import plan
+    from eha.models.units import duration
 
     camp = _load(file)
-    info = plan(camp, workers)
+    info = plan(camp, workers, results)
     if jobs:
         table = Table("run_key", "kind", "job")
         for j in camp.jobs:
@@ -61,7 +64,12 @@ def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
                   f"({', '.join(f'{k}: {v}' for k, v in info['by_model'].items() if k)}), "
                   f"{info['fault_sets']} fault sets, commands "
                   f"{', '.join(str(c) for c in info['by_command'] if c)}")
-    console.print(f"estimated wall time on {workers} workers: {info['estimated_s']:.1f} s")
+    if info["done"]:
+        console.print(escape(f"already done in {results}: {info['done']} of {info['jobs']} "
+                             f"runs (not run again)"))
+    left = "nothing left to run" if info["done"] == info["jobs"] else duration(
+        info["estimated_s"])
+    console.print(f"estimated wall time on {workers} workers: {left}")
 
 
 @campaign_app.command("run")
@@ -70,7 +78,8 @@ def campaign_run(
     workers: WorkersOption = WORKERS,
     results: ResultsOption = RESULTS,
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
-                                            help="Dask scheduler tcp://HOST:PORT (eha[dask])."),
+                                            help="Dask scheduler tcp://HOST:PORT (needs "
+                                                 "eha's dask extra)."),
     replace: bool = typer.Option(False, "--replace",
                                  help="The file changed: discard the recorded runs it no "
                                       "longer has (shared runs are kept)."),
@@ -132,6 +141,7 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
 
     if format not in ("table", "csv", "json"):
         fail(f"--format {format!r}: allowed table, csv, json")
+    check_database(results)
     frame = run_query(results, sql)
     try:
         _write_frame(frame, format)
@@ -152,6 +162,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
     """
     from eha.campaigns.query import export_csv
 
+    check_database(results)
     check_out_file(csv, "--csv", (".csv",))
     n = export_csv(results, table, csv)
     console.print(escape(f"{table}: {n} rows -> {csv}"))

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, resumable, warn
@@ -35,8 +36,8 @@ def health_calibrate(
     alpha: float = typer.Option(
         ..., "--alpha", default_factory=defaults.health_alpha,
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Record length [s], 0.2 to 10."),
-    noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records [m]."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Record length in s, 0.2 to 10."),
+    noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records in m."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
                              "noise, optimizer)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
@@ -112,6 +113,9 @@ def health_check(
     from eha.health.monitoring import check_record
 
     check_seed(seed)
+    if calibration is not None and not calibration.is_file():
+        fail(f"--calibration {calibration}: no such file; make one with eha health calibrate "
+             f"--command COMMAND (it writes RESULTS/health/calibration-COMMAND.json)")
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(results, "--results")
     with err_console.status("assessing ...") as status:
@@ -122,6 +126,10 @@ def health_check(
     _render_check(run, record)
     if run.db_error:
         fail(f"results database not written: {run.db_error}", code=1)
+
+
+_NO_CALIBRATION = ("none, so no healthy/degraded verdicts: make the thresholds once with eha "
+                   "health calibrate --command COMMAND, then give --calibration FILE")
 
 
 def _render_check(run, record: Path) -> None:
@@ -139,7 +147,8 @@ def _render_check(run, record: Path) -> None:
                       f"{v.healthy:.4g}", "-" if v.threshold is None else
                       alarm_value(v.name, v.threshold),
                       verdict, "-" if v.weight is None else f"{v.weight:.2f}")
-    console.print(f"record: {record}; calibration: {run.calibration or 'none (no verdicts)'}")
+    console.print(escape(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}"),
+                  highlight=False)
     console.print(table)
     status_text = run.to_dict()["status"]
     console.print(f"status: {status_text}; isolated: {', '.join(run.isolated) or 'none'}; "

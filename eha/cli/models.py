@@ -11,6 +11,7 @@ from typing import List, Optional
 
 import typer
 from rich.markup import escape
+from rich.padding import Padding
 from rich.table import Table
 
 from eha.cli.guard import console, fail
@@ -21,7 +22,7 @@ def simulate(
     model: str = typer.Option("hf", "--model", help="hf (detailed) or lf (monitoring)."),
     command: str = typer.Option("mixed", "--command", help="Preset or kind (see `eha commands`)."),
     set_: List[str] = typer.Option([], "--set", help="Parameter NAME=VALUE (repeatable)."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time [s]."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time in s."),
     seed: int = typer.Option(0, "--seed", help="Dither seed (HF)."),
     out: Path = typer.Option(..., "--out", help="Trace file (.parquet)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Also write a PNG plot."),
@@ -61,16 +62,30 @@ def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or
 
     if model is not None and model not in MODELS:
         fail(f"--model {model!r}: allowed hf, lf")
-    table = Table("name", "unit", "nominal HF", "nominal LF", "range", "models", "description")
-    for p in PARAMETERS:
-        if (model and model not in p.models) or (faults and not p.fault):
-            continue
-        table.add_row(p.name, p.unit,
-                      f"{p.nominal:g}" if "hf" in p.models else "-",
-                      f"{p.nominal_for('lf'):g}" if "lf" in p.models else "-",
-                      f"[{p.lo:g}, {p.hi:g}]", ",".join(p.models),
-                      p.description + (" (fault)" if p.fault else ""))
-    console.print(table)
+    chosen = [p for p in PARAMETERS
+              if not (model and model not in p.models) and not (faults and not p.fault)]
+    if console.width >= 120:
+        table = Table("name", "unit", "nominal HF", "nominal LF", "range", "models",
+                      "description")
+        for p in chosen:
+            table.add_row(p.name, p.unit, *_nominals(p), f"[{p.lo:g}, {p.hi:g}]",
+                          ",".join(p.models), p.description + (" (fault)" if p.fault else ""))
+        console.print(table)
+        return
+    # narrow (80 columns): one line of facts per parameter, its description wrapped below
+    for p in chosen:
+        hf, lf = _nominals(p)
+        nominal = hf if lf in ("-", hf) else (lf if hf == "-" else f"{hf} (LF {lf})")
+        facts = (f"{p.unit}, nominal {nominal}, range [{p.lo:g}, {p.hi:g}], "
+                 f"{','.join(p.models)}" + (", fault" if p.fault else ""))
+        console.print(f"[bold]{escape(p.name)}[/bold]  {escape(facts)}", highlight=False)
+        console.print(Padding(escape(p.description), (0, 0, 0, 4)), highlight=False)
+
+
+def _nominals(p) -> tuple[str, str]:
+    """A parameter's nominal value in the HF and the LF model ("-": not in that model)."""
+    return (f"{p.nominal:g}" if "hf" in p.models else "-",
+            f"{p.nominal_for('lf'):g}" if "lf" in p.models else "-")
 
 
 def commands():
@@ -80,11 +95,15 @@ def commands():
     """
     from eha.models.commands import KINDS, PRESETS
 
-    table = Table("name", "kind", "parameters", "description")
+    presets = Table("preset", "kind", "parameters", "description", title="presets",
+                    title_justify="left")
     for name, (kind, values, desc) in PRESETS.items():
-        table.add_row(name, kind, ", ".join(f"{k}={v:g}" for k, v in values.items()), desc)
+        presets.add_row(name, kind, ", ".join(f"{k}={v:g}" for k, v in values.items()), desc)
+    console.print(presets)
+    kinds = Table("kind", "parameters: default unit [range]", "description",
+                  title="kinds (the shapes the presets are made of)", title_justify="left")
     for kind in KINDS.values():
-        pars = ", ".join(f"{k}={d:g} {u} [{lo:g}, {hi:g}]"
-                         for k, (d, u, lo, hi) in kind.params.items())
-        table.add_row(kind.name, kind.name, pars, kind.description)
-    console.print(table)
+        kinds.add_row(kind.name, "\n".join(f"{k}={d:g}{' ' + u if u else ''} [{lo:g}, {hi:g}]"
+                                           for k, (d, u, lo, hi) in kind.params.items()) or "-",
+                      kind.description)
+    console.print(kinds)

@@ -38,7 +38,7 @@ CommandHoldOption = Annotated[str, typer.Option(
 ColumnsOption = Annotated[Optional[str], typer.Option(
     "--columns", help="Header of each signal of the record, SIGNAL=HEADER comma-separated "
     "(signals t, com, xu, p12, xs), e.g. t=time_s,com=command_mm,xu=position_mm; signals "
-    "not named are found by their usual names. A unit in the header ('[mm]' or '_mm') is "
+    "not named are found by their usual names. A unit in the header ('(mm)' or '_mm') is "
     "honoured.")]
 UnitsOption = Annotated[Optional[str], typer.Option(
     "--units", help="Unit of the record's position and command columns (com, xu, xs) whose "
@@ -51,6 +51,17 @@ def record_file(path: Path, columns: Optional[str], units: Optional[str]):
     from eha.identification.measured import RecordFile
 
     return RecordFile(path, columns, units)
+
+
+def check_database(results: Path) -> None:
+    """Before reading the result database: when the folder has none, one line that says so
+    and how to name the folder that has one (a user who ran the campaign elsewhere), exit 2."""
+    from eha.campaigns.schema import DB_NAME
+
+    if not (results / DB_NAME).exists():
+        fail(f"{results / DB_NAME}: no result database yet; run a campaign first (eha "
+             f"campaign run FILE), or give the results folder that holds one with --results "
+             f"DIR")
 
 
 def split_names(text: str) -> list[str]:

@@ -171,7 +171,7 @@ def limits(
                                    "fixed (repeatable)."),
     tol: float = typer.Option(1e-3, "--tol", help="Bisection stops below tol*(hi-lo)."),
     seed: int = typer.Option(0, "--seed", help="HF dither seed."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time [s]."),
+    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time in s."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the result as JSON."),
 ):
     """Derive a fault limit from a performance requirement by HF simulation (bisection).

@@ -341,6 +341,9 @@ def load(path: str | Path | RecordFile, command_hold: str = "auto",
         record = RecordFile(Path(path), columns, units)
     path = record.path
     source = str(path)
+    if path.is_dir():
+        raise MeasuredDataError(source, ["a folder, not a record file (give one CSV, TSV or "
+                                         "Parquet file of it)"])
     if not path.is_file():
         raise MeasuredDataError(source, ["file not found"])
     if path.suffix.lower() not in FILE_TYPES:

@@ -286,7 +286,12 @@ def check_value(name: str, value: Any, model: str | None = None) -> float:
     """
     spec = SPECS.get(name)
     if spec is None:
-        close = [n for n in SPECS if n.lower() == name.lower()]
+        import difflib
+
+        close = [n for n in SPECS if n.lower() == name.lower()] or difflib.get_close_matches(
+            name, SPECS, n=1, cutoff=0.6) or difflib.get_close_matches(
+            name.upper(), [n.upper() for n in SPECS], n=1, cutoff=0.6)
+        close = [next(n for n in SPECS if n.upper() == c.upper()) for c in close]
         hint = f" (did you mean {close[0]}?)" if close else " (see `eha params`)"
         raise ParameterError(f"{name}: unknown parameter{hint}")
     if model is not None and model not in spec.models:

@@ -93,4 +93,19 @@ def unit_suffix(name: str) -> str:
     return "_" + unit.replace("µ", "u").replace("·", "*").replace("³", "^3").replace("²", "^2")
 
 
-__all__ = ["display_unit", "show", "show_interval", "number", "unit_suffix"]
+def duration(seconds: float) -> str:
+    """A duration as people say it: ``0.4 s``, ``25 s``, ``4 min 10 s``, ``1 h 05 min``."""
+    if not math.isfinite(seconds):
+        return "unknown"
+    if seconds < 10:
+        return f"{seconds:.1g} s" if seconds < 1 else f"{seconds:.0f} s"
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        m, s = divmod(int(round(seconds)), 60)
+        return f"{m} min {s:02d} s" if m < 10 and s else f"{round(seconds / 60)} min"
+    h, m = divmod(int(round(seconds / 60)), 60)
+    return f"{h} h {m:02d} min"
+
+
+__all__ = ["display_unit", "show", "show_interval", "number", "unit_suffix", "duration"]
