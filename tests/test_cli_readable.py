@@ -135,3 +135,48 @@ def test_no_help_text_loses_a_bracketed_unit_to_markup():
     assert not found, found
     out = run_eha("health", "calibrate", "--help", env={"COLUMNS": "100"}).stdout
     assert "Record length in s, 0.2 to 10." in " ".join(out.replace("│", " ").split())
+
+
+def test_fdi_table_has_units_and_states_the_sign_of_its_error():
+    proc = run_eha("fdi", "--command", "chirp_1cm", "--set", "BKL=1e-4", "--set", "FDJ=800",
+                   "--t-end", "0.3", env={"COLUMNS": "80"})
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert max(map(len, lines)) <= 80 and "…" not in proc.stdout
+    header = next(line for line in lines if "param" in line)
+    assert "unit" in header and "error %" in header
+    bkl = next(line for line in lines if line.strip().startswith("BKL"))
+    assert bkl.split()[1] == "µm" and bkl.split()[4] == "100"         # 1e-4 m shown in µm
+    assert "error % = (injected - identified) / injected" in " ".join(proc.stdout.split())
+
+
+def test_explain_steps_table_is_whole_at_80_columns():
+    """The steps table of f01's run (structure, a load, the flapper) at 80 columns: no name or
+    value cut to "orifice_…" / "BKL=0.00…", parameters in display units, structure marked."""
+    import numpy as np
+    from rich.console import Console
+
+    from eha.cli.explain import _steps_table
+    from eha.explain.results import Evaluation, ExplainResult, Step
+    from eha.models.params import LFParams
+
+    p = LFParams().replace(FRC=829.4, SNF=4911.0, ZF=1.177, orifice_law=1.0)
+    ev = lambda r: Evaluation(p, np.zeros(3), r, 1.3 * r, 1.1 * r)  # noqa: E731
+    steps = [Step("orifice_law", {}, 21.5e-6, 22.5e-6, 17.2e-6, 19.1e-6, 29e-6, 29e-6, {}, {},
+                  0, 0),
+             Step("external_load", {"FRC": 800.0}, 22.5e-6, 1.68e-6, 19.1e-6, 1.66e-6, 29e-6,
+                  1.73e-6, {}, {}, 0, 0),
+             Step("flapper_dynamics", {"SNF": 1.0, "ZF": 1.0}, 1.68e-6, 1.03e-6, 1.66e-6,
+                  0.987e-6, 1.73e-6, 1.12e-6, {}, {}, 0, 0)]
+    res = ExplainResult(
+        source="f01.csv", fit_bounds={}, faults_before={"BKL": 2.2e-8, "FDJ": 1084.0},
+        faults_after={}, before=ev(21.5e-6), after=ev(1.03e-6), steps=steps, rounds=[],
+        noise_rmse=1.09e-6, stop_reason="", holdout="", t=np.zeros(3), measured=np.zeros(3),
+        settings={}, seconds=0.0)
+    console = Console(width=80, record=True, file=open(os.devnull, "w"))
+    console.print(_steps_table(res))
+    text = console.export_text()
+    assert "…" not in text and max(map(len, text.splitlines())) <= 80
+    for word in ("orifice_law", "external_load", "flapper_dynamics", "FRC 829 N",
+                 "SNF 4911 rad/s", "(structure)", "BKL 0.022 µm", "FDJ 1084 N"):
+        assert word in " ".join(text.split()), (word, text)

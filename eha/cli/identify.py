@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, warn
@@ -83,7 +84,7 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
     with err_console.status(f"identifying ({method}) ...") as status:
         def progress(gen: int, best: float) -> None:
             status.update(f"identifying ({method}): generation {gen}, best "
-                          f"{objective} {best:.4g} m")
+                          f"{objective} {1e6 * best:.4g} µm")
 
         run = identify_source(command=command, faults=parse_assignments(set_), data=record,
                               fit=split_names(fit), bounds=parse_bounds(bounds),
@@ -100,22 +101,36 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
 
 
 def _render(run) -> None:
-    """The identification's table: bounds, injected, identified, interval, error."""
+    """The identification's table in each parameter's display unit (eha.models.units):
+    bounds, injected, identified, interval, error; the error's sign convention below it."""
+    from rich import box
+
+    from eha.models.units import display_unit, number
+
     res = run.result
-    table = Table("parameter", "bounds", "injected", "identified",
-                  f"{100 * res.level:g} % interval", "error [%]")
+    table = Table("param", "unit", "bounds", "injected", "identified",
+                  f"{100 * res.level:g} % interval", "error %", box=box.SIMPLE_HEAD,
+                  pad_edge=False)
     for name in res.names:
         lo, hi = res.bounds[name]
         ilo, ihi = res.intervals[name]
-        table.add_row(name, f"[{lo:g}, {hi:g}]",
-                      f"{run.truth[name]:.6g}" if run.truth else "-",
-                      f"{res.estimates[name]:.6g}", f"[{ilo:.5g}, {ihi:.5g}]",
+        table.add_row(name, display_unit(name)[0] or "-",
+                      f"[{number(name, lo, 3)}, {number(name, hi, 3)}]",
+                      number(name, run.truth[name], 4) if run.truth else "-",
+                      number(name, res.estimates[name], 4),
+                      f"[{number(name, ilo, 4)}, {number(name, ihi, 4)}]",
                       f"{run.errors_pct[name]:+.3f}" if run.errors_pct else "-")
     hold = f"; command {run.command_hold}" if run.command_hold else ""
-    console.print(f"reference: {run.source}; LF model: {run.base_model}{hold}")
+    console.print(escape(f"reference: {run.source}; LF model: {run.base_model}{hold}"),
+                  highlight=False)
     console.print(table)
+    if run.errors_pct:
+        console.print("error % = (injected - identified) / injected x 100: positive when the "
+                      "fit reads low (0 when nothing was injected)", highlight=False)
     for note in res.notes:
         warn(note)
-    mean = f"mean error {run.mean_err_pct:.3f} %, " if run.mean_err_pct is not None else ""
-    console.print(f"{mean}{res.objective_name} {res.objective:.4g} m, {res.evaluations} "
-                  f"evaluations, {res.seconds:.2f} s ({res.method}, seed {res.seed})")
+    mean = (f"mean error {run.mean_err_pct:.3f} % (of |error|), "
+            if run.mean_err_pct is not None else "")
+    console.print(f"{mean}{res.objective_name} {1e6 * res.objective:.4g} µm, "
+                  f"{res.evaluations} evaluations, {res.seconds:.2f} s ({res.method}, seed "
+                  f"{res.seed})", highlight=False)
