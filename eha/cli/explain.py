@@ -131,12 +131,12 @@ class _progress_bar:
         from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
         self.bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
-                            TextColumn("[dim]{task.completed} fits"), TimeElapsedColumn(),
+                            TextColumn("[dim]{task.completed} steps"), TimeElapsedColumn(),
                             console=err_console, disable=not enabled, transient=True)
 
     def __enter__(self):
         self.bar.__enter__()
-        task = self.bar.add_task("reading the record", total=None)
+        task = self.bar.add_task("reading the record, loading the models", total=None)
         return lambda message: self.bar.update(task, description=message, advance=1)
 
     def __exit__(self, *exc):

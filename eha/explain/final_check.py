@@ -50,6 +50,13 @@ class FinalCheck:
         detectable = self.null.detectable(self.settings.alpha)
         in_model = {st.effect for st in self.steps}
         out = []
+        self.phase = "exclusion check (does another effect fit as well?)"
+        try:
+            return self._not_excluded(detectable, in_model, out)
+        finally:
+            self.phase = ""
+
+    def _not_excluded(self, detectable, in_model, out) -> list[dict]:
         for effect in self.pool:
             if (effect.name in in_model or effect.name in STRUCTURAL
                     or effect.name not in self.thresholds):

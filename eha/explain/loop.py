@@ -85,6 +85,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         #: the final estimates (:meth:`baseline`, :func:`explain`'s second pass)
         self.pinned = [e for e in self.pool if e.name in STRUCTURAL] if pin_structure else []
         self.progress = on_progress or (lambda message: None)
+        #: the phase the progress labels name ("" : the rounds, "round N")
+        self.phase = ""
         self.fdi_options = fdi_options
         n = len(data)
         if validate is not None:

@@ -125,7 +125,7 @@ class Rounds:
         params, cost
             The best fit and the objective it reached.
         """
-        label = f"round {len(self.rounds)}: local test of " \
+        label = f"{self.phase or f'round {len(self.rounds)}'}: local test of " \
                 f"{'+'.join(e.name for e in members)}"
         best, cost = self.fit_with_cost(start, free, label, method="lm")
         probe = start
