@@ -15,7 +15,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from eha.cli.guard import console, fail
+from eha.cli.guard import console, err_console, fail
 from eha.cli import defaults
 from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, check_out_dir,
                              check_out_file, print_paths)
@@ -119,7 +119,9 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
     from eha.reports.thesis import reproduce_thesis
 
     check_out_dir(results, "--results")
-    _render_reproduce(reproduce_thesis(results, workers=workers), results)
+    out = reproduce_thesis(results, workers=workers, on_phase=lambda message: err_console.print(
+        f"{escape(message)} ...", highlight=False))
+    _render_reproduce(out, results)
 
 
 def _render_reproduce(out: dict, results: Path) -> None:
