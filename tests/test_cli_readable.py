@@ -180,3 +180,21 @@ def test_explain_steps_table_is_whole_at_80_columns():
     for word in ("orifice_law", "external_load", "flapper_dynamics", "FRC 829 N",
                  "SNF 4911 rad/s", "(structure)", "BKL 0.022 µm", "FDJ 1084 N"):
         assert word in " ".join(text.split()), (word, text)
+
+
+def test_one_display_unit_per_quantity():
+    """Positions and lengths in µm, forces N, currents mA, pressures MPa, from the parameter
+    table; a fault's label, a report's number column and a heat-map cell in one format."""
+    from eha.models.units import display_unit, plain, show
+    from eha.reports.html.figures import _sig3
+    from eha.reports.html.page import fmt_num
+    from eha.reports.plots import fault_text
+
+    assert display_unit("BKL") == ("µm", 1e6) and display_unit("sensor_bias")[0] == "µm"
+    assert display_unit("FRC")[0] == "N" and display_unit("Ofs")[0] == "mA"
+    assert display_unit("PSR") == ("MPa", 1e-6) and display_unit("Kintas")[0] == ""
+    assert show("Kintas", 0.0741) == "0.0741"                  # was "0.0741 - in Kintas"
+    assert fault_text({"BKL": 1e-4, "FDJ": 800.0}) == "BKL 100 µm, FDJ 800 N"   # was mm
+    assert [fmt_num(3)(v) for v in (158.2, 1720.0)] == ["158", "1720"]   # was 1.72e+03
+    assert list(_sig3(__import__("numpy").log10([158.2, 1720.0]))) == ["158", "1720"]
+    assert plain(2.5e7) == "2.5e+07"

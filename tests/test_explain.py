@@ -91,7 +91,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "undetectable", "not_excluded",
                         # the verdict's kind, facts and finding (issue 42)
                         "verdict_kind", "at_noise", "within_healthy_band",
-                        "unique_explanation", "found"}
+                        "unique_explanation", "found", "units"}
     assert all(e["shift"] > e["detectable"] > e["threshold"] for e in doc["not_excluded"])
     assert doc["unexplained"] or not doc["not_excluded"]
     assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05

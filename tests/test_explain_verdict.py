@@ -98,6 +98,7 @@ def test_a_finding_opens_the_verdict_with_its_value_unit_and_interval():
     assert doc["not_excluded"] == [rival] and doc["unexplained"] is True
     assert doc["verdict_kind"] == "explained, ambiguous" and doc["at_noise"] is True
     assert doc["unique_explanation"] is False
+    assert doc["units"]["FRC"] == "N" and doc["units"]["rmse"] == "m"
     (found,) = doc["found"]
     assert found["effect"] == "external_load" and found["text"] == "829 N"
     assert found["interval"] == [818.2, 839.4]

@@ -135,17 +135,20 @@ _NO_CALIBRATION = ("none, so no healthy/degraded verdicts: make the thresholds o
 def _render_check(run, record: Path) -> None:
     """The faults' table, the status line, the warnings and the files written."""
     from eha.health.detection import alarm_value
+    from eha.models.units import display_unit, number
 
     a = run.assessment
-    table = Table("fault", "estimate", f"{100 * a.level:g} % interval", "healthy", "alarm at",
-                  "verdict", "weight")
+    table = Table("fault", "unit", "estimate", f"{100 * a.level:g} % interval", "healthy",
+                  "alarm at", "verdict", "weight")
     for v in run.verdicts:
         verdict = "-" if v.degraded is None else ("DEGRADED" if v.degraded else "healthy")
         if v.name in run.isolated:
             verdict += " (isolated)"
-        table.add_row(v.name, f"{v.estimate:.4g}", f"[{v.interval[0]:.3g}, {v.interval[1]:.3g}]",
-                      f"{v.healthy:.4g}", "-" if v.threshold is None else
-                      alarm_value(v.name, v.threshold),
+        unit, scale = display_unit(v.name)
+        table.add_row(v.name, unit or "-", number(v.name, v.estimate, 4),
+                      f"[{number(v.name, v.interval[0])}, {number(v.name, v.interval[1])}]",
+                      number(v.name, v.healthy, 4), "-" if v.threshold is None else
+                      alarm_value(v.name, v.threshold, scale),
                       verdict, "-" if v.weight is None else f"{v.weight:.2f}")
     console.print(escape(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}"),
                   highlight=False)

@@ -293,7 +293,19 @@ class ExplainResult:
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
             **self.verdict_facts.to_json(),
+            "units": self.units(),
         }
+
+    def units(self) -> dict[str, str]:
+        """The unit of every number of the JSON by name: parameters in their declared (SI)
+        unit (currents mA), RMSE and noise in m (``found`` also gives each value as text in
+        its display unit)."""
+        from eha.models.params import SPECS
+
+        names = {*self.faults_after, *self.intervals,
+                 *(p for st in self.steps for p in st.params)}
+        return {"rmse": "m", "noise_rmse": "m",
+                **{n: SPECS[n].unit for n in sorted(names) if n in SPECS}}
 
     @staticmethod
     def alternatives_of(step: Step) -> dict[str, float]:

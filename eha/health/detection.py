@@ -236,14 +236,15 @@ def statistic(name: str, estimate: float) -> float:
     return abs(d) if spec.direction == 0 else spec.direction * d
 
 
-def alarm_value(name: str, threshold: float) -> str:
+def alarm_value(name: str, threshold: float, scale: float = 1.0) -> str:
     """The fault value at which ``threshold`` raises an alarm, as text (``>= 250``,
-    ``<= 0.0097``, ``|x - 0| >= 0.004``)."""
+    ``<= 0.0097``, ``|x - 0| >= 0.004``), in the parameter's unit times ``scale`` (its
+    display unit's factor, :func:`eha.models.units.display_unit`)."""
     spec = FAULTS[name]
     if spec.direction == 0:
-        return f"|x - {spec.healthy:g}| > {threshold:.4g}"
+        return f"|x - {scale * spec.healthy:g}| > {scale * threshold:.4g}"
     value = spec.healthy + spec.direction * threshold
-    return f"{'>' if spec.direction > 0 else '<'} {value:.4g}"
+    return f"{'>' if spec.direction > 0 else '<'} {scale * value:.4g}"
 
 
 @dataclass(frozen=True)

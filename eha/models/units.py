@@ -55,7 +55,9 @@ def display_unit(name: str) -> tuple[str, float]:
     return _DISPLAY.get(spec.unit, (spec.unit, 1.0))
 
 
-def _number(x: float, digits: int) -> str:
+def plain(x: float, digits: int = 3) -> str:
+    """``x`` with ``digits`` significant digits, without an exponent from 1e-3 to 1e6
+    (``1720``, not ``1.72e+03``): one format for a column of numbers of mixed sizes."""
     if not math.isfinite(x):
         return str(x)
     if x == 0:
@@ -69,7 +71,7 @@ def _number(x: float, digits: int) -> str:
 
 def number(name: str, value: float, digits: int = 3) -> str:
     """``value`` of parameter ``name`` in its display unit, without the unit."""
-    return _number(display_unit(name)[1] * float(value), digits)
+    return plain(display_unit(name)[1] * float(value), digits)
 
 
 def show(name: str, value: float, digits: int = 3) -> str:
@@ -108,4 +110,5 @@ def duration(seconds: float) -> str:
     return f"{h} h {m:02d} min"
 
 
-__all__ = ["display_unit", "show", "show_interval", "number", "unit_suffix", "duration"]
+__all__ = ["display_unit", "show", "show_interval", "number", "plain", "unit_suffix",
+           "duration"]

@@ -64,12 +64,10 @@ def plot_traces(traces: Sequence[Trace], path: str | Path, title: str | None = N
     return _save(fig, path, dpi=110)
 
 def _fmt_value(name: str, value: float) -> str:
-    from eha.models.params import SPECS
+    """``BKL 100 µm``: a fault in its display unit (eha.models.units), as everywhere else."""
+    from eha.models.units import show
 
-    unit = SPECS[name].unit if name in SPECS else ""
-    if unit == "m" and abs(value) < 0.1:
-        return f"{name} {1e3 * value:g} mm"
-    return f"{name} {value:g} {unit}".rstrip()
+    return f"{name} {show(name, value, 4)}"
 
 
 def fault_text(faults: dict) -> str:

@@ -477,8 +477,11 @@ def hf_lf_figure(runs, campaign: str) -> dict:
 
 
 def _sig3(logz: np.ndarray) -> np.ndarray:
-    """Text of 10**logz with 3 significant digits ('' where NaN)."""
-    return np.vectorize(lambda v: "" if not np.isfinite(v) else f"{10.0 ** v:.3g}",
+    """Text of 10**logz with 3 significant digits, no exponent below 1e6 ('' where NaN):
+    one format for every cell (``1720`` beside ``158``, not ``1.72e+03``)."""
+    from eha.models.units import plain
+
+    return np.vectorize(lambda v: "" if not np.isfinite(v) else plain(10.0 ** v, 3),
                         otypes=[object])(logz)
 
 

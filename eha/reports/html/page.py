@@ -54,12 +54,14 @@ class Column:
 
 
 def fmt_num(digits: int = 4, scale: float = 1.0) -> Callable[[Any], str]:
-    """A formatter of numbers with ``digits`` significant digits after ``scale``; ``-`` for
-    None/NaN."""
+    """A formatter of numbers with ``digits`` significant digits after ``scale``, without an
+    exponent from 1e-3 to 1e6 (one format down a column); ``-`` for None/NaN."""
+    from eha.models.units import plain
+
     def f(v: Any) -> str:
         if v is None or (isinstance(v, float) and not math.isfinite(v)):
             return "-"
-        return f"{scale * float(v):.{digits}g}"
+        return plain(scale * float(v), digits)
     return f
 
 

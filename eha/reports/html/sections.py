@@ -190,6 +190,8 @@ def _explain_state(run: dict[str, Any]) -> str:
 
 
 def explain_section(page: Page, data: dict[str, Any]) -> str:
+    from eha.models.units import show
+
     runs, steps = data["runs"], data["steps"]
     rows = []
     for r in runs.to_dict("records"):
@@ -220,13 +222,14 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
         mine = steps[steps["run_id"] == r["run_id"]]
         figs[key(r)] = F.steps_figure(mine, r)
         srows = [{"step": s["step"], "effect": s["effect"],
-                  "params": ", ".join(f"{k}={v:.4g}" for k, v in (s["params"] or {}).items()),
+                  "params": ", ".join(f"{k} {show(k, v, 4)}"
+                                      for k, v in (s["params"] or {}).items()),
                   "rmse_before": s["rmse_before"], "rmse_after": s["rmse_after"],
                   "rmse_hold_before": s["rmse_hold_before"],
                   "rmse_hold_after": s["rmse_hold_after"], "gain": s["gain"],
                   "score": s["score"]} for s in mine.to_dict("records")]
         scols = [Column("step", "step", fmt_int), Column("effect", "effect", text=True),
-                 Column("params", "parameters (SI)", text=True),
+                 Column("params", "parameters", text=True),
                  Column("rmse_before", "RMSE before [µm]", fmt_num(3, 1e6)),
                  Column("rmse_after", "RMSE after [µm]", fmt_num(3, 1e6)),
                  Column("rmse_hold_before", "held-out before [µm]", fmt_num(3, 1e6)),
