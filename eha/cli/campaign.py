@@ -162,8 +162,8 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
     """
     from eha.campaigns.query import export_csv
 
-    check_database(results)
     check_out_file(csv, "--csv", (".csv",))
+    check_database(results)
     n = export_csv(results, table, csv)
     console.print(escape(f"{table}: {n} rows -> {csv}"))
 
