@@ -129,3 +129,24 @@ def test_the_report_tags_by_the_residual_not_by_uniqueness():
     # a database row from before the verdict's facts keeps its old reading
     assert _explain_state({"unexplained": False}) == "explained"
     assert _explain_state({"unexplained": True, "beyond_healthy": False}) == "above noise"
+
+
+def test_the_report_names_the_absent_sections_and_the_error_sign(tmp_path):
+    """Issue 42, item 5: the page says which sections are absent and which command fills
+    each; the identification table states its error's sign and shows the comparison first."""
+    import inspect
+
+    import eha.reports.html as html
+    from eha.reports.html import sections
+
+    r = result(1.1e-6, unexplained=False, beyond=False)
+    from eha.campaigns.store import save_explain
+
+    save_explain(tmp_path, r.run_row("id", "x.csv", "2026-11-26 07:00:00"), [])
+    out = html.build_report(tmp_path, tmp_path / "r.html")
+    text = out.path.read_text(encoding="utf-8")
+    assert "Not in this report" in text and "eha fleet simulate, then eha rul" in text
+    assert "<b>Campaigns</b>" in text and out.sections == ["explain"]
+    src = inspect.getsource(sections.identification_section)
+    assert "Error = (in − out) / in × 100" in src
+    assert src.index('"thesis_mean_err_pct", "thesis mean err') < src.index('f"{ln}_in"')
