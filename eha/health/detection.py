@@ -3,7 +3,8 @@
 Pipeline
 --------
 1. **Fleets** (:func:`health_jobs`, the ``[health]`` section of a campaign file): actuators
-   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`), optionally
+   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`, declared with
+   the faults in :mod:`eha.models.faults`), optionally
    with one injected fault at given levels, one HF record each (sensor noise, dither seed), each
    assessed by the hypothesis bank (:func:`eha.health.assessment.assess_record`). Run by the
    campaign runner (2 workers, resumable); rows in the DuckDB table ``health_assessments``.
@@ -35,7 +36,8 @@ import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
-from eha.health.assessment import CORE_FAULTS, EXTRA_FAULTS, FAULTS
+from eha.health.assessment import FAULTS
+from eha.models.faults import core_faults, detection_levels
 
 #: Smallest posterior weight of a one-more-fault hypothesis for its fault to be isolated.
 ISOLATION_WEIGHT = 0.5
@@ -70,6 +72,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         seed = 0                             # first actuator seed
         noise = 1e-6                         # m, white sensor noise
         faults = { GM = [0.009, 0.008, 0.007], Clk = [5e-13, 1e-12, 2e-12] }   # optional
+        # or faults = ["GM", "Clk"] / "all": the levels declared with each fault
         base_model = "calibrated"            # LF of the assessment
         level = 0.9
 
@@ -146,8 +149,17 @@ def _fault_groups(faults: Any, problems: list[str]) -> list[tuple[str, dict[str,
     from eha.models.params import ParameterError, check_value
 
     groups: list[tuple[str, dict[str, float]]] = [("healthy", {})]
+    if faults == "all" or (isinstance(faults, list) and all(isinstance(n, str) for n in faults)):
+        # the levels declared with each fault (eha.models.faults.Fault.levels)
+        names = list(FAULTS) if faults == "all" else faults
+        unknown = [n for n in names if n not in FAULTS]
+        for name in unknown:
+            problems.append(f"health.faults: {name!r} is not a fault of the assessment; "
+                            f"allowed {', '.join(FAULTS)}")
+        faults = detection_levels([n for n in names if n in FAULTS])
     if not isinstance(faults, Mapping):
-        problems.append("health.faults: a table NAME = [level, ...]")
+        problems.append('health.faults: a table NAME = [level, ...], a list of fault names or '
+                        '"all" (their declared levels)')
         return groups
     for name, levels in faults.items():
         if name not in FAULTS:
@@ -385,7 +397,7 @@ def verdicts(assessment, calibration: Calibration | None) -> tuple[list[Verdict]
         w = weights.get(name)
         out.append(Verdict(name, float(est), tuple(assessment.intervals[name]),
                            FAULTS[name].healthy, thr, float(stat), degraded, w))
-        supported = name in CORE_FAULTS or (w is not None and w >= ISOLATION_WEIGHT)
+        supported = name in core_faults() or (w is not None and w >= ISOLATION_WEIGHT)
         if degraded and supported:
             isolated.append(name)
     return out, isolated
@@ -404,7 +416,7 @@ def isolate_row(row: Mapping[str, Any], thresholds: Mapping[str, float]) -> str:
         if name not in row["means"] or thr <= 0:
             continue
         s = statistic(name, row["means"][name]) / thr
-        supported = name in CORE_FAULTS or weights.get(name, 0.0) >= ISOLATION_WEIGHT
+        supported = name in core_faults() or weights.get(name, 0.0) >= ISOLATION_WEIGHT
         if s > score and supported:
             best, score = name, s
     return best
