@@ -80,7 +80,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
     added.
     """
-    from eha.models.commands import CommandError, as_command
+    from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
 
     extra = set(section) - _SECTION_KEYS
@@ -90,11 +90,14 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if isinstance(commands, str) or not isinstance(commands, list) or not commands:
         problems.append("health.commands: a non-empty list of command presets")
         commands = []
+    pinned = []
     for c in commands:
         try:
             as_command(c)
+            pinned.append(pin_command(c))  # a command file by its content hash
         except (CommandError, ValueError, TypeError) as exc:
             problems.append(f"health.commands: {exc}")
+    commands = pinned
     t_end = section.get("t_end", 1.0)
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or not 0.2 <= t_end <= 10:
         problems.append(f"health.t_end={t_end!r}: allowed range [0.2, 10] s")
@@ -123,6 +126,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         return []
     jobs = []
     for command in commands:
+        shown = command_label(command)
         first = seed
         for label, injected in groups:
             size = n_healthy if label == "healthy" else n
@@ -134,10 +138,10 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                         "seed": s, "base_model": base_model, "level": float(level),
                         "group": label, "truth": truth}
                 jobs.append({"kind": "health_assessment", "spec": spec, "identity": {},
-                             "columns": {"model": "hf", "command": command, "faults": injected,
+                             "columns": {"model": "hf", "command": shown, "faults": injected,
                                          "seed": s, "t_end": float(t_end),
                                          "fault_label": label,
-                                         "label": f"{command} {label} actuator {s}",
+                                         "label": f"{shown} {label} actuator {s}",
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
@@ -186,6 +190,7 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.health.assessment import assess_record
     from eha.identification.measured import from_arrays, synthetic_record
     from eha.models import O_COM, O_T, O_XU
+    from eha.models.commands import command_label
     from eha.models.simulate import Trace
 
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
@@ -194,7 +199,7 @@ def run_health_job(spec: Mapping[str, Any]):
                       source=f"{spec['command']} {spec['group']} {spec['seed']}")
     a = assess_record(rec, base=BASE_MODELS[spec["base_model"]], level=float(spec["level"]),
                       seed=int(spec["seed"]))
-    row = {"command": spec["command"], "grp": spec["group"], "seed": int(spec["seed"]),
+    row = {"command": command_label(spec["command"]), "grp": spec["group"], "seed": int(spec["seed"]),
            "t_end": float(spec["t_end"]), "noise": float(spec["noise"]),
            "base_model": spec["base_model"], "level": a.level, "truth": dict(spec["truth"]),
            "hf": dict(spec["hf"]), "estimates": a.estimates, "means": a.means,

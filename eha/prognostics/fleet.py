@@ -199,7 +199,7 @@ def _fault_spec(fname: str, spec: Any, limits: Mapping[str, float],
 
 def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     """Validate a parsed fleet TOML; raises :class:`FleetError` with one line per problem."""
-    from eha.models.commands import CommandError, make_command
+    from eha.models.commands import CommandError, make_command, pin_command
     from eha.models.params import ParameterError, SPECS, check_value
 
     p: list[str] = []
@@ -224,6 +224,7 @@ def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     if command:
         try:
             make_command(command["name"], **command["set"])
+            command["name"] = pin_command(command["name"])  # a file by its content hash
         except CommandError as exc:
             p.append(f"command: {exc}")
         except TypeError:
