@@ -23,6 +23,7 @@ def _options(debug: bool = typer.Option(False, "--debug", help="Show the traceba
 app.command()(models.simulate)
 app.command()(models.params)
 app.command()(models.commands)
+app.command()(models.faults)
 app.command()(report.reproduce)
 app.add_typer(campaign.campaign_app, name="campaign")
 app.command()(campaign.query)

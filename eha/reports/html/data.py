@@ -16,8 +16,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-#: Display unit and factor from SI for fault parameters whose SI value reads badly.
-DISPLAY_UNITS = {"BKL": ("µm", 1e6)}
+from eha.models.faults import FAULTS, Derived
+
+#: Display unit and factor from SI for fault parameters whose SI value reads badly (declared
+#: with each fault, :attr:`eha.models.faults.Fault.display`).
+DISPLAY_UNITS: Mapping[str, tuple[str, float]] = Derived(
+    lambda: {f.name: f.display for f in FAULTS.values() if f.display}, "DISPLAY_UNITS")
 
 
 def unit_of(name: str) -> tuple[str, float]:
