@@ -103,8 +103,9 @@ def commands():
     kinds = Table("kind", "parameters: default unit [range]", "description",
                   title="kinds (the shapes the presets are made of)", title_justify="left")
     for kind in KINDS.values():
-        kinds.add_row(kind.name, "\n".join(f"{k}={d:g}{' ' + u if u else ''} [{lo:g}, {hi:g}]"
-                                           for k, (d, u, lo, hi) in kind.params.items()) or "-",
+        kinds.add_row(kind.name, "\n".join(
+            f"{k}={d:g}{' ' + u if u not in ('', '-') else ''} [{lo:g}, {hi:g}]"
+            for k, (d, u, lo, hi) in kind.params.items()) or "-",
                       kind.description)
     console.print(kinds)
 
