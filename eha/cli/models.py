@@ -105,8 +105,7 @@ def commands():
     for kind in KINDS.values():
         kinds.add_row(kind.name, "\n".join(
             f"{k}={d:g}{' ' + u if u not in ('', '-') else ''} [{lo:g}, {hi:g}]"
-            for k, (d, u, lo, hi) in kind.params.items()) or "-",
-                      kind.description)
+            for k, (d, u, lo, hi) in kind.params.items()) or "-", kind.description)
     console.print(kinds)
 
 
