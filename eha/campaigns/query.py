@@ -10,6 +10,7 @@ from typing import Any, Mapping, Sequence
 
 from eha.campaigns.schema import TRACES
 from eha.campaigns.store import StoreError, connect
+from eha.errors import BAD_INPUT
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
 from eha.models import OUTPUTS
 
@@ -44,6 +45,85 @@ def _create_traces_view(con, results: Path) -> None:
                     f"NULL::VARCHAR AS run_key, {cols} WHERE false")
 
 
+#: Statement types that only read (DuckDB's parser: ``con.extract_statements``); DESCRIBE,
+#: SHOW, SUMMARIZE, FROM-first and WITH are SELECT statements to it. EXPLAIN passes when the
+#: statement it explains does, PRAGMA when it is one of :data:`READ_PRAGMAS`.
+READ_STATEMENTS = ("SELECT", "EXPLAIN", "PRAGMA")
+#: The PRAGMAs that only read the catalogue (the others set options or write files).
+READ_PRAGMAS = frozenset({"table_info", "show", "show_tables", "show_tables_expanded",
+                          "database_list", "database_size", "storage_info", "metadata_info",
+                          "version", "platform", "functions", "collations", "user_agent"})
+
+
+class QueryRefused(StoreError):
+    """A statement of ``eha query`` that could write or reach outside the results folder."""
+
+    exit_code = BAD_INPUT
+
+
+def check_read_only(con, sql: str) -> None:
+    """Refuse ``sql`` unless every statement in it only reads (:data:`READ_STATEMENTS`).
+
+    DuckDB's own parser classifies the statements (no regular expression over the SQL);
+    ``SET``, ``ATTACH``, ``COPY``, ``EXPORT``, ``INSTALL``/``LOAD``, ``CREATE``, ``INSERT``,
+    ``CALL``, transactions, ... are refused with one line. The connection's own guards
+    (:func:`_connect_guarded`) hold even if a statement slipped through.
+
+    Raises
+    ------
+    QueryRefused
+        A statement that is not a read; StoreError: SQL that does not parse.
+    """
+    import re
+
+    import duckdb
+
+    try:
+        statements = con.extract_statements(sql)
+    except duckdb.Error as exc:
+        raise StoreError(f"query: {str(exc).splitlines()[0]}") from None
+    for st in statements:
+        kind = st.type.name
+        text = st.query.strip()
+        if kind == "EXPLAIN":  # what it explains (EXPLAIN ANALYZE runs it)
+            inner = re.sub(r"^EXPLAIN\s+(ANALY[SZ]E\s+|\([^)]*\)\s*)?", "", text,
+                           flags=re.IGNORECASE)
+            if inner != text and inner:
+                check_read_only(con, inner)
+                continue
+        if kind == "PRAGMA":
+            name = re.match(r"PRAGMA\s+(\w+)\s*(=)?", text, flags=re.IGNORECASE)
+            if name and name.group(2) is None and name.group(1).lower() in READ_PRAGMAS:
+                continue
+            kind = f"PRAGMA {name.group(1) if name else ''}".strip()
+        elif kind in READ_STATEMENTS:
+            continue
+        raise QueryRefused(f"query: {kind} statements are refused: eha query only reads "
+                           "(SELECT, WITH, EXPLAIN, DESCRIBE, SHOW, SUMMARIZE, PRAGMA "
+                           "table_info/show_tables/...)")
+
+
+def _connect_guarded(results: Path):
+    """A read-only connection whose configuration is locked: no file outside the results
+    folder's ``traces`` can be read or written (``enable_external_access`` false,
+    ``allowed_directories`` the traces folder), no extension installed or loaded, no setting
+    changed (``lock_configuration``); a statement that slipped past :func:`check_read_only`
+    meets these."""
+    import duckdb
+
+    con = connect(results, read_only=True)
+    try:
+        con.execute("SET autoinstall_known_extensions = false")
+        con.execute("SET autoload_known_extensions = false")
+        con.execute("SET allowed_directories = ?", [[str(results / TRACES) + os.sep]])
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except duckdb.Error as exc:
+        con.close()
+        raise StoreError(f"query: {str(exc).splitlines()[0]}") from None
+    return con
+
+
 def query(results: str | Path, sql: str,
           params: Sequence[Any] | Mapping[str, Any] | None = None):
     """Run ``sql`` on a read-only connection to ``DIR/eha.duckdb``; returns a pandas DataFrame.
@@ -53,16 +133,21 @@ def query(results: str | Path, sql: str,
     placeholders with a sequence, ``$name`` with a mapping, e.g.
     ``query(results, "SELECT * FROM runs WHERE campaign = ?", ["thesis-matrix"])``.
 
+    Only statements that read pass (:func:`check_read_only`), on a connection that cannot
+    write, reach files outside the traces or change its settings (:func:`_connect_guarded`).
+
     Raises
     ------
     StoreError
-        No database, database locked, or an SQL error (first line of DuckDB's message).
+        No database, database locked, or an SQL error (first line of DuckDB's message);
+        :class:`QueryRefused` a statement that is not a read.
     """
     import duckdb
 
     results = Path(results).resolve()
-    con = connect(results, read_only=True)
+    con = _connect_guarded(results)
     try:
+        check_read_only(con, sql)
         _create_traces_view(con, results)
         return _interruptible(con, lambda: (con.execute(sql, params) if params is not None
                                             else con.execute(sql)).df())

@@ -107,23 +107,35 @@ def campaign_run(
         raise typer.Exit(1)
 
 
-def _write_frame(frame, format: str) -> None:
-    """The query's result on standard output as a table, CSV or JSON."""
+def _write_frame(frame, format: str, limit: int = 0) -> None:
+    """The query's result on standard output as a table (its first ``limit`` rows, 0 all),
+    CSV or JSON (every row)."""
     if format == "csv":
         typer.echo(frame.to_csv(index=False), nl=False)
     elif format == "json":
         typer.echo(frame.to_json(orient="records", date_format="iso"))
     else:
-        table = Table(*[str(c) for c in frame.columns])
-        for row in frame.itertuples(index=False):
-            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+        hidden = len(frame) - limit if 0 < limit < len(frame) else 0
+        table = Table(*[escape(str(c)) for c in frame.columns])
+        for row in frame.head(len(frame) - hidden).itertuples(index=False):
+            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else escape(str(v))
+                            for v in row])
         console.print(table)
+        if hidden:
+            console.print(f"{hidden} more rows not shown (--limit 0 shows all; --format csv "
+                          "or json writes every row)")
 
 
 def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
           results: ResultsOption = RESULTS,
-          format: str = typer.Option("table", "--format", help="table, csv or json.")):
+          format: str = typer.Option("table", "--format", help="table, csv or json."),
+          limit: int = typer.Option(1000, "--limit", min=0,
+                                    help="Rows shown in the table format (0 = all); csv and "
+                                         "json write every row.")):
     """Query the result database read-only; Parquet traces are the view `traces`.
+
+    Only reading statements run (SELECT, WITH, EXPLAIN, DESCRIBE, SHOW, PRAGMA table_info);
+    SET, ATTACH, COPY, EXPORT, INSTALL, CREATE, INSERT, ... are refused (exit 2).
 
     Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
     (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
@@ -134,7 +146,7 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
         fail(f"--format {format!r}: allowed table, csv, json")
     frame = run_query(results, sql)
     try:
-        _write_frame(frame, format)
+        _write_frame(frame, format, limit)
         sys.stdout.flush()  # a full disk or a closed pipe shows here, not silently at exit
     except OSError as exc:
         discard_stdout()
