@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
-INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files")
+INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files",
+         "integrity")
 #: Job kinds and campaign sections the domain registers (what the runner once imported itself).
 KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
@@ -39,7 +40,8 @@ def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
     assert "numba" not in loaded and "eha.models.simulate" not in loaded
 
 
-@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
+@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema",
+                                    "integrity"])
 def test_infrastructure_modules_name_no_domain_module(module):
     """No import of a module outside eha.campaigns, not even inside a function, but the
     trace columns (eha.models.OUTPUTS, constants) and the error hierarchy (eha.errors): the runner and its workers reach a job

@@ -10,7 +10,7 @@ from typing import Any, Mapping, Sequence
 
 from eha.campaigns.schema import TRACES
 from eha.campaigns.store import StoreError, connect
-from eha.errors import BAD_INPUT
+from eha.errors import BAD_INPUT, FAILURE
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
 from eha.models import OUTPUTS
 
@@ -53,6 +53,30 @@ READ_STATEMENTS = ("SELECT", "EXPLAIN", "PRAGMA")
 READ_PRAGMAS = frozenset({"table_info", "show", "show_tables", "show_tables_expanded",
                           "database_list", "database_size", "storage_info", "metadata_info",
                           "version", "platform", "functions", "collations", "user_agent"})
+
+
+class TraceDamaged(StoreError):
+    """A trace file a query or an export would read is not the file recorded (exit 1)."""
+
+    exit_code = FAILURE
+
+
+def check_traces(con, results: Path, what: str) -> None:
+    """Refuse to read the traces while one of them is damaged: a file whose size or time
+    differs from the recorded ones is hashed (:func:`eha.campaigns.integrity.check_files`,
+    not ``full``); the message names the file and the command that repairs it."""
+    from eha.campaigns.integrity import check_files, damaged_message, recorded_files
+
+    files = recorded_files(con)
+    check = check_files(results, files, full=False)
+    if check.damaged:
+        raise TraceDamaged(damaged_message(results, files, check, what))
+
+
+def _reads_traces(sql: str) -> bool:
+    import re
+
+    return re.search(r"\btraces\b|_traces_raw", sql, flags=re.IGNORECASE) is not None
 
 
 class QueryRefused(StoreError):
@@ -148,14 +172,17 @@ def query(results: str | Path, sql: str,
     con = _connect_guarded(results)
     try:
         check_read_only(con, sql)
+        if _reads_traces(sql):
+            check_traces(con, results, "query")
         _create_traces_view(con, results)
         return _interruptible(con, lambda: (con.execute(sql, params) if params is not None
                                             else con.execute(sql)).df())
     except duckdb.Error as exc:
         first = str(exc).splitlines()[0]
         if ".parquet" in first:  # a stored trace is damaged: the resume re-runs it
-            first += ("; a stored trace is damaged, run its campaign again (eha campaign run) "
-                      "to re-run it")
+            from eha.campaigns.integrity import repair_hint
+
+            first += f"; a stored trace is damaged, repair it with: {repair_hint(results)}"
         elif "Corrupt" in first or "checksum" in first:
             first += "; the database file is damaged: move it away and run the campaigns again"
         raise StoreError(f"query: {first}") from None
@@ -225,6 +252,8 @@ def export_csv(results: str | Path, table: str, path: str | Path) -> int:
     os.close(fd)
     con = connect(results, read_only=True)
     try:
+        if table == "traces":
+            check_traces(con, results, "export traces")
         _create_traces_view(con, results)
         target = tmp.replace("'", "''")
         con.execute(f"COPY (SELECT * FROM \"{table}\") TO '{target}' (HEADER, DELIMITER ',')")

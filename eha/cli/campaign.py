@@ -107,6 +107,37 @@ def campaign_run(
         raise typer.Exit(1)
 
 
+@campaign_app.command("verify")
+def campaign_verify(
+    results: ResultsOption = RESULTS,
+    repair: bool = typer.Option(False, "--repair",
+                                help="Re-run the runs of the damaged trace files (each "
+                                     "campaign from the definition stored with it)."),
+    workers: WorkersOption = WORKERS,
+):
+    """Check every trace file of a results folder against the size and checksum recorded with
+    its runs (every byte read, nothing run); exit 1 while a file is damaged.
+
+    Example: eha campaign verify --results results --repair
+    """
+    from eha.campaigns.integrity import repair_hint, verify_results
+
+    if repair:
+        check_out_dir(results, "--results")
+    with resumable("finished runs are saved, re-run the same command to resume"):
+        v = verify_results(results, repair=repair, workers=workers, progress=False)
+    for path, reason in sorted(v.damaged.items()):
+        warn(f"{results / path}: {reason}", "damaged")
+    for name, n in sorted(v.repaired.items()):
+        console.print(escape(f"{name}: {n} runs of its damaged trace files run again"))
+    console.print(escape(f"{results}: {v.files} trace files of {v.runs} runs checked, "
+                         f"{len(v.damaged)} damaged"
+                         + (", repaired" if v.repaired else "")))
+    if v.damaged and not repair:
+        fail(f"{len(v.damaged)} damaged trace files; repair them with: "
+             f"{repair_hint(results)}", 1)
+
+
 def _write_frame(frame, format: str, limit: int = 0) -> None:
     """The query's result on standard output as a table (its first ``limit`` rows, 0 all),
     CSV or JSON (every row)."""
