@@ -95,7 +95,7 @@ ROOT = PACKAGE.parent
 #: Layer of each package (and of the flat modules): a module imports only from its own layer
 #: or below, at module level or inside a function. health and prognostics share a layer and
 #: do not import each other.
-LAYERS = {"errors": -1, "models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
+LAYERS = {"errors": -2, "outputs": -1, "models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
           "prognostics": 3, "reports": 4, "cli": 5, "docgen": 6, "__main__": 6}
 
 

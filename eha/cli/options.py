@@ -108,13 +108,13 @@ def check_names(text: str, option: str) -> None:
 
 
 def write_json(path: Optional[Path], data: Any, indent: int = 2) -> None:
-    """Write ``data`` as indented JSON to ``path`` (nothing when None)."""
+    """Write ``data`` as indented JSON to ``path``, whole (:func:`eha.outputs.write_json`;
+    nothing when None)."""
     if path is None:
         return
-    import json
+    from eha.outputs import write_json as write
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=indent))
+    write(path, data, indent=indent)
 
 
 def print_paths(paths: dict, skip: tuple[str, ...] = ()) -> None:

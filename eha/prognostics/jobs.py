@@ -355,9 +355,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     _store_predictions(results, camp.name, preds_all, limits)
     res.paths["database"] = results / "eha.duckdb"
     if json_out is not None:
-        json_out = Path(json_out)
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(output, indent=1, default=_json_default))
+        from eha.outputs import write_json
+
+        json_out = write_json(json_out, output, indent=1, default=_json_default)
         res.paths["json"] = json_out
     if plots is not None:
         from eha.prognostics.plots import write_plots

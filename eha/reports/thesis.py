@@ -122,8 +122,9 @@ def _summary_markdown(results: Path, summaries, nominal: list[dict]) -> Path:
                                   [[k] + [f"{1e6 * v[c]:.3g}" if c in v else "-"
                                           for c in commands] for k, v in table.items()])]
     path = results / "reports" / "summary.md"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(parts) + "\n", encoding="utf-8")
+    from eha.outputs import write_atomic
+
+    write_atomic(path, "\n".join(parts) + "\n")
     return path
 
 # =========================================================================== thesis FDI report
@@ -249,7 +250,10 @@ def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path,
     if table.empty:
         raise ValueError(f"no FDI results of campaign {campaign.name!r} to report")
     csv_path = out / "fdi_table.csv"
-    table.to_csv(csv_path, index=False, float_format="%.6g")
+    from eha.outputs import atomic_path, write_atomic
+
+    with atomic_path(csv_path) as tmp:
+        table.to_csv(tmp, index=False, float_format="%.6g")
     png = plot_fdi_mean_error(table, out / "mean_error.png")
     better = int(table["at_least_as_accurate"].sum())
     fmt = lambda v: f"{v:.3g}"  # noqa: E731
@@ -283,7 +287,7 @@ def write_thesis_report(rows: Sequence[dict], campaign, out: str | Path,
     lines += ["## Each case: HF reference against the identified LF model (first seed)", ""]
     lines += [f"![case {c}](cases/{path.name})" for c, path in cases.items()] + [""]
     md = out / "fdi_summary.md"
-    md.write_text("\n".join(lines), encoding="utf-8")
+    write_atomic(md, "\n".join(lines))
     return {"table": csv_path, "plot": png, "summary": md, "cases": out / "cases"}
 
 
