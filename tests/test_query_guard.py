@@ -130,3 +130,20 @@ def test_user_text_in_a_query_result_is_not_console_markup(two):
                       "--results", two / "a")
     assert proc.returncode == 0, proc.stderr
     assert "x[/]" in proc.stdout and "[bold]b" in proc.stdout and "[bold]a" in proc.stdout
+
+
+def test_an_actuator_id_with_brackets_is_printed_as_it_is(capsys):
+    """The audit's `x[/]` actuator ended `eha rul` with a MarkupError after the work was
+    saved, and `[bold]` in a name vanished: the console prints text, tables included."""
+    from types import SimpleNamespace
+
+    from eha.cli.prognostics import _render_rul
+
+    pred = SimpleNamespace(cycle=3.0, rul=10.0, rul_lo=5.0, rul_hi=20.0, driver="[bold]BKL")
+    res = SimpleNamespace(predictions={"x[/]": [pred], "[bold]a1": [pred]}, metrics=None,
+                          assessed=2, reused=0, seconds={"total": 1.0}, run_id="r[/]",
+                          paths={"json": "out/[red]x.json"}, failed=[])
+    _render_rul(res, "results[/]")
+    out = capsys.readouterr().out
+    for text in ("x[/]", "[bold]a1", "[bold]BKL", "results[/]", "out/[red]x.json"):
+        assert text in out, (text, out)

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, discard_stdout, fail, resumable, warn
@@ -37,7 +36,7 @@ def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.
     Example: eha campaign validate campaigns/thesis-matrix.toml
     """
     camp = _load(file)
-    console.print(escape(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs"))
+    console.print(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs")
 
 
 @campaign_app.command("plan")
@@ -99,8 +98,8 @@ def campaign_run(
     if s.changed:
         console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
                       "it no longer has, kept the shared ones")
-    console.print(escape(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
-                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb"))
+    console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
+                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
     for line in s.errors:  # a worker's message is text, brackets included
         warn(line, "failed")
     if s.failed:
@@ -129,10 +128,10 @@ def campaign_verify(
     for path, reason in sorted(v.damaged.items()):
         warn(f"{results / path}: {reason}", "damaged")
     for name, n in sorted(v.repaired.items()):
-        console.print(escape(f"{name}: {n} runs of its damaged trace files run again"))
-    console.print(escape(f"{results}: {v.files} trace files of {v.runs} runs checked, "
+        console.print(f"{name}: {n} runs of its damaged trace files run again")
+    console.print(f"{results}: {v.files} trace files of {v.runs} runs checked, "
                          f"{len(v.damaged)} damaged"
-                         + (", repaired" if v.repaired else "")))
+                         + (", repaired" if v.repaired else ""))
     if v.damaged and not repair:
         fail(f"{len(v.damaged)} damaged trace files; repair them with: "
              f"{repair_hint(results)}", 1)
@@ -147,9 +146,9 @@ def _write_frame(frame, format: str, limit: int = 0) -> None:
         typer.echo(frame.to_json(orient="records", date_format="iso"))
     else:
         hidden = len(frame) - limit if 0 < limit < len(frame) else 0
-        table = Table(*[escape(str(c)) for c in frame.columns])
+        table = Table(*[str(c) for c in frame.columns])
         for row in frame.head(len(frame) - hidden).itertuples(index=False):
-            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else escape(str(v))
+            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v)
                             for v in row])
         console.print(table)
         if hidden:
@@ -197,7 +196,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
 
     check_out_file(csv, "--csv", (".csv",))
     n = export_csv(results, table, csv)
-    console.print(escape(f"{table}: {n} rows -> {csv}"))
+    console.print(f"{table}: {n} rows -> {csv}")
 
 
 def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),
@@ -212,4 +211,4 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     for p in plot_campaign(results, campaign, out):
-        console.print(escape(str(p)))
+        console.print(str(p))

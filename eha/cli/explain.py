@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail
@@ -158,14 +157,14 @@ def _render(res) -> None:
         console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
             f"{k} {getattr(res.after.params, k):.4g} [{lo:.4g}, {hi:.4g}]"
             for k, (lo, hi) in res.intervals.items()))
-    console.print(f"verdict: {escape(res.verdict)}", highlight=False)
+    console.print(f"verdict: {res.verdict}", highlight=False)
     if res.null:
         console.print(f"decisions at alpha {res.null['alpha']:g} against {res.null['source']}"
                       f" on this command; what this record could not have shown (the null's "
                       f"prediction, a lower bound: measured power in docs/explain.md):",
                       highlight=False)
         for line in res.undetectable():
-            console.print(f"  {escape(line)}", highlight=False)
+            console.print(f"  {line}", highlight=False)
     if res.beyond_healthy:
         err_console.print("warning: the residual after the best library model is still well "
                           "above the noise: unexplained; the fault intervals are widened, "

@@ -22,7 +22,9 @@ from typer.core import TyperGroup
 
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 
-console = Console()
+#: Standard output: text, never console markup (issue 43: an actuator id ``x[/]`` or ``[bold]``
+#: in a name is data, printed as it is, in tables too).
+console = Console(markup=False)
 err_console = Console(stderr=True)
 
 # The option parser's exceptions: click's, or the copy of click that typer >= 0.20 vendors.

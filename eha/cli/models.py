@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, fail
@@ -47,8 +46,8 @@ def simulate(
         from eha.reports.plots import plot_traces
 
         plot_traces([trace], plot)
-    console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
-                         + (f", plot {plot}" if plot else "")))
+    console.print(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
+                         + (f", plot {plot}" if plot else ""))
 
 
 def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or lf."),

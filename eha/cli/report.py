@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, fail
@@ -99,9 +98,9 @@ def report_html(results: ResultsOption = RESULTS,
         fail(f"--truth {truth}: file not found")
     with _store_failure():
         res = build_report(results, out, truth)
-    console.print(escape(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
+    console.print(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
                          f"{', '.join(res.sections)}, {res.figures} figures, "
-                         f"{res.seconds:.1f} s)"))
+                         f"{res.seconds:.1f} s)")
 
 
 def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS):
@@ -140,5 +139,5 @@ def _render_reproduce(out: dict, results: Path) -> None:
     console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
                   f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
     html = out["html"]
-    console.print(escape(f"report (open in a browser): {html.path} "
-                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)"))
+    console.print(f"report (open in a browser): {html.path} "
+                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)")
