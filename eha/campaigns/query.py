@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from eha.campaigns.schema import TRACES
-from eha.campaigns.store import StoreError, connect
+from eha.campaigns.store import DatabaseDamaged, StoreError, StoreWriteError, connect
 from eha.errors import BAD_INPUT, FAILURE
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
 from eha.models import OUTPUTS
@@ -184,7 +184,8 @@ def query(results: str | Path, sql: str,
 
             first += f"; a stored trace is damaged, repair it with: {repair_hint(results)}"
         elif "Corrupt" in first or "checksum" in first:
-            first += "; the database file is damaged: move it away and run the campaigns again"
+            raise DatabaseDamaged(f"query: {first}; the database file is damaged: move it "
+                                  "away and run the campaigns again") from None
         raise StoreError(f"query: {first}") from None
     finally:
         con.close()
@@ -221,6 +222,22 @@ def _interruptible(con, work):
     if "error" in out:
         raise out["error"]
     return out["value"]
+
+
+def _io_reason(text: str) -> str:
+    """The reason of a DuckDB I/O error, without its JSON wrapping: ``File too large`` of
+    ``IO Error: ... {"exception_type":"IO","exception_message":"Could not write file
+    \"x\": File too large",...}``."""
+    import json
+    import re
+
+    found = re.search(r"\{.*\}", text)
+    if found:
+        try:
+            text = json.loads(found.group(0)).get("exception_message", text)
+        except ValueError:
+            pass
+    return text.splitlines()[0].rsplit(": ", 1)[-1]
 
 
 def tables(results: str | Path) -> list[str]:
@@ -260,6 +277,9 @@ def export_csv(results: str | Path, table: str, path: str | Path) -> int:
         n = con.execute(f'SELECT count(*) FROM "{table}"').fetchall()[0][0]
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
+    except duckdb.IOException as exc:  # the CSV could not be written (a full disk)
+        raise StoreWriteError(f"export {table}: {path}: could not be written "
+                              f"({_io_reason(str(exc))}); nothing was written") from None
     except duckdb.Error as exc:
         raise StoreError(f"export {table}: {str(exc).splitlines()[0]}") from None
     finally:

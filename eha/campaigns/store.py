@@ -91,6 +91,16 @@ class StoreWriteError(StoreError):
     exit_code = FAILURE
 
 
+class DatabaseDamaged(StoreError):
+    """The result database file is damaged (DuckDB reports corruption): a failure, exit 1."""
+
+    exit_code = FAILURE
+
+
+def _damaged(text: str) -> bool:
+    return any(w in text for w in ("Corrupt", "checksum", "not a valid DuckDB"))
+
+
 def db_path(results: str | Path) -> Path:
     """``DIR/eha.duckdb``."""
     return Path(results) / DB_NAME
@@ -123,7 +133,11 @@ def connect(results: str | Path, read_only: bool = False):
             raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
                              f"{Path(match.group(1)).name}), probably a running campaign; "
                              "wait for it to finish or use another --results folder") from None
-        raise StoreError(f"{path}: {str(exc).splitlines()[0]}") from None
+        first = str(exc).splitlines()[0]
+        if _damaged(first):
+            raise DatabaseDamaged(f"{path}: {first}; the file is damaged: move it away and run "
+                                  "the campaigns again") from None
+        raise StoreError(f"{path}: {first}") from None
     if not read_only:
         try:
             for ddl in SCHEMA.values():

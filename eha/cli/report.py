@@ -7,9 +7,8 @@ Each command imports the report it builds inside its function: ``eha query`` and
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import typer
 from rich.table import Table
@@ -21,17 +20,6 @@ from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, che
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database."
                          "\n\nExample: eha report thesis --results results")
-
-
-@contextmanager
-def _store_failure() -> Iterator[None]:
-    """A report of results that cannot be read is a failure (exit 1), not bad input."""
-    from eha.campaigns.store import StoreError
-
-    try:
-        yield
-    except StoreError as exc:
-        fail(str(exc), code=1)
 
 
 @report_app.command("thesis")
@@ -48,8 +36,7 @@ def report_thesis(results: ResultsOption = RESULTS,
     from eha.reports.thesis import thesis_report
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
-    with _store_failure():
-        print_paths(thesis_report(results, out))
+    print_paths(thesis_report(results, out))
 
 
 @report_app.command("health")
@@ -96,8 +83,7 @@ def report_html(results: ResultsOption = RESULTS,
     check_out_file(out, "--out", (".html", ".htm"))
     if truth is not None and not truth.is_file():
         fail(f"--truth {truth}: file not found")
-    with _store_failure():
-        res = build_report(results, out, truth)
+    res = build_report(results, out, truth)
     console.print(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
                          f"{', '.join(res.sections)}, {res.figures} figures, "
                          f"{res.seconds:.1f} s)")

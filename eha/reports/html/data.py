@@ -96,6 +96,13 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
         fleet = Fleet(str(run_id), rows, limits, faults)
         _attach_truth(con, fleet, truth)
         fleets.append(fleet)
+    if truth is not None and fleets and not any(f.truth_source == str(truth) for f in fleets):
+        from eha.prognostics.degradation import PrognosticsError
+
+        have = sorted(set(fleets[0].predictions["actuator"]))
+        raise PrognosticsError(f"--truth {truth}: no end of life for every actuator of any "
+                               f"eha rul run in the database (e.g. {', '.join(have[:5])} of "
+                               f"{fleets[0].run_id})")
     return fleets
 
 
@@ -105,15 +112,18 @@ def _attach_truth(con, fleet: Fleet, truth: str | Path | None) -> None:
 
     actuators = set(fleet.predictions["actuator"])
     candidates: list[Path] = []
-    if truth is not None:
-        candidates.append(Path(truth))
-    else:
-        rec = con.execute("SELECT record FROM health_checks WHERE campaign = ? LIMIT 1",
-                          [fleet.run_id]).fetchone() if "health_checks" in _tables(con) \
-            else None
-        if rec and rec[0]:
-            parents = Path(rec[0]).parents
-            candidates += [parents[i] / "truth.json" for i in range(min(3, len(parents)))]
+    if truth is not None:  # given: read (an unusable file is refused, never ignored)
+        eol = load_truth(truth)
+        if actuators <= set(eol):
+            fleet.truth, fleet.truth_source = eol, str(truth)
+            return
+    # not given, or not this run's actuators: the truth beside its records, if any
+    rec = con.execute("SELECT record FROM health_checks WHERE campaign = ? LIMIT 1",
+                      [fleet.run_id]).fetchone() if "health_checks" in _tables(con) \
+        else None
+    if rec and rec[0]:
+        parents = Path(rec[0]).parents
+        candidates += [parents[i] / "truth.json" for i in range(min(3, len(parents)))]
     for path in candidates:
         if not path.is_file():
             continue
