@@ -99,7 +99,7 @@ def campaign_run(
         console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
                       "it no longer has, kept the shared ones")
     console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
-                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
+                  f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
     for line in s.errors:  # a worker's message is text, brackets included
         warn(line, "failed")
     if s.failed:
@@ -130,8 +130,8 @@ def campaign_verify(
     for name, n in sorted(v.repaired.items()):
         console.print(f"{name}: {n} runs of its damaged trace files run again")
     console.print(f"{results}: {v.files} trace files of {v.runs} runs checked, "
-                         f"{len(v.damaged)} damaged"
-                         + (", repaired" if v.repaired else ""))
+                  f"{len(v.damaged)} damaged"
+                  + (", repaired" if v.repaired else ""))
     if v.damaged and not repair:
         fail(f"{len(v.damaged)} damaged trace files; repair them with: "
              f"{repair_hint(results)}", 1)

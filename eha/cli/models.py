@@ -47,7 +47,7 @@ def simulate(
 
         plot_traces([trace], plot)
     console.print(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
-                         + (f", plot {plot}" if plot else ""))
+                  + (f", plot {plot}" if plot else ""))
 
 
 def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or lf."),

@@ -85,8 +85,8 @@ def report_html(results: ResultsOption = RESULTS,
         fail(f"--truth {truth}: file not found")
     res = build_report(results, out, truth)
     console.print(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
-                         f"{', '.join(res.sections)}, {res.figures} figures, "
-                         f"{res.seconds:.1f} s)")
+                  f"{', '.join(res.sections)}, {res.figures} figures, "
+                  f"{res.seconds:.1f} s)")
 
 
 def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS):
@@ -126,4 +126,4 @@ def _render_reproduce(out: dict, results: Path) -> None:
                   f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
     html = out["html"]
     console.print(f"report (open in a browser): {html.path} "
-                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)")
+                  f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)")
