@@ -1,7 +1,7 @@
 """Layering: eha.campaigns is the infrastructure below the domain (it imports no domain module
 but eha.models, and job kinds reach the runner through the registry, one module at a time);
 the domain's packages import one way, models -> identification -> explain -> health,
-prognostics -> reports -> cli (the import-graph tests at the end)."""
+prognostics -> design -> reports -> cli (the import-graph tests at the end)."""
 
 import ast
 import functools
@@ -94,7 +94,7 @@ ROOT = PACKAGE.parent
 #: or below, at module level or inside a function. health and prognostics share a layer and
 #: do not import each other.
 LAYERS = {"errors": -1, "models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
-          "prognostics": 3, "reports": 4, "cli": 5, "docgen": 6, "__main__": 6}
+          "prognostics": 3, "design": 4, "reports": 5, "cli": 6, "docgen": 7, "__main__": 7}
 
 
 def _eha_imports(path: Path) -> set[str]:
