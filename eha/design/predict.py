@@ -38,13 +38,13 @@ import numpy as np
 
 from eha.design.targets import SIGNALS, Target, nuisance_params
 from eha.identification.healthy import DISPERSION, draw_actuator
-from eha.identification.intervals import FLAG_RATIO
+from eha.identification.intervals import FLAG_RATIO, LOOP_MODEL_FORM, MODEL_FORM
 from eha.identification.problem import CALIBRATED_LF
 from eha.models import OUTPUTS
 from eha.models.commands import Command
 from eha.models.faults import FAULTS, core_faults, extra_faults
 from eha.models.params import SPECS
-from eha.models.simulate import simulate, simulate_hf_batch
+from eha.models.simulate import simulate_hf_batch, simulate_lf_rows
 
 #: Probability of detection the minimum detectable size is stated at.
 P_DETECT = 0.95
@@ -121,27 +121,35 @@ def actuators(count: int) -> list[dict[str, float]]:
     return [{}] + [draw_actuator(DESIGN_SEED0 + k) for k in range(1, count)]
 
 
-def _runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int):
-    """Parameter sets, seeds and their roles for one actuator."""
+def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int):
+    """The HF runs of one actuator: ``(role, name, step, params, seed)``; the truth of each
+    target, the healthy scatter of each scattered parameter (one std) and two dither
+    reruns."""
     base = dict(actuator)
 
     def moved(param: str, step: float) -> dict[str, float]:
         return {**base, param: base.get(param, SPECS[param].nominal) + step}
 
-    runs = [("base", "", 0.0, base, seed)]
-    for t in targets:
-        runs.append(("target", t.name, t.probe, moved(t.param, t.probe), seed))
-    # every fault of the health bank (a core fault's estimate comes from the best-fitting
-    # hypothesis, which may fit one more fault) and the loop's flow gain
-    extra = [n for n in FAULTS if any(t.kind == "fault" for t in targets)]
-    for p in dict.fromkeys([n for t in targets for n in nuisance_params(t.kind)] + extra):
-        step = _nuisance_step(p)
-        runs.append(("nuisance", p, step, moved(p, step), seed))
-    for p, std in scatter_columns():
-        runs.append(("scatter", p, std, moved(p, std), seed))
-    for k in (1, 2):
-        runs.append(("dither", str(k), 0.0, base, seed + 7919 * k))
+    runs = [("base", "", 1.0, base, seed)]
+    runs += [("target", t.name, t.probe, moved(t.param, t.probe), seed) for t in targets]
+    runs += [("scatter", p, std, moved(p, std), seed) for p, std in scatter_columns()]
+    runs += [("dither", str(k), 1.0, base, seed + 7919 * k) for k in (1, 2)]
     return runs
+
+
+def _lf_columns(command: Command, targets: Sequence[Target], t_end: float, base: Mapping,
+                signals, noise, decimate) -> tuple[np.ndarray, dict]:
+    """The check's LF model on the command: its whitened output and, per fitted parameter
+    (each target's, the nuisances', every health fault for the bank's hypotheses), its
+    whitened secant column per unit parameter."""
+    names = {t.param: t.probe for t in targets}
+    for p in dict.fromkeys([n for t in targets for n in nuisance_params(t.kind)] +
+                           (list(FAULTS) if any(t.kind == "fault" for t in targets) else [])):
+        names.setdefault(p, _nuisance_step(p))
+    params = [dict(base)] + [{**base, p: base.get(p, SPECS[p].nominal_for("lf")) + step}
+                             for p, step in names.items()]
+    y = whiten(simulate_lf_rows(params, command, t_end), signals, noise, decimate)
+    return y[0], {p: (y[i + 1] - y[0]) / step for i, (p, step) in enumerate(names.items())}
 
 
 def _hypotheses(target: Target) -> list[tuple[str, ...]]:
@@ -164,7 +172,7 @@ def _best_fitting(hypotheses: list[tuple[str, ...]], col: Mapping, spread: np.nd
         return hypotheses[0]
 
     def left(hyp: tuple[str, ...]) -> float:
-        basis = _orth([col[("nuisance", p)] for p in hyp])
+        basis = _orth([col[p] for p in hyp])
         rest = spread if basis is None else spread - basis @ (basis.T @ spread)
         return float(np.sum(rest ** 2))
 
@@ -222,22 +230,6 @@ def _model_form_variance(model_form: np.ndarray, basis: np.ndarray | None) -> fl
     return float(np.mean(r ** 2)) * integrated_time(r)
 
 
-def _resolvable(v: np.ndarray, basis: np.ndarray | None, spread: np.ndarray,
-                c: float, extra_variance: float = 0.0) -> tuple[float, float]:
-    """``(size, sigma)``: the size of a signature ``v`` (per unit parameter) that stands out
-    by ``c`` healthy stds once ``basis`` is fitted away; ``spread``: the healthy departures'
-    columns (scatter and dither), whitened; ``extra_variance``: more variance along any
-    direction (the model form's)."""
-    if basis is not None:
-        v = v - basis @ (basis.T @ v)
-    norm = float(np.linalg.norm(v))
-    if not norm > 0:
-        return math.inf, math.inf
-    u = v / norm
-    sigma = math.sqrt(1.0 + extra_variance + float(np.sum((u @ spread) ** 2))) / norm
-    return c * sigma, sigma
-
-
 def predict(command: Command, targets: Sequence[Target], t_end: float,
             signals: Sequence[str] = ("xu",), noise: Mapping[str, float] | None = None,
             alpha: float = 0.01, n_actuators: int = 3, decimate: int = 1,
@@ -274,61 +266,105 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
     noise = {s: SIGNALS[s][1] for s in signals} | dict(noise or {})
     setting = dict(setting or {})
     acts = [{**a, **setting} for a in actuators(n_actuators)]
-    plan = [(k, r) for k, a in enumerate(acts) for r in _runs(targets, a, DESIGN_SEED0 + k)]
+    plan = [(k, r) for k, a in enumerate(acts) for r in _hf_runs(targets, a, DESIGN_SEED0 + k)]
     out = simulate_hf_batch([r[3] for _, r in plan], command, t_end, [r[4] for _, r in plan])
     y = whiten(out, signals, noise, decimate)
-    lf = simulate("lf", command, {**(CALIBRATED_LF if lf_base is None else lf_base),
-                                  **setting}, t_end=t_end).data[None]
-    y_lf = whiten(lf, signals, noise, decimate)[0]
+    y_lf, lf = _lf_columns(command, targets, t_end,
+                           {**(CALIBRATED_LF if lf_base is None else lf_base), **setting},
+                           signals, noise, decimate)
     xu = out[:, 1::decimate, OUTPUTS.index("xu")]
-    m = {"fault": len(FAULTS), "effect": max(1, len(targets))}
-    z = NormalDist().inv_cdf
     if pairs is None:
         pairs = [(f.name, g.name) for f in targets for g in targets if f.name != g.name]
-    by_name = {t.name: t for t in targets}
-    mds = {t.name: 0.0 for t in targets}
-    sigma = dict(mds)
-    foot = dict(mds)
-    sep: dict[str, dict[str, float]] = {f: {} for f, _ in pairs}
-    worst_form = 0.0
+    found = Prediction({t.name: 0.0 for t in targets}, {t.name: 0.0 for t in targets},
+                       {f: {} for f, _ in pairs}, {t.name: 0.0 for t in targets},
+                       {t.name: t.probe for t in targets})
     for k in range(len(acts)):
         rows = [(i, r) for i, (kk, r) in enumerate(plan) if kk == k]
         i0 = rows[0][0]
-        col = {}
-        for i, (role, name, step, _, _) in rows[1:]:
-            if role in ("target", "nuisance", "scatter"):
-                col[(role, name)] = (y[i] - y[i0]) / step * (step if role == "scatter" else 1.0)
-        dith = [(y[i] - y[i0]) / math.sqrt(2.0) for i, r in rows if r[0] == "dither"]
-        spread = np.stack([v for (role, _), v in col.items() if role == "scatter"] + dith,
-                          axis=1)
-        # the dither columns are two draws of one random departure: their mean square
-        spread[:, -len(dith):] /= math.sqrt(len(dith))
-        model_form = y[i0] - y_lf
-        core = _orth([col[("nuisance", p)] for p in core_faults() if ("nuisance", p) in col])
-        left = model_form if core is None else model_form - core @ (core.T @ model_form)
-        worst_form = max(worst_form, float(np.sqrt(np.mean(left ** 2))))
-        for t in targets:
-            c = z(1.0 - alpha / m[t.kind]) + z(P_DETECT)
-            hyp = _best_fitting(_hypotheses(t), col, spread)
-            basis = _orth([col[("nuisance", p)] for p in hyp])
-            size, sd = _resolvable(col[("target", t.name)], basis, spread, c,
-                                   _model_form_variance(model_form, basis))
-            mds[t.name], sigma[t.name] = max(mds[t.name], size), max(sigma[t.name], sd)
-            i_t = next(i for i, r in rows if r[0] == "target" and r[1] == t.name)
-            foot[t.name] = max(foot[t.name], float(np.sqrt(np.mean((xu[i_t] - xu[i0]) ** 2))))
-        c_sep = z(1.0 - ALPHA_SEPARATE) + z(P_DETECT)
-        for f, g in pairs:
-            tf, tg = by_name[f], by_name[g]
-            nuis = [col[("nuisance", p)] for p in nuisance_params(tf.kind)
-                    if p not in (tf.param, tg.param)]
-            basis = _orth(nuis + [col[("target", g)]])
-            size, _ = _resolvable(col[("target", f)], basis, spread, c_sep,
-                                  _model_form_variance(model_form, basis))
-            sep[f][g] = max(sep[f].get(g, 0.0), size)
-    separable = {f: {g: (s / mds[f] if mds[f] > 0 and math.isfinite(mds[f]) else math.inf)
-                     for g, s in row.items()} for f, row in sep.items()}
-    return Prediction(mds, sigma, separable, foot, {t.name: t.probe for t in targets},
-                      worst_form)
+        truth = {r[1]: (y[i] - y[i0]) / r[2] for i, r in rows if r[0] == "target"}
+        spread = np.stack([y[i] - y[i0] for i, r in rows if r[0] == "scatter"] +
+                          # two draws of one random departure: their mean square
+                          [(y[i] - y[i0]) / 2.0 for i, r in rows if r[0] == "dither"], axis=1)
+        for i, r in rows:
+            if r[0] == "target":
+                foot = float(np.sqrt(np.mean((xu[i] - xu[i0]) ** 2)))
+                found.footprint[r[1]] = max(found.footprint[r[1]], foot)
+        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha)
+    found.separable = {f: {g: (v / found.mds[f] if 0 < found.mds[f] < math.inf else math.inf)
+                           for g, v in row.items()} for f, row in found.separable.items()}
+    return found
+
+
+def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mapping,
+              lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float) -> None:
+    """Fold one actuator's detectable and separable sizes into ``found`` (the worst)."""
+    z = NormalDist().inv_cdf
+    m = {"fault": len(FAULTS), "effect": max(1, len(targets))}
+    core = _orth([lf[p] for p in core_faults() if p in lf])
+    left = model_form if core is None else model_form - core @ (core.T @ model_form)
+    found.model_form = max(found.model_form, float(np.sqrt(np.mean(left ** 2))))
+    by_name = {t.name: t for t in targets}
+    for t in targets:
+        hyp = _best_fitting(_hypotheses(t), lf, spread)
+        basis = _orth([lf[p] for p in hyp])
+        size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,
+                               _model_form_variance(model_form, basis), _floor(t),
+                               z(1.0 - alpha / m[t.kind]), z(P_DETECT))
+        found.mds[t.name] = max(found.mds[t.name], size)
+        found.sigma[t.name] = max(found.sigma[t.name], sd)
+    c = z(1.0 - alpha / m["fault"]) + z(P_DETECT)
+    for f, g in pairs:
+        tf, tg = by_name[f], by_name[g]
+        nuis = [lf[p] for p in nuisance_params(tf.kind) if p not in (tf.param, tg.param)]
+        size = _separable(truth[f], _orth(nuis + [lf[tf.param]]), _orth(nuis + [lf[tg.param]]),
+                          spread, model_form, c)
+        found.separable[f][g] = max(found.separable[f].get(g, 0.0), size)
+
+
+def _floor(target: Target) -> float:
+    """The check's own model-form floor on the target's std at its probe (the calibrated
+    LF's :data:`eha.identification.intervals.MODEL_FORM` for a fault, the loop's relative
+    floor for an effect): every healthy check's interval carries it, and the thresholds
+    add it to the fleet's spread."""
+    value = abs(target.healthy + target.probe)
+    if target.kind == "fault":
+        form = MODEL_FORM.get("calibrated", {}).get(target.param)
+        return 0.0 if form is None else math.hypot(form.rel * value, form.abs)
+    return LOOP_MODEL_FORM.rel * value
+
+
+def _detectable(column: np.ndarray, truth: np.ndarray, basis, spread, mf_var: float,
+                floor: float, z_alarm: float, z_detect: float) -> tuple[float, float]:
+    """``(size, sigma)`` of one target: the check fits the LF ``column`` beside ``basis``; a
+    healthy actuator's estimate scatters by ``sigma`` (noise, scatter, dither, model form),
+    the threshold is ``z_alarm * sqrt(sigma^2 + floor^2)``, and a true deviation ``a`` (the
+    HF ``truth`` per unit) moves the estimate by ``gain * a``."""
+    v = column if basis is None else column - basis @ (basis.T @ column)
+    norm = float(np.linalg.norm(v))
+    if not norm > 0:
+        return math.inf, math.inf
+    u = v / norm
+    sigma = math.sqrt(1.0 + mf_var + float(np.sum((u @ spread) ** 2))) / norm
+    gain = float(u @ truth) / norm
+    if not gain > 0:
+        return math.inf, sigma
+    return (z_alarm * math.hypot(sigma, floor) + z_detect * sigma) / gain, sigma
+
+
+def _separable(truth: np.ndarray, own, rival, spread, model_form, c: float) -> float:
+    """Size of a true deviation (HF ``truth`` per unit) at which the rival hypothesis' best
+    refit (``rival`` basis) leaves more residual than its own hypothesis (``own``) by ``c``
+    healthy stds along that residual (inf: the rival fits it as well)."""
+    def rest(basis, x):
+        return x if basis is None else x - basis @ (basis.T @ x)
+
+    r_rival, r_own = rest(rival, truth), rest(own, truth)
+    excess = float(r_rival @ r_rival - r_own @ r_own)
+    if not excess > 0:
+        return math.inf
+    u = r_rival / float(np.linalg.norm(r_rival))
+    var = 1.0 + _model_form_variance(model_form, rival) + float(np.sum((u @ spread) ** 2))
+    return c * math.sqrt(var) / math.sqrt(excess)
 
 
 __all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT",

@@ -186,6 +186,22 @@ def simulate_hf_batch(params: Sequence[Mapping[str, float]], command: Command | 
     return out
 
 
+def simulate_lf_rows(params: Sequence[Mapping[str, float]], command: Command | str,
+                     t_end: float) -> np.ndarray:
+    """The LF model for many parameter sets on one command, in one parallel numba call:
+    what :func:`simulate` records for each (shape ``(n, n_out, len(OUTPUTS))``)."""
+    sets = [_params("lf", p) for p in params]
+    if not sets or len({p.DT for p in sets}) != 1:
+        raise ParameterError("simulate_lf_rows: at least one run, every run with the same DT")
+    steps_per_out, n_out, t_steps = _grid(sets[0], t_end)
+    com = command_on_grid(as_command(command), t_steps)
+    out = np.empty((len(sets), n_out, len(OUTPUTS)))
+    run_lf_batch(np.stack([p.to_array() for p in sets]), com, steps_per_out, out)
+    for j, p in enumerate(sets):
+        out[j, :, O_XU] = measure(out[j, :, O_T], out[j, :, O_XU], p)
+    return out
+
+
 def xj0_for_recorded(recorded_start: float, sensor_bias, sensor_gain, XJM):
     """Initial jack position [m] at which the *recorded* position (``gain*XU + bias``) equals
     ``recorded_start``, within the stroke ``±XJM`` (scalars or arrays)."""
