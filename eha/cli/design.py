@@ -162,15 +162,22 @@ def _show(result) -> None:
                   f"{len(result.targets)} targets detectable, {len(better)} at half the best "
                   f"library command's size or less (predicted; eha design verify measures "
                   f"it); {result.seconds:.0f} s", highlight=False)
-    table = Table("target", "design", "best library", "ratio", "verdict")
+    table = Table("target", "design", "best library command", "ratio")
     best = result.best_library()
     for t in result.targets:
         lib, ref = best[t.name]
         size = result.prediction.mds[t.name]
-        table.add_row(t.name, t.shown(size) if math.isfinite(size) else "none",
-                      f"{t.shown(ref)} ({lib})", f"{result.ratio(t.name):.2f}",
-                      escape(result.verdict(t)))
+        shown = t.shown(size) if result.prediction.detectable(t) else "not detectable"
+        table.add_row(t.name, shown, f"{t.shown(ref)} ({lib})", f"{result.ratio(t.name):.2f}")
     console.print(table)
+    for t in result.targets:
+        if not result.prediction.detectable(t):
+            console.print(escape(f"{t.name}: {result.verdict(t)}"), highlight=False)
+    pairs = result.settings.get("separate") or []
+    for f, g in pairs:
+        sep = result.prediction.separable
+        console.print(escape(f"{f} vs {g}: told apart from {sep[f][g]:.2g}x and "
+                             f"{sep[g][f]:.2g}x their detectable sizes"), highlight=False)
 
 
 @design_app.command("verify")
