@@ -144,3 +144,21 @@ def test_levels_around_the_prediction_stay_inside_the_bounds():
     assert lv["GM"] == pytest.approx([0.006, 0.008, 0.009, 0.0095])
     assert lv["Clk"] == [5e-13, 1.5e-12, 4e-12]            # undetectable: campaign levels
     assert max(lv["BKL"]) == 1.25e-3
+
+
+def test_an_undecided_explain_answer_names_the_test_that_decides_it(tmp_path):
+    """`eha explain` with rivals it cannot rule out prints the `eha design --around` line
+    (and its --json carries it, eha/explain/outputs.py); without rivals, nothing."""
+    from types import SimpleNamespace
+
+    from eha.cli.explain import _next_test
+    from eha.cli.guard import console
+
+    res = SimpleNamespace(not_excluded=[{"effect": "offset", "param": "Ofs", "value": -0.009,
+                                         "unit": "mA"}])
+    with console.capture() as cap:
+        _next_test(res, tmp_path / "out.json")
+        _next_test(SimpleNamespace(not_excluded=[]), tmp_path / "out.json")
+    text = " ".join(cap.get().split())
+    assert "offset (Ofs -0.009 mA)" in text
+    assert f"eha design --faults none --around {tmp_path / 'out.json'}" in text.replace("\n", "")

@@ -195,7 +195,13 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     paths["details"].write_text(json.dumps(result.details(run_id), indent=2, default=float))
     if json_path is not None:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result.to_json(), indent=2))
+        doc = result.to_json()
+        if result.not_excluded:  # the test that would decide it (docs/design.md)
+            doc["separating_test"] = {
+                "rivals": [{"effect": e["effect"], "param": e["param"], "value": e["value"]}
+                           for e in result.not_excluded],
+                "design": f"eha design --faults none --around {json_path}"}
+        Path(json_path).write_text(json.dumps(doc, indent=2))
         paths["json"] = Path(json_path)
     db_error = None
     try:
