@@ -193,6 +193,9 @@ def verify(
     calibration: int = typer.Option(30, "--calibration", help="Healthy actuators that set "
                                     "the thresholds."),
     per_level: int = typer.Option(10, "--per-level", help="Actuators per fault level."),
+    with_design: bool = typer.Option(True, "--with-design/--library-only", help="Run the "
+                                     "design's command too, or the library commands alone "
+                                     "(another fleet size)."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed."),
     results: ResultsOption = RESULTS,
     workers: WorkersOption = WORKERS,
@@ -211,10 +214,11 @@ def verify(
     check_seed(seed)
     try:
         v = run_verify(design_json, command_file, split_names(library), healthy, calibration,
-                       per_level, results, workers, progress, seed)
+                       per_level, results, workers, progress, seed, with_design)
     except DesignError as exc:
         fail(_flags(str(exc)))
-    out = design_json.with_name(design_json.stem + "-verification.json")
+    out = design_json.with_name(design_json.stem + ("-verification.json" if with_design
+                                                    else "-library-verification.json"))
     v.save(out)
     md = out.with_suffix(".md")
     md.write_text(v.markdown())

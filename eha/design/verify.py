@@ -12,6 +12,7 @@ isolation the share of a level's records whose declared fault is the injected on
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -164,9 +165,11 @@ class Verification:
 def verify(design_json: str | Path, command_file: str | Path | None = None,
            library: Sequence[str] = ("chirp_1cm",), healthy: int = 230,
            calibration: int = 30, per_level: int = 10, results: str | Path = "results",
-           workers: int = 2, progress: bool = True, seed: int = 0) -> Verification:
+           workers: int = 2, progress: bool = True, seed: int = 0,
+           with_design: bool = True) -> Verification:
     """Run the verification campaign of a design (its JSON and command file, as
-    :meth:`eha.design.DesignResult.save` wrote them) and measure it."""
+    :meth:`eha.design.DesignResult.save` wrote them) and measure it; ``with_design=False``
+    runs the library commands alone on the design's fault levels (another fleet size)."""
     from eha.campaigns.files import CampaignError, build_campaign
     from eha.campaigns.runner import run_campaign
     from eha.models.commands import command_label
@@ -190,8 +193,13 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
     mds = {n: targets[n].get("min_detectable") for n in faults}
     levels = levels_around({n: (v if v is not None else math.inf) for n, v in mds.items()},
                            faults)
-    name = f"verify-{command_label(command)}"
-    table = verification_table(name, [command, *library], levels, healthy, per_level,
+    commands = ([command] if with_design else []) + list(library)
+    if not commands:
+        raise DesignError("library: no command to verify (give the design or a library "
+                          "command)")
+    tag = hashlib.sha256(json.dumps([commands, healthy, per_level, seed]).encode()).hexdigest()
+    name = f"verify-{command_label(command)}-{tag[:6]}"
+    table = verification_table(name, commands, levels, healthy, per_level,
                                float(settings.get("duration", 1.0)),
                                float(settings.get("noise", {}).get("xu", 1e-6)), seed)
     try:
