@@ -263,7 +263,7 @@ def read_identification(con) -> Identification | None:
     """Every FDI campaign with results (the augmented thesis campaign joins the thesis table
     as its ``aug_*`` columns, as in ``fdi_table.csv``); None when there is none."""
     from eha.identification.cases import parse_fdi_campaign, rows_from_results
-    from eha.reports.thesis import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
+    from eha.reports.fdi_table import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
 
     if "fdi_results" not in _tables(con) or not _count(con, "fdi_results"):
         return None
