@@ -91,6 +91,23 @@ class DesignResult:
                 + (f"; visible with {'; '.join(helps)}" if helps else
                    "; none of the load pressure, a test load or a 4x longer test shows it"))
 
+    def pairs(self) -> list[dict[str, Any]]:
+        """Each requested pair: the size of each member at which it is told from the other,
+        on the design and on the best library command for it, and whether the design tells
+        them apart at the sizes it was designed around."""
+        by = {t.name: t for t in self.targets}
+        out = []
+        for f, g in (tuple(p) for p in self.settings.get("separate", [])):
+            row = {"pair": [f, g], "at": {f: by[f].probe, g: by[g].probe}}
+            for label, pred in {"design": self.prediction, **self.library}.items():
+                row[label] = {f: _finite(pred.separable_size(f, g)),
+                              g: _finite(pred.separable_size(g, f))}
+            row["told_apart_at_these_sizes"] = all(
+                self.prediction.separable_size(a, b) <= abs(by[a].probe)
+                for a, b in ((f, g), (g, f)))
+            out.append(row)
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         ref = self.best_library()
         rows = {}
@@ -113,6 +130,9 @@ class DesignResult:
                 "targets": rows,
                 "separable": {f: {g: _finite(v) for g, v in row.items()}
                               for f, row in self.prediction.separable.items()},
+                "separable_size": {f: {g: _finite(v) for g, v in row.items()}
+                                   for f, row in self.prediction.separable_at.items()},
+                "pairs": self.pairs(),
                 "search_history": self.history, "seconds": self.seconds}
 
     def to_pandas(self):
@@ -221,12 +241,15 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
     library = library_predictions(targets, limits.duration, **options)
     reference = best_library(targets, library)
     x, _, history = search(targets, limits, reference, pairs, seed=seed, pop=population,
-                           generations=generations, on_progress=say, **options)
+                           generations=generations, on_progress=say,
+                           at_size=bool(around), **options)
     t, com = command_samples(x, limits)
     command = array_command(t, com, "design")
     say("final prediction: signatures at the predicted sizes")
     first = predict(command, targets, limits.duration, **options)
-    refined = with_probes(targets, {n: v for n, v in first.mds.items() if math.isfinite(v)})
+    # signatures at the predicted sizes, but at the record's own sizes where given (around)
+    refined = with_probes(targets, {n: v for n, v in first.mds.items()
+                                    if math.isfinite(v) and n not in (around or {})})
     prediction = predict(command, refined, limits.duration, **options)
     alternatives = _alternatives(command, t, com, refined, prediction, limits, options)
     settings = {"faults": [x.name for x in targets if x.kind == "fault"],

@@ -84,6 +84,7 @@ class Prediction:
     footprint: dict[str, float]
     probes: dict[str, float] = field(default_factory=dict)
     model_form: float = 0.0
+    separable_at: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def followed(self) -> bool:
@@ -92,6 +93,10 @@ class Prediction:
         noise (beyond it the check's fit is flagged, and the measured campaign detects
         nothing: the 5 Hz sine)."""
         return self.model_form <= FOLLOW_RATIO
+
+    def separable_size(self, f: str, g: str) -> float:
+        """The deviation of ``f`` at which it is told from ``g`` [``f``'s unit]."""
+        return self.separable_at[f][g]
 
     def detectable(self, target: Target) -> bool:
         return math.isfinite(self.mds[target.name]) and self.mds[target.name] <= target.limit
@@ -290,6 +295,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
                 foot = float(np.sqrt(np.mean((xu[i] - xu[i0]) ** 2)))
                 found.footprint[r[1]] = max(found.footprint[r[1]], foot)
         _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha)
+    found.separable_at = {f: dict(row) for f, row in found.separable.items()}
     found.separable = {f: {g: (v / found.mds[f] if 0 < found.mds[f] < math.inf else math.inf)
                            for g, v in row.items()} for f, row in found.separable.items()}
     return found

@@ -26,6 +26,8 @@ from eha.models.commands import array_command, make_command
 
 #: The library commands a design is compared with.
 LIBRARY = ("chirp_1cm", "mixed", "test", "sine")
+#: Weight of a pair's log separable size (the pairs are what a separating test is for).
+PAIR_WEIGHT = 2.0
 #: Weight of a target's log ratio where the candidate shows it worse than the library.
 WORSE_WEIGHT = 2.0
 #: Starting points of the search beside the random ones: slow chirps and triangles like the
@@ -58,7 +60,7 @@ def best_library(targets: Sequence[Target], library: Mapping[str, Prediction]
 
 
 def score(pred: Prediction, targets: Sequence[Target], reference: Mapping[str, tuple[str, float]],
-          pairs: Sequence[tuple[str, str]] = ()) -> float:
+          pairs: Sequence[tuple[str, str]] = (), at_size: bool = False) -> float:
     """The search's objective (lower is better): the mean log ratio of the predicted
     detectable sizes to the best library command's, each ratio above 1 counted again
     :data:`WORSE_WEIGHT` times; a requested pair adds the log of its separable size."""
@@ -68,16 +70,20 @@ def score(pred: Prediction, targets: Sequence[Target], reference: Mapping[str, t
         logs.append(math.log(size / reference[t.name][1]))
     # better than the library on average, and worse on none (each excess weighs double)
     value = float(np.mean(logs)) + WORSE_WEIGHT * sum(max(0.0, v) for v in logs)
+    probe = {t.name: abs(t.probe) for t in targets}
     for f, g in pairs:
-        worst = max(min(pred.separable[f][g], 100.0), min(pred.separable[g][f], 100.0))
-        value += math.log(max(worst, 1e-3))
+        if at_size:   # told apart at the record's own sizes: separable size over that size
+            worst = max(pred.separable_size(f, g) / probe[f], pred.separable_size(g, f) / probe[g])
+        else:
+            worst = max(pred.separable[f][g], pred.separable[g][f])
+        value += PAIR_WEIGHT * math.log(min(max(worst, 1e-3), 100.0))
     return value
 
 
 def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tuple[str, float]],
            pairs: Sequence[tuple[str, str]] = (), seed: int = 0, pop: int = 24,
            generations: int = 12, on_progress: Callable[[str], None] | None = None,
-           **options) -> tuple[np.ndarray, float, list[float]]:
+           at_size: bool = False, **options) -> tuple[np.ndarray, float, list[float]]:
     """The best gene vector found, its score and the best score of each generation."""
     from pymoo.algorithms.soo.nonconvex.ga import GA
     from pymoo.core.problem import Problem
@@ -94,7 +100,7 @@ def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tu
         pred = predict(array_command(t, com, "candidate"), targets, limits.duration,
                        pairs=all_pairs, **options)
         penalty = 0.0 if pred.followed else 5.0 + math.log(pred.model_form / FOLLOW_RATIO)
-        return score(pred, targets, reference, pairs) + penalty
+        return score(pred, targets, reference, pairs, at_size) + penalty
 
     class _Family(Problem):
         def __init__(self):
