@@ -57,7 +57,10 @@ def draw_record(i: int, seed_block: int, extra: bool = True) -> tuple[str, dict,
 def run_record(i: int, seed_block: int, methods, extra: bool = True) -> dict:
     from eha.identification.fdi import identify
     from eha.identification.problem import BASE_MODELS
-    from eha.health.assessment import CORE_FAULTS, FAULTS, assess_record
+    from eha.health.assessment import FAULTS, assess_record
+    from eha.models.faults import core_faults
+
+    CORE_FAULTS = core_faults()
     from eha.identification.measured import from_arrays, synthetic_record
     from eha.models.params import resolve
 
@@ -211,7 +214,10 @@ def compare_methods(n_records: int, seed_block: int = 20_000, level: float = 0.9
     from eha.identification.fdi import identify
     from eha.identification.optimizers import BatchObjective
     from eha.identification.problem import CALIBRATED_LF
-    from eha.health.assessment import CORE_FAULTS, FAULTS
+    from eha.health.assessment import FAULTS
+    from eha.models.faults import core_faults
+
+    CORE_FAULTS = core_faults()
     from eha.identification.intervals import bandwidth, hac_covariance, jacobian, normal_quantile
     from eha.identification.measured import from_arrays, synthetic_record
     from eha.models.params import resolve

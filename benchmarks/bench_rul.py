@@ -59,7 +59,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from eha.prognostics.fleet import parse_fleet, simulate_fleet
-    from eha.prognostics.jobs import RUL_FIT, run_rul
+    from eha.models.faults import rul_faults
+    from eha.prognostics.jobs import run_rul
 
     table = tomllib.loads(args.fleet.read_text())
     if args.actuators is not None:
@@ -77,7 +78,7 @@ def main(argv=None) -> int:
     t_fleet = time.perf_counter() - t0
     limits = dict(fleet.limits)
     t1 = time.perf_counter()
-    fit = list(dict.fromkeys([*RUL_FIT, *(f.name for f in fleet.faults)]))
+    fit = list(dict.fromkeys([*rul_faults(), *(f.name for f in fleet.faults)]))
     res = run_rul(fr.manifest, limits, fit=fit,
                   results=out / "results", truth=fr.truth, plots=args.plots,
                   json_out=out / "rul.json", workers=args.workers, progress=False,

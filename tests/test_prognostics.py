@@ -404,12 +404,14 @@ def test_long_histories_are_thinned_to_the_last_checks_and_spaced_earlier_ones()
 
 # ----------------------------------------------------------------------------- assessment
 def test_tracking_the_motor_gain_removes_the_fdj_bias_of_a_dispersed_actuator(tmp_path):
-    """Why ``eha rul`` fits GM by default (RUL_FIT): a unit whose motor gain is 3.5 % low has
+    """Why ``eha rul`` fits GM by default (the registry's rul_faults): a unit whose motor gain is 3.5 % low has
     its FDJ identified far off with GM fixed at nominal, within 5 % with GM fitted (fleet-demo:
     10-26 % against at most 3 %; docs/prognostics.md). HF record, chirp_1cm, 2 µm noise."""
     from eha.identification.fdi import identify_source
     from eha.identification.measured import synthetic_record
-    from eha.prognostics.jobs import RUL_FIT
+    from eha.models.faults import rul_faults
+
+    RUL_FIT = rul_faults()
 
     assert RUL_FIT == ("BKL", "FDJ", "GM")
     truth = {"BKL": 3e-4, "FDJ": 900.0, "GM": 0.01 * 0.965}

@@ -229,7 +229,7 @@ def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
     """Run one task in a worker: a chunk of runs of one kind (its ``run_chunk``), a bundle of
     chunks run in turn (``{"bundle": [result, ...]}``) or a single job
     (:func:`execute_job`)."""
-    from eha.campaigns.executors import tune_malloc
+    from eha.campaigns.malloc import tune_malloc
 
     tune_malloc()  # once per process: also a Dask worker restarted without the warm-up
     if task["kind"] == "bundle":

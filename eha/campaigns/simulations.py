@@ -15,8 +15,8 @@ import itertools
 import json
 from typing import Any, Callable, Mapping
 
-from eha.campaigns.files import MAX_JOBS, JobDraft, _did_you_mean, _hash
-from eha.models.commands import Command, CommandError, make_command
+from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _hash
+from eha.models.commands import Command, CommandError, make_command, pin_command
 from eha.models.params import MODELS, ParameterError, check_value, resolve
 
 #: Columns a trace can store (docs/model.md §8); see :data:`eha.models.OUTPUTS`.
@@ -139,6 +139,7 @@ def _commands(value: Any, problems: list[str]) -> list[tuple[str, dict, Command]
             continue
         try:
             cmd = make_command(cmd_name, **overrides)
+            cmd_name = pin_command(cmd_name)  # a command file by its content hash
         except CommandError as exc:
             problems.append(f"commands[{i}]: {exc}")
             continue

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from eha.cli import campaign, explain, health, identify, models, prognostics, report
+from eha.cli import campaign, design, explain, health, identify, models, prognostics, report
 from eha.cli.guard import STATE, GuardedGroup
 
 app = typer.Typer(cls=GuardedGroup, add_completion=False, no_args_is_help=True,
@@ -23,6 +23,7 @@ def _options(debug: bool = typer.Option(False, "--debug", help="Show the traceba
 app.command()(models.simulate)
 app.command()(models.params)
 app.command()(models.commands)
+app.command()(models.faults)
 app.command()(report.reproduce)
 app.add_typer(campaign.campaign_app, name="campaign")
 app.command()(campaign.query)
@@ -32,6 +33,7 @@ app.command()(identify.fdi)
 app.command()(explain.explain)
 app.add_typer(report.report_app, name="report")
 app.add_typer(health.health_app, name="health")
+app.add_typer(design.design_app, name="design")
 app.add_typer(prognostics.fleet_app, name="fleet")
 app.command()(prognostics.rul)
 app.command()(prognostics.limits)

@@ -119,7 +119,8 @@ def campaign_verify(
 
     Example: eha campaign verify --results results --repair
     """
-    from eha.campaigns.integrity import repair_hint, verify_results
+    from eha.campaigns.integrity import repair_hint
+    from eha.campaigns.runner import verify_results
 
     if repair:
         check_out_dir(results, "--results")

@@ -50,9 +50,9 @@ def health_alpha() -> float:
 
 
 def rul_faults() -> str:
-    from eha.prognostics.jobs import RUL_FIT
+    from eha.models import faults
 
-    return ",".join(RUL_FIT)
+    return ",".join(faults.rul_faults())
 
 
 def loop_setting(name: str, cast: Callable[[Any], Any] = float) -> Callable[[], Any]:

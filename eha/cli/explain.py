@@ -118,9 +118,22 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             results=results, on_progress=step, settings=settings,
             null=record.at(healthy) if healthy is not None else "simulate")
     _render(run["result"])
+    _next_test(run["result"], json_out)
     print_paths(run["paths"])
     if run["db_error"]:
         fail(f"results database not written: {run['db_error']}", code=1)
+
+
+def _next_test(res, json_out: Optional[Path]) -> None:
+    """Rivals the record could not rule out: the command that designs the test deciding it
+    (docs/design.md)."""
+    if not res.not_excluded:
+        return
+    rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} "
+                       f"{e.get('value_unit', e['unit'])})" for e in res.not_excluded)
+    around = str(json_out) if json_out is not None else "OUT.json (rerun with --json OUT.json)"
+    console.print(f"to decide between the model and {rivals}: design the separating "
+                  f"test with: eha design --faults none --around {around}", highlight=False)
 
 
 class _progress_bar:

@@ -48,8 +48,9 @@ def health_calibrate(
     """Run a healthy fleet (manufacturing dispersion, sensor noise, dither) through the
     campaign runner and set each fault's threshold for the false-alarm probability --alpha.
 
-    Dispersion (eha.detection.DISPERSION): +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM,
-    FDJ ~ N(200, 20) N, Clk log-uniform in [0.7e-13, 1.4e-13].
+    Dispersion (eha.identification.healthy.DISPERSION, declared with the faults: eha faults):
+    +-3 % on GP, GQ, CJ, MJ and FSS, +-1 % on GM, FDJ ~ N(200, 20) N, Clk log-uniform in
+    [0.7e-13, 1.4e-13] m^3/(Pa*s).
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
     """

@@ -11,6 +11,7 @@ from typing import List, Optional
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from eha.cli.guard import console, fail
 from eha.cli.options import PLOT_SUFFIXES, check_out_file, check_seed
@@ -87,3 +88,38 @@ def commands():
                          for k, (d, u, lo, hi) in kind.params.items())
         table.add_row(kind.name, kind.name, pars, kind.description)
     console.print(table)
+
+
+def faults():
+    """List the health faults: what degrades, unit, healthy value and scatter, search bounds,
+    the detection campaign's levels, RUL tracking, the residual loop's matching effect.
+
+    Every fact comes from one declaration per fault (eha.models.faults).
+
+    Example: eha faults
+    """
+    from eha.models.faults import FAULTS
+
+    for f in FAULTS.values():
+        unit, k = f.display_unit
+        scatter = "" if f.scatter is None else f" ({_scatter_text(f.scatter, k)})"
+        trend = {1: "degrades up", -1: "degrades down", 0: "degrades either way"}[f.direction]
+        tags = ", ".join(t for t in (f.role == "core" and "core", f.rul and "RUL") if t)
+        head = f"{f.description} [{unit}], {trend}" + (f" ({tags})" if tags else "")
+        console.print(Text.assemble((f.name, "bold"), f"  {head}"), highlight=False)
+        console.print(f"    healthy {f.healthy * k:g}{scatter}; search {f.bounds[0] * k:g} to "
+                      f"{f.bounds[1] * k:g}; campaign levels "
+                      f"{', '.join(f'{v * k:g}' for v in f.levels) or '-'}; loop effect "
+                      f"{f.effect or '-'}", highlight=False, markup=False)
+    console.print("core: fitted in every hypothesis of the health bank; RUL: tracked by eha rul "
+                  "by default.", highlight=False)
+
+
+def _scatter_text(scatter: tuple[str, float, float], k: float) -> str:
+    law, a, b = scatter
+    if law == "uniform_rel":
+        return f"+-{100 * a:g} %"
+    if law == "normal":
+        return f"std {b * k:g}"
+    return f"log-uniform {a * k:g}-{b * k:g}"
+

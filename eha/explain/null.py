@@ -398,7 +398,7 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
                  on_progress: Callable[[str], None] | None = None, record=None) -> Null:
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
-    Not cached (the files are the user's). A :class:`eha.measured.RecordFile` folder reads
+    Not cached (the files are the user's). A :class:`eha.identification.columns.RecordFile` folder reads
     its records with its columns and units. With ``record`` (the record the null is for),
     each healthy record must match it (:func:`record_mismatch`), checked before any fit."""
     from eha.identification.measured import FILE_TYPES, MeasuredDataError, load, same_format

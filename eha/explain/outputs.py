@@ -198,7 +198,13 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     plot_explain_trace(result, paths["trace"])
     write_json(paths["details"], result.details(run_id), indent=2, default=float)
     if json_path is not None:
-        write_json(json_path, result.to_json(), indent=2)
+        doc = result.to_json()
+        if result.not_excluded:  # the test that would decide it (docs/design.md)
+            doc["separating_test"] = {
+                "rivals": [{"effect": e["effect"], "param": e["param"], "value": e["value"]}
+                           for e in result.not_excluded],
+                "design": f"eha design --faults none --around {json_path}"}
+        write_json(json_path, doc, indent=2)
         paths["json"] = Path(json_path)
     db_error = None
     try:

@@ -33,57 +33,15 @@ import numpy as np
 
 from eha.models.commands import Command
 from eha.identification.fdi import identify
-from eha.identification.problem import CALIBRATED_LF, DEFAULT_LEVEL, SEARCH_BOUNDS, FitResult
+from eha.identification.problem import CALIBRATED_LF, DEFAULT_LEVEL, FitResult
+from eha.models.faults import FAULTS as FAULT_REGISTRY, Fault, core_faults, extra_faults
 from eha.models.params import LFParams, resolve
 from eha.errors import InputError
 
 
-@dataclass(frozen=True)
-class FaultSpec:
-    """A fault parameter as the health assessment sees it.
-
-    Attributes
-    ----------
-    name : str
-        LF parameter name.
-    healthy : float
-        Value of a healthy actuator (HF nominal) [unit of ``eha params``].
-    bounds : tuple of float
-        Search bounds of the identification.
-    direction : int
-        +1: degradation raises it; -1: lowers it; 0: either way (offset).
-    description : str
-    healthy_std : float
-        Spread of the value among healthy actuators (the fleet dispersion of
-        :data:`eha.identification.healthy.DISPERSION`, or a small tolerance): what a hypothesis
-        that holds the fault healthy says of it.
-    """
-
-    name: str
-    healthy: float
-    bounds: tuple[float, float]
-    direction: int
-    description: str
-    healthy_std: float = 0.0
-
-
-#: The fault parameters the LF model carries, with health-assessment search bounds.
-FAULTS: dict[str, FaultSpec] = {f.name: f for f in (
-    # FDJ from 50 N: a healthy actuator's friction scatters below the thesis' 200 N bound
-    FaultSpec("BKL", 0.0, SEARCH_BOUNDS["BKL"], +1, "jack-surface backlash [m]"),
-    FaultSpec("FDJ", 200.0, (50.0, 4000.0), +1, "jack dynamic friction [N]"),
-    FaultSpec("GM", 0.01, SEARCH_BOUNDS["GM"], -1, "torque-motor gain, demagnetisation [N/mA]",
-              6e-5),
-    FaultSpec("Kintas", 0.0, SEARCH_BOUNDS["Kintas"], +1, "first-stage filter clogging [-]",
-              0.005),
-    FaultSpec("Clk", 1e-13, SEARCH_BOUNDS["Clk"], +1, "internal leakage [m^3/(Pa*s)]", 2e-14),
-    FaultSpec("Ofs", 0.0, SEARCH_BOUNDS["Ofs"], 0, "torque-motor offset current [mA]", 0.003),
-    FaultSpec("FSS", 7.0, SEARCH_BOUNDS["FSS"], +1, "spool static friction [N]", 0.12),
-)}
-#: Faults fitted in every hypothesis (the thesis' two).
-CORE_FAULTS = ("BKL", "FDJ")
-#: Faults that each get a hypothesis of their own.
-EXTRA_FAULTS = ("GM", "Kintas", "Clk", "Ofs", "FSS")
+#: The fault parameters the LF model carries (the registry, :mod:`eha.models.faults`: bounds,
+#: healthy value and spread, direction of degradation, role in the bank).
+FAULTS: dict[str, Fault] = FAULT_REGISTRY
 
 
 #: Search of each one-more-fault hypothesis: warm-started at H0's estimate with the fault
@@ -106,7 +64,7 @@ class Hypothesis:
 
     @property
     def label(self) -> str:
-        return "H0 (BKL, FDJ)" if self.fault is None else f"H_{self.fault}"
+        return f"H0 ({', '.join(core_faults())})" if self.fault is None else f"H_{self.fault}"
 
 
 @dataclass(frozen=True)
@@ -222,7 +180,7 @@ def fault_components(name: str, hyps: Sequence[tuple[str | None, float, Mapping[
                      ) -> list[tuple[float, float, float]]:
     """Mixture components ``(weight, mean, std)`` of fault ``name`` over the hypotheses
     ``(fault, weight, estimates, std)``: the hypothesis' estimate and std where it fits the
-    fault, else the healthy value with the healthy spread (:attr:`FaultSpec.healthy_std`)."""
+    fault, else the healthy value with the healthy spread (:attr:`eha.models.faults.Fault.healthy_std`)."""
     spec = FAULTS[name]
     comps = []
     for _, weight, est, std in hyps:
@@ -246,7 +204,7 @@ def _lf_base(base: LFParams | Mapping[str, float] | None) -> LFParams:
 
 def assess(reference_xu: np.ndarray, command: Command | str,
            base: LFParams | Mapping[str, float] | None = None,
-           faults: Sequence[str] = EXTRA_FAULTS, level: float = DEFAULT_LEVEL,
+           faults: Sequence[str] | None = None, level: float = DEFAULT_LEVEL,
            seed: int = 0, noise: float | None = None, t_end: float | None = None,
            recorded_start: float | None = None, pop: int = 20,
            on_progress: Callable[[str], None] | None = None) -> Assessment:
@@ -262,7 +220,8 @@ def assess(reference_xu: np.ndarray, command: Command | str,
         The LF model (default: :data:`eha.identification.problem.CALIBRATED_LF`, the LF calibrated
         by ``eha explain``).
     faults : sequence of str
-        Faults that get a hypothesis of their own (default all of :data:`EXTRA_FAULTS`).
+        Faults that get a hypothesis of their own (default every ``extra`` fault of the
+        registry, :func:`eha.models.faults.extra_faults`).
     level : float
         Nominal coverage of the intervals.
     seed : int
@@ -270,10 +229,12 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     noise : float, optional
         Sensor noise [m] (default: estimated from the record).
     """
-    unknown = [f for f in faults if f not in EXTRA_FAULTS]
+    extra = extra_faults()
+    faults = extra if faults is None else tuple(faults)
+    unknown = [f for f in faults if f not in extra]
     if unknown:
         raise HealthError(f"faults: {unknown[0]!r} has no hypothesis; allowed "
-                          f"{', '.join(EXTRA_FAULTS)}")
+                          f"{', '.join(extra)}")
     base = _lf_base(base)
     start = time.perf_counter()
     from eha.identification.measured import noise_level
@@ -281,15 +242,15 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     xu = np.asarray(reference_xu, dtype=np.float64)
     noise = float(noise_level(xu) if noise is None else noise)
     say = on_progress or (lambda message: None)
-    core = {n: FAULTS[n].bounds for n in CORE_FAULTS}
+    core = {n: FAULTS[n].bounds for n in core_faults()}
     common = dict(level=level, noise=noise, t_end=t_end, recorded_start=recorded_start,
                   pop=pop, seed=seed)
-    say("H0: BKL, FDJ")
+    say(f"H0: {', '.join(core)}")
     fits: list[tuple[str | None, FitResult]] = [(None, identify(xu, command, core, base=base,
                                                                 **common))]
     h0 = fits[0][1]
     for f in faults:
-        say(f"H_{f}: BKL, FDJ, {f}")
+        say(f"H_{f}: {', '.join(core)}, {f}")
         start_point = base.replace(**h0.estimates, **{f: FAULTS[f].healthy})
         fits.append((f, identify(xu, command, {**core, f: FAULTS[f].bounds}, base=start_point,
                                  **HYPOTHESIS_SEARCH, **common)))
@@ -305,7 +266,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
                   key=lambda h: -h.weight)
     best = hyps[0]
     estimates, intervals, means, spread = {}, {}, {}, {}
-    for name in (*CORE_FAULTS, *faults):
+    for name in (*core, *faults):
         spec = FAULTS[name]
         comps = fault_components(name, [(h.fault, h.weight, h.fit.estimates, h.fit.std)
                                         for h in hyps])
@@ -327,7 +288,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
 
 
 def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
-                  faults: Sequence[str] = EXTRA_FAULTS, level: float = DEFAULT_LEVEL,
+                  faults: Sequence[str] | None = None, level: float = DEFAULT_LEVEL,
                   seed: int = 0, pop: int = 20,
                   on_progress: Callable[[str], None] | None = None) -> Assessment:
     """:func:`assess` a measured record (:class:`eha.identification.measured.MeasuredData`).

@@ -3,7 +3,8 @@
 Pipeline
 --------
 1. **Fleets** (:func:`health_jobs`, the ``[health]`` section of a campaign file): actuators
-   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`), optionally
+   drawn with manufacturing dispersion (:data:`eha.identification.healthy.DISPERSION`, declared with
+   the faults in :mod:`eha.models.faults`), optionally
    with one injected fault at given levels, one HF record each (sensor noise, dither seed), each
    assessed by the hypothesis bank (:func:`eha.health.assessment.assess_record`). Run by the
    campaign runner (2 workers, resumable); rows in the DuckDB table ``health_assessments``.
@@ -35,7 +36,8 @@ import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
-from eha.health.assessment import CORE_FAULTS, EXTRA_FAULTS, FAULTS
+from eha.health.assessment import FAULTS
+from eha.models.faults import core_faults, detection_levels
 
 #: Smallest posterior weight of a one-more-fault hypothesis for its fault to be isolated.
 ISOLATION_WEIGHT = 0.5
@@ -70,6 +72,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         seed = 0                             # first actuator seed
         noise = 1e-6                         # m, white sensor noise
         faults = { GM = [0.009, 0.008, 0.007], Clk = [5e-13, 1e-12, 2e-12] }   # optional
+        # or faults = ["GM", "Clk"] / "all": the levels declared with each fault
         base_model = "calibrated"            # LF of the assessment
         level = 0.9
 
@@ -77,7 +80,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
     added.
     """
-    from eha.models.commands import CommandError, as_command
+    from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
 
     extra = set(section) - _SECTION_KEYS
@@ -87,11 +90,14 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if isinstance(commands, str) or not isinstance(commands, list) or not commands:
         problems.append("health.commands: a non-empty list of command presets")
         commands = []
+    pinned = []
     for c in commands:
         try:
             as_command(c)
+            pinned.append(pin_command(c))  # a command file by its content hash
         except (CommandError, ValueError, TypeError) as exc:
             problems.append(f"health.commands: {exc}")
+    commands = pinned
     t_end = section.get("t_end", 1.0)
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or not 0.2 <= t_end <= 10:
         problems.append(f"health.t_end={t_end!r}: allowed range [0.2, 10] s")
@@ -120,6 +126,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         return []
     jobs = []
     for command in commands:
+        shown = command_label(command)
         first = seed
         for label, injected in groups:
             size = n_healthy if label == "healthy" else n
@@ -131,10 +138,10 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                         "seed": s, "base_model": base_model, "level": float(level),
                         "group": label, "truth": truth}
                 jobs.append({"kind": "health_assessment", "spec": spec, "identity": {},
-                             "columns": {"model": "hf", "command": command, "faults": injected,
+                             "columns": {"model": "hf", "command": shown, "faults": injected,
                                          "seed": s, "t_end": float(t_end),
                                          "fault_label": label,
-                                         "label": f"{command} {label} actuator {s}",
+                                         "label": f"{shown} {label} actuator {s}",
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
@@ -146,8 +153,17 @@ def _fault_groups(faults: Any, problems: list[str]) -> list[tuple[str, dict[str,
     from eha.models.params import ParameterError, check_value
 
     groups: list[tuple[str, dict[str, float]]] = [("healthy", {})]
+    if faults == "all" or (isinstance(faults, list) and all(isinstance(n, str) for n in faults)):
+        # the levels declared with each fault (eha.models.faults.Fault.levels)
+        names = list(FAULTS) if faults == "all" else faults
+        unknown = [n for n in names if n not in FAULTS]
+        for name in unknown:
+            problems.append(f"health.faults: {name!r} is not a fault of the assessment; "
+                            f"allowed {', '.join(FAULTS)}")
+        faults = detection_levels([n for n in names if n in FAULTS])
     if not isinstance(faults, Mapping):
-        problems.append("health.faults: a table NAME = [level, ...]")
+        problems.append('health.faults: a table NAME = [level, ...], a list of fault names or '
+                        '"all" (their declared levels)')
         return groups
     for name, levels in faults.items():
         if name not in FAULTS:
@@ -174,6 +190,7 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.health.assessment import assess_record
     from eha.identification.measured import from_arrays, synthetic_record
     from eha.models import O_COM, O_T, O_XU
+    from eha.models.commands import command_label
     from eha.models.simulate import Trace
 
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
@@ -182,7 +199,7 @@ def run_health_job(spec: Mapping[str, Any]):
                       source=f"{spec['command']} {spec['group']} {spec['seed']}")
     a = assess_record(rec, base=BASE_MODELS[spec["base_model"]], level=float(spec["level"]),
                       seed=int(spec["seed"]))
-    row = {"command": spec["command"], "grp": spec["group"], "seed": int(spec["seed"]),
+    row = {"command": command_label(spec["command"]), "grp": spec["group"], "seed": int(spec["seed"]),
            "t_end": float(spec["t_end"]), "noise": float(spec["noise"]),
            "base_model": spec["base_model"], "level": a.level, "truth": dict(spec["truth"]),
            "hf": dict(spec["hf"]), "estimates": a.estimates, "means": a.means,
@@ -385,7 +402,7 @@ def verdicts(assessment, calibration: Calibration | None) -> tuple[list[Verdict]
         w = weights.get(name)
         out.append(Verdict(name, float(est), tuple(assessment.intervals[name]),
                            FAULTS[name].healthy, thr, float(stat), degraded, w))
-        supported = name in CORE_FAULTS or (w is not None and w >= ISOLATION_WEIGHT)
+        supported = name in core_faults() or (w is not None and w >= ISOLATION_WEIGHT)
         if degraded and supported:
             isolated.append(name)
     return out, isolated
@@ -404,7 +421,7 @@ def isolate_row(row: Mapping[str, Any], thresholds: Mapping[str, float]) -> str:
         if name not in row["means"] or thr <= 0:
             continue
         s = statistic(name, row["means"][name]) / thr
-        supported = name in CORE_FAULTS or weights.get(name, 0.0) >= ISOLATION_WEIGHT
+        supported = name in core_faults() or weights.get(name, 0.0) >= ISOLATION_WEIGHT
         if s > score and supported:
             best, score = name, s
     return best

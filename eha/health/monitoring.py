@@ -20,6 +20,7 @@ from eha.health.detection import (DEFAULT_ALPHA, MAX_ACTUATORS, MIN_HEALTHY, Cal
                                   performance, verdicts)
 from eha.identification.healthy import DISPERSION, DetectionError, command_signature
 from eha.identification.problem import BASE_MODELS, DEFAULT_LEVEL
+from eha.models.commands import CommandError, command_label, pin_command
 
 #: Records the health check accepts [s] (the bank runs 6 identifications of the whole record).
 RECORD_SECONDS = (0.2, 10.0)
@@ -63,10 +64,14 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     from eha.campaigns.store import replace_rows
 
     _check_calibration_inputs(actuators, alpha)
+    try:  # a command file is named by its content (the calibration checks its signature)
+        command, label = pin_command(command), command_label(command)
+    except CommandError as exc:
+        raise DetectionError(f"--command: {exc}") from None
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
-    name = f"health-calibrate-{command}-{tag}"
+    name = f"health-calibrate-{label}-{tag}"
     try:
         camp = build_campaign({"name": name, "kind": "health", "health": section,
                                "description": f"healthy fleet of {actuators} for thresholds"})
@@ -90,11 +95,11 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                       false_alarms=empirical_false_alarms(rows, thresholds),
                       created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     path = Path(out) if out is not None else Path(results) / "health" / \
-        f"calibration-{command}.json"
+        f"calibration-{label}.json"
     cal.save(path)
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     replace_rows(results, "health_thresholds",
-                 [{"calibration": str(path), "command": command, "t_end": float(t_end),
+                 [{"calibration": str(path), "command": label, "t_end": float(t_end),
                    "fault": n, "threshold": t, "mean": healthy[n]["mean"],
                    "std": healthy[n]["std"], "n": healthy[n]["n"], "alpha": alpha,
                    "created_at": now} for n, t in thresholds.items()],

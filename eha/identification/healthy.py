@@ -17,17 +17,15 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from eha.errors import InputError
+from eha.models.faults import Derived, dispersion as _dispersion
 from eha.models.params import SPECS
 
-#: Manufacturing dispersion of a healthy actuator: name -> (law, a, b).
+#: Manufacturing dispersion of a healthy actuator: name -> (law, a, b), in draw order; declared
+#: with each fault (:attr:`eha.models.faults.Fault.scatter`) and in
+#: :data:`eha.models.faults.OTHER_SCATTER` for the other parameters.
 #: ``uniform_rel``: nominal x U(1 - a, 1 + a); ``normal``: N(a, b) (clipped at 10 %);
 #: ``loguniform``: exp(U(ln a, ln b)).
-DISPERSION: dict[str, tuple[str, float, float]] = {
-    "GP": ("uniform_rel", 0.03, 0.0), "GQ": ("uniform_rel", 0.03, 0.0),
-    "CJ": ("uniform_rel", 0.03, 0.0), "MJ": ("uniform_rel", 0.03, 0.0),
-    "FSS": ("uniform_rel", 0.03, 0.0), "GM": ("uniform_rel", 0.01, 0.0),
-    "FDJ": ("normal", 200.0, 20.0), "Clk": ("loguniform", 0.7e-13, 1.4e-13),
-}
+DISPERSION: Mapping[str, tuple[str, float, float]] = Derived(_dispersion, "DISPERSION")
 
 
 class DetectionError(InputError):

@@ -42,6 +42,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from eha.models.faults import Derived, model_form_floors
+
 #: Default confidence level of every interval.
 DEFAULT_LEVEL = 0.9
 #: A fit is flagged (the model does not explain the record) when its residual RMSE exceeds
@@ -86,26 +88,17 @@ class ModelForm:
     abs: float = 0.0
 
 
+def _model_form() -> dict[str, dict[str, ModelForm]]:
+    return {base: {name: ModelForm(rel=rel, abs=abs_) for name, (rel, abs_) in floors.items()}
+            for base, floors in model_form_floors().items()}
+
+
 #: Measured model-form terms per LF base ("plain" = the thesis' LF, "calibrated" = the LF with
-#: the effects eha explain found on a healthy-actuator load test) and parameter. Source:
+#: the effects eha explain found on a healthy-actuator load test) and parameter, declared with
+#: each fault (:attr:`eha.models.faults.Fault.model_form`, where their sources are). Source:
 #: ``python benchmarks/bench_intervals.py --calibrate`` on calibration records (seeds apart
 #: from the benchmark's); see docs/health.md. Parameters absent here get ModelForm().
-MODEL_FORM: dict[str, dict[str, ModelForm]] = {
-    # the plain LF reads FDJ 3.8-4.8 % high on chirp records at an RMSE near the noise (dense
-    # scan, docs/fdi.md) and BKL up to 2 %: floors that cover that bias at 90 %. On mixed its
-    # residual is far above the noise and the widening takes over. The default on measured
-    # data is the calibrated LF (docs/health.md).
-    "plain": {"BKL": ModelForm(rel=0.02, abs=2e-6), "FDJ": ModelForm(rel=0.035)},
-    # `python benchmarks/bench_intervals.py --calibrate`: 60 calibration records (seeds 0-59,
-    # apart from the benchmark's), chirp_1cm and mixed, BKL 0-1 mm, FDJ 200-3200 N, a third
-    # with one more fault, 1 µm noise, assessed by the hypothesis bank: the floors of smallest
-    # median width that bring the coverage to 90 % (BKL and FDJ: all 60 records; the other
-    # faults on the records where they are injected, only 2-6 each: Kintas and FSS need the
-    # floors below, GM and Ofs none, and no floor helps Clk, whose leakage the chirp record
-    # cannot tell from friction). Measured 2026-11-22.
-    "calibrated": {"BKL": ModelForm(rel=0.001, abs=1.5e-6), "FDJ": ModelForm(abs=5.0),
-                   "Kintas": ModelForm(abs=0.05), "FSS": ModelForm(abs=0.5)},
-}
+MODEL_FORM: Mapping[str, dict[str, ModelForm]] = Derived(_model_form, "MODEL_FORM")
 
 
 #: Model-form floor of a model the residual loop built (``eha explain`` with effects added):

@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
 from eha.errors import InputError
+from eha.models.faults import Derived, search_bounds
 from eha.models.params import SPECS, LFParams, ParameterError, check_value, resolve
 
 #: Identification methods (see :mod:`eha.identification.fdi`).
@@ -26,13 +27,9 @@ OBJECTIVES = {
 NOT_FITTABLE = ("DT", "orifice_law")
 #: Default fitted parameters (the two faults of the thesis).
 DEFAULT_FIT = ("BKL", "FDJ")
-#: Default search bounds of the fault parameters: the thesis' chirp cases for BKL and FDJ, and
-#: for the other faults the LF model carries a range that spans healthy to severely degraded
-#: (motor gain down to 30 %, clogging to 0.9, leakage to 50x nominal, offset +-1 mA, spool
-#: friction to 8.5x nominal; docs/health.md).
-SEARCH_BOUNDS: dict[str, tuple[float, float]] = {
-    "BKL": (0.0, 1.25e-3), "FDJ": (200.0, 4000.0), "GM": (0.003, 0.012), "Kintas": (0.0, 0.9),
-    "Clk": (0.0, 5e-12), "Ofs": (-1.0, 1.0), "FSS": (0.0, 60.0)}
+#: Default search bounds of the fault parameters (the thesis reproduction's): declared with each
+#: fault (:attr:`eha.models.faults.Fault.fdi_bounds`, docs/health.md), read live from the registry.
+SEARCH_BOUNDS: Mapping[str, tuple[float, float]] = Derived(search_bounds, "SEARCH_BOUNDS")
 #: Default nominal coverage of every parameter interval.
 DEFAULT_LEVEL = 0.9
 #: The LF model calibrated by ``eha explain`` on a healthy actuator in a 4 kN load test

@@ -7,8 +7,10 @@ whose parameters can be overridden (``make_command("chirp_1cm", A0=5e-3)``).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -215,11 +217,19 @@ def _test(t: np.ndarray, sin=_sin_anywhere) -> np.ndarray:
 def make_command(name: str, **overrides: float) -> Command:
     """A preset or a kind by name, with its parameters overridden and validated.
 
+    ``name`` may also be a command file (``FILE.csv``, :func:`load_command_file`).
+
     Raises
     ------
     CommandError
-        Unknown name, unknown parameter of that kind, or value outside its range.
+        Unknown name, unknown parameter of that kind, or value outside its range; a bad
+        command file.
     """
+    if is_command_file(name):
+        if overrides:
+            raise CommandError(f"command file {name}: takes no parameters (got "
+                               f"{', '.join(overrides)})")
+        return load_command_file(name)
     if name in PRESETS:
         kind, params, _ = PRESETS[name]
     elif name in KINDS and name != "array":
@@ -270,5 +280,138 @@ def array_command(t: np.ndarray, values: np.ndarray, name: str = "array",
 
 
 def as_command(command: "Command | str") -> Command:
-    """Accept a :class:`Command` or a preset/kind name."""
+    """Accept a :class:`Command`, a preset/kind name or a command file (``FILE.csv``)."""
     return command if isinstance(command, Command) else make_command(command)
+
+
+# -- command files: a designed or hand-made command as samples (t, com) in SI
+
+#: Suffix of a command file (``eha design`` writes them).
+COMMAND_FILE_SUFFIX = ".csv"
+#: The largest command a file may hold [m]: the jack's end stop (``XJM``).
+MAX_FILE_STROKE = 0.2
+_PIN = "#sha="
+
+
+def is_command_file(name: str) -> bool:
+    """Does ``name`` name a command file (``FILE.csv``, optionally pinned ``FILE.csv#sha=H``)?"""
+    return isinstance(name, str) and name.split(_PIN)[0].lower().endswith(COMMAND_FILE_SUFFIX)
+
+
+def _file_digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def pin_command(name: str) -> str:
+    """A command reference that names its content: a command file becomes
+    ``ABSOLUTE_PATH#sha=HASH`` (what run keys, caches and calibrations store, so that a changed
+    file is a new command and a moved one is found by its content hash), other names are
+    returned unchanged."""
+    if not is_command_file(name):
+        return name
+    path = Path(name.split(_PIN)[0])
+    return f"{path.resolve()}{_PIN}{_file_digest(_read_bytes(path))}"
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise CommandError(f"command file {path}: no such file") from None
+    except IsADirectoryError:
+        raise CommandError(f"command file {path}: a folder, not a file") from None
+    except OSError as exc:
+        raise CommandError(f"command file {path}: cannot be read ({exc.strerror})") from None
+
+
+def command_label(name: str) -> str:
+    """A short name of a command for tables, file and campaign names: a command file's
+    ``STEM-HASH``, else ``name`` itself."""
+    return load_command_file(name).name if is_command_file(name) else name
+
+
+def command_file_settings(text: str) -> dict[str, str]:
+    """The ``# key = value`` lines of a command file's header comment."""
+    out = {}
+    for line in text.splitlines():
+        if not line.startswith("#"):
+            break
+        key, sep, value = line[1:].partition("=")
+        if sep:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def load_command_file(name: str) -> Command:
+    """A command from a CSV file: header comment lines (``# key = value``), then columns ``t``
+    [s] and ``com`` [m]; ``t`` starts at 0 and strictly increases, every value finite and
+    ``|com| <= MAX_FILE_STROKE``. Linear between samples; after the last sample the command
+    holds its last value. A pinned name (:func:`pin_command`) must still have its content.
+
+    Its :attr:`Command.name` is ``STEM-HASH`` (the first 8 hex digits of the content's hash).
+    """
+    text_path, _, pinned = name.partition(_PIN)
+    path = Path(text_path)
+    raw = _read_bytes(path)
+    digest = _file_digest(raw)
+    if pinned and pinned != digest:
+        raise CommandError(f"command file {path}: changed since it was pinned (content "
+                           f"{digest}, expected {pinned}); plan the campaign again")
+    where = f"command file {path}"
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise CommandError(f"{where}: not UTF-8 text") from None
+    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    if not rows or [c.strip() for c in rows[0].split(",")] != ["t", "com"]:
+        raise CommandError(f"{where}: the first line after the comments must be the header "
+                           "'t,com' (time [s], command [m])")
+    values = []
+    for i, line in enumerate(rows[1:], start=1):
+        cells = line.split(",")
+        try:
+            if len(cells) != 2:
+                raise ValueError
+            values.append((float(cells[0]), float(cells[1])))
+        except ValueError:
+            raise CommandError(f"{where}: data row {i}: expected two numbers 't,com', got "
+                               f"{line[:40]!r}") from None
+    arr = np.array(values, dtype=np.float64).reshape(-1, 2)
+    t, com = arr[:, 0], arr[:, 1]
+    if t.size < 2:
+        raise CommandError(f"{where}: at least 2 samples needed, got {t.size}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(com))):
+        bad = int(np.flatnonzero(~(np.isfinite(t) & np.isfinite(com)))[0]) + 1
+        raise CommandError(f"{where}: data row {bad}: not a finite number (NaN or inf)")
+    if abs(t[0]) > 1e-9:
+        raise CommandError(f"{where}: t must start at 0 s, starts at {t[0]:g} s")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 2
+        raise CommandError(f"{where}: data row {bad}: t must increase strictly "
+                           f"({t[bad - 2]:g} then {t[bad - 1]:g} s)")
+    worst = int(np.argmax(np.abs(com)))
+    if abs(com[worst]) > MAX_FILE_STROKE:
+        raise CommandError(f"{where}: data row {worst + 1}: com = {com[worst]:g} m is beyond "
+                           f"the stroke; allowed range [-{MAX_FILE_STROKE:g}, "
+                           f"{MAX_FILE_STROKE:g}] m")
+    return Command("array", {}, f"{path.stem}-{digest[:8]}", (t, com), "linear")
+
+
+def write_command_file(path: str | Path, t: np.ndarray, com: np.ndarray,
+                       settings: Mapping[str, Any] | None = None) -> Path:
+    """Write a command file (:func:`load_command_file`'s format), whole or not at all."""
+    import os
+
+    path = Path(path)
+    lines = [f"# {k} = {v}" for k, v in (settings or {}).items()]
+    lines.append("t,com")
+    lines += [f"{a:.6f},{b:.9g}" for a, b in zip(np.asarray(t), np.asarray(com))]
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    return path
+

@@ -82,8 +82,9 @@ class FleetError(InputError):
 
 
 @dataclass(frozen=True)
-class FaultSpec:
-    """Degradation of one fault across the fleet (see the module docstring)."""
+class Degradation:
+    """How one fault degrades across the fleet (see the module docstring); the fault itself
+    is declared in :mod:`eha.models.faults` or is any LF parameter."""
 
     name: str
     initial: tuple[float, float]
@@ -113,7 +114,7 @@ class Fleet:
     format: str
     limits: dict[str, float]
     dispersion: dict[str, float]
-    faults: tuple[FaultSpec, ...]
+    faults: tuple[Degradation, ...]
     source: str = ""
     definition: dict = field(default_factory=dict)
 
@@ -149,8 +150,8 @@ def _range(where: str, value: Any, lo: float, hi: float, problems: list[str],
 
 
 def _fault_spec(fname: str, spec: Any, limits: Mapping[str, float],
-                p: list[str]) -> FaultSpec | None:
-    """One ``[faults.NAME]`` table of a fleet: its :class:`FaultSpec`, or None with its
+                p: list[str]) -> Degradation | None:
+    """One ``[faults.NAME]`` table of a fleet: its :class:`Degradation`, or None with its
     problems appended to ``p``."""
     from eha.models.params import SPECS
 
@@ -193,12 +194,12 @@ def _fault_spec(fname: str, spec: Any, limits: Mapping[str, float],
     if fname in limits and init[1] >= limits[fname]:
         p.append(f"{where}.initial: upper value {init[1]:g} is not below the limit "
                  f"{limits[fname]:g} {s.unit}")
-    return FaultSpec(fname, init, tuple(laws), rm, rs, tau, expo, ts, pn)
+    return Degradation(fname, init, tuple(laws), rm, rs, tau, expo, ts, pn)
 
 
 def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     """Validate a parsed fleet TOML; raises :class:`FleetError` with one line per problem."""
-    from eha.models.commands import CommandError, make_command
+    from eha.models.commands import CommandError, make_command, pin_command
     from eha.models.params import ParameterError, SPECS, check_value
 
     p: list[str] = []
@@ -223,6 +224,7 @@ def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
     if command:
         try:
             make_command(command["name"], **command["set"])
+            command["name"] = pin_command(command["name"])  # a file by its content hash
         except CommandError as exc:
             p.append(f"command: {exc}")
         except TypeError:
@@ -257,7 +259,7 @@ def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
         x = _num(f"dispersion.{k}", v, 0.0, 0.5, p, "(relative std)")
         if x is not None:
             disp[k] = x
-    faults: list[FaultSpec] = []
+    faults: list[Degradation] = []
     f_t = table.get("faults", {})
     if not isinstance(f_t, Mapping) or not f_t:
         p.append("faults: required, one table [faults.NAME] per degrading fault")
@@ -475,5 +477,5 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
 register_job("fleet_record", run_record_job)  # eha fleet simulate: one record
 
 
-__all__ = ["Fleet", "FleetError", "FaultSpec", "parse_fleet", "load_fleet", "draw_truth",
+__all__ = ["Fleet", "FleetError", "Degradation", "parse_fleet", "load_fleet", "draw_truth",
            "simulate_fleet", "run_record_job", "record_seed", "FleetResult"]

@@ -27,6 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job
+from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
 from eha.prognostics.rul import histories_from_checks, predict_history
 from eha.prognostics.rul import LIMIT_ERROR as PRED_LIMIT_ERROR
@@ -61,14 +62,6 @@ def parse_limits(items: Sequence[str]) -> dict[str, float]:
         except ParameterError as exc:
             raise PrognosticsError(f"--limit {exc}") from None
     return out
-
-
-#: Faults identified and tracked by ``eha rul`` by default. The motor gain GM is tracked with
-#: the two faults of the thesis because it is both a fault (demagnetisation) and the
-#: actuator's largest manufacturing dispersion: left fixed at nominal, a unit whose motor gain
-#: is 3 % off had its FDJ identified 10-26 % off (fleet-demo, docs/prognostics.md); fitted,
-#: within 3 %.
-RUL_FIT: tuple[str, ...] = ("BKL", "FDJ", "GM")
 
 
 def health_bounds(names: Sequence[str], limits: Mapping[str, float],
@@ -295,7 +288,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     limits : mapping
         ``{fault: limit}`` [SI units of the fault]: the faults that end life.
     fit : sequence of str, optional
-        Faults identified and tracked (default :data:`RUL_FIT`); the limited ones are added.
+        Faults identified and tracked (default the registry's, :func:`eha.models.faults.rul_faults`); the limited ones are added.
     bounds : mapping, optional
         Search bounds overriding :func:`health_bounds`.
     results : path
@@ -401,7 +394,7 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws,
     if not limits:
         raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
                                "limit), e.g. --limit FDJ=2000")
-    names = list(dict.fromkeys(list(fit or RUL_FIT) + list(limits)))
+    names = list(dict.fromkeys(list(fit or rul_faults()) + list(limits)))
     bad_laws = [x for x in laws if x not in LAWS]
     if bad_laws or not laws:
         raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "

@@ -16,8 +16,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-#: Display unit and factor from SI for fault parameters whose SI value reads badly.
-DISPLAY_UNITS = {"BKL": ("µm", 1e6)}
+from eha.models.faults import FAULTS, Derived
+
+#: Display unit and factor from SI for fault parameters whose SI value reads badly (declared
+#: with each fault, :attr:`eha.models.faults.Fault.display`).
+DISPLAY_UNITS: Mapping[str, tuple[str, float]] = Derived(
+    lambda: {f.name: f.display for f in FAULTS.values() if f.display}, "DISPLAY_UNITS")
 
 
 def unit_of(name: str) -> tuple[str, float]:
@@ -269,7 +273,7 @@ def read_identification(con) -> Identification | None:
     """Every FDI campaign with results (the augmented thesis campaign joins the thesis table
     as its ``aug_*`` columns, as in ``fdi_table.csv``); None when there is none."""
     from eha.identification.cases import parse_fdi_campaign, rows_from_results
-    from eha.reports.thesis import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
+    from eha.reports.fdi_table import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
 
     if "fdi_results" not in _tables(con) or not _count(con, "fdi_results"):
         return None
