@@ -82,8 +82,6 @@ def verification(args, folder: Path) -> dict:
 
 def ambiguities(args) -> dict:
     from eha.design import Limits, design
-    from eha.design.predict import predict
-    from eha.models.commands import make_command
 
     out = {}
     for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
@@ -93,18 +91,13 @@ def ambiguities(args) -> dict:
                         generations=args.generations)
         folder = Path(args.out) / "ambiguities" / label.split(" ")[0]
         result.save(folder)
-        chirp = predict(make_command("chirp_1cm"), result.targets, 1.0)
         entry = {"pair": [a, b], "at": {a: va, b: vb}, "seconds": time.perf_counter() - start,
-                 "design": {"separable": {a: result.prediction.separable[a][b],
-                                          b: result.prediction.separable[b][a]},
-                            "min_detectable": result.prediction.mds},
-                 "chirp_1cm": {"separable": {a: chirp.separable[a][b], b: chirp.separable[b][a]},
-                               "min_detectable": chirp.mds},
+                 "separable_size": result.pairs()[0], "segments": result.segments,
                  "command": str(folder / "design.csv")}
         if args.loop:
             entry["loop"] = loop_verdicts(folder / "design.csv", (a, va), (b, vb), args)
         out[label] = entry
-        print(label, json.dumps(entry["design"]["separable"]), flush=True)
+        print(label, json.dumps(_finite(entry["separable_size"])), flush=True)
     return out
 
 
