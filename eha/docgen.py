@@ -7,7 +7,7 @@ so the reference cannot drift from ``eha --help``.
 The page is plain Markdown built from the click objects typer makes (not from the rich help
 screens), so it does not depend on the terminal width. They are inspected by duck typing:
 typer may bring its own copy of click. Defaults that the CLI reads from the library when
-an option is parsed (:func:`eha.cli.options.library_default`) are shown with their value.
+an option is parsed (:mod:`eha.cli.defaults`) are shown with their value.
 """
 
 from __future__ import annotations

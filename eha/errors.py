@@ -7,8 +7,8 @@ command line prints it as it is, one ``error:`` line per problem, and exits with
 an option, a campaign or fleet file, a measured record; nothing was written), 1 for a failure
 of the machine (a database that cannot be written).
 
-The domain modules keep their own classes (``eha.params.ParameterError``,
-``eha.measured.MeasuredDataError``, ``eha.campaigns.store.StoreError``, ...) where they are
+The domain modules keep their own classes (``eha.models.params.ParameterError``,
+``eha.identification.measured.MeasuredDataError``, ``eha.campaigns.store.StoreError``, ...) where they are
 defined; they derive from these. Each input error is also a ``ValueError`` (and the store's
 errors a ``RuntimeError``), as they were before this hierarchy, so that existing ``except``
 clauses keep working.

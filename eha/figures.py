@@ -20,7 +20,11 @@ def pyplot():
 def save(fig, path: str | Path, dpi: int = 100) -> Path:
     """Write ``fig`` as PNG at ``path`` (parents created), close it, return the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    from eha.outputs import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:  # written whole: a temporary file, then renamed
+            fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    finally:
+        pyplot().close(fig)
     return path

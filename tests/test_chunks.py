@@ -40,7 +40,7 @@ CHUNKY = textwrap.dedent("""
 def state(results):
     runs = query(results, "SELECT * FROM runs JOIN metrics USING (run_key) ORDER BY run_key")
     return runs.drop(columns=["worker", "queued_at", "started_at", "finished_at", "sim_s",
-                              "elapsed_s"])
+                              "elapsed_s", "trace_mtime"])
 
 
 @pytest.fixture(scope="module")
@@ -258,7 +258,8 @@ def test_results_folder_of_one_file_per_run_is_still_read(tmp_path):
             tr.meta.pop("run_key", None)
             write_trace(type(tr)(tr.data, {**tr.meta, "run_key": key}), results / path,
                         columns=["t", "com", "xu", "xs", "p12", "cor"])
-            db.con.execute("UPDATE runs SET trace_bytes = ? WHERE run_key = ?",
+            db.con.execute("UPDATE runs SET trace_bytes = ?, trace_hash = NULL, "
+                           "trace_mtime = NULL WHERE run_key = ?",
                            [(results / path).stat().st_size, key])
     files = sorted((results / "traces" / "chunky").glob("*.parquet"))
     assert len(files) == 32 and "run_key" not in pq.read_schema(files[0]).names

@@ -115,7 +115,7 @@ def test_report_without_results_is_a_clear_error(tmp_path):
     with pytest.raises(StoreError, match="no result database"):
         thesis_report(tmp_path / "none")
     proc = invoke_eha("report", "thesis", "--results", tmp_path / "none")
-    assert proc.returncode == 1 and "no result database" in proc.stderr
+    assert proc.returncode == 2 and "no result database" in proc.stderr   # as eha query
 
 
 def test_bad_fdi_section_rejected_before_running(tmp_path):

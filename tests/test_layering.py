@@ -1,7 +1,7 @@
 """Layering: eha.campaigns is the infrastructure below the domain (it imports no domain module
 but eha.models, and job kinds reach the runner through the registry, one module at a time);
 the domain's packages import one way, models -> identification -> explain -> health,
-prognostics -> reports -> cli (the import-graph tests at the end)."""
+prognostics -> design -> reports -> cli (the import-graph tests at the end)."""
 
 import ast
 import functools
@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
-INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files")
+INFRA = ("runner", "executors", "jobs", "store", "query", "schema", "traces", "files",
+         "integrity")
 #: Job kinds and campaign sections the domain registers (what the runner once imported itself).
 KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
@@ -39,7 +40,8 @@ def test_importing_the_infrastructure_loads_no_domain_module_and_no_numba():
     assert "numba" not in loaded and "eha.models.simulate" not in loaded
 
 
-@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema"])
+@pytest.mark.parametrize("module", ["runner", "executors", "jobs", "store", "query", "schema",
+                                    "integrity"])
 def test_infrastructure_modules_name_no_domain_module(module):
     """No import of a module outside eha.campaigns, not even inside a function, but the
     trace columns (eha.models.OUTPUTS, constants) and the error hierarchy (eha.errors): the runner and its workers reach a job
@@ -93,8 +95,9 @@ ROOT = PACKAGE.parent
 #: Layer of each package (and of the flat modules): a module imports only from its own layer
 #: or below, at module level or inside a function. health and prognostics share a layer and
 #: do not import each other.
-LAYERS = {"errors": -1, "models": 0, "figures": 0, "identification": 1, "explain": 2, "health": 3,
-          "prognostics": 3, "reports": 4, "cli": 5, "docgen": 6, "__main__": 6}
+LAYERS = {"errors": -2, "outputs": -1, "models": 0, "figures": 0, "identification": 1,
+          "explain": 2, "health": 3, "prognostics": 3, "design": 4, "reports": 5, "cli": 6,
+          "docgen": 7, "__main__": 7}
 
 
 def _eha_imports(path: Path) -> set[str]:
@@ -166,3 +169,47 @@ def test_no_dynamic_import_of_eha_modules():
             if needle in text:
                 found.append(f"{path.relative_to(ROOT.parent)}: {needle}")
     assert found == [], found
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """``eha.x.y`` -> the eha modules it imports, at module level or inside a function."""
+    mods = {}
+    for path in sorted(ROOT.rglob("*.py")):
+        name = ".".join(path.relative_to(ROOT.parent).with_suffix("").parts)
+        mods[name.removesuffix(".__init__")] = path
+    graph = {}
+    for name, path in mods.items():
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                # `from eha.x import y`: the module eha.x.y if there is one, else eha.x
+                refs = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in mods
+                        else node.module for a in node.names]
+            elif isinstance(node, ast.Import):
+                refs = [a.name for a in node.names]
+            else:
+                continue
+            found |= {r for r in refs if r in mods and r != name}
+        graph[name] = found
+    return graph
+
+
+def test_no_import_circle_between_files():
+    """Issue 40: no two files import each other, directly or through others, not even inside
+    a function (a circle hides which one is below)."""
+    graph = _module_graph()
+    circles, state = [], {}
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = "open"
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == "open":
+                circles.append(" -> ".join(path[path.index(nxt):] + [nxt]))
+            elif nxt not in state:
+                visit(nxt, path + [nxt])
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    assert circles == [], circles

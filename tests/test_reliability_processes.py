@@ -299,7 +299,8 @@ def test_truncated_trace_of_a_done_run_is_re_run(mini_done, tmp_path):
     victim = results / before["trace_path"][0]
     victim.write_bytes(victim.read_bytes()[:2000])       # truncated, e.g. by a full disk
     q = run_eha("query", "SELECT count(*) FROM traces", "--results", results)
-    assert "run its campaign again" in error_line(q, 2)
+    line = error_line(q, 1)   # a damaged trace: a failure, named with its repair
+    assert victim.name in line and "eha campaign verify --repair" in line
     r = run_eha("campaign", "run", camp, "--results", results, "--no-progress")
     assert r.returncode == 0 and "1 run now, 3 already done" in r.stdout, r.stderr
     assert runs(results).equals(before)

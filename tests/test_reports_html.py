@@ -293,3 +293,69 @@ def test_real_fleet_rul_and_campaign_report_end_to_end(tmp_path, eha):
     out = check_page(tmp_path / "r.html", tmp_path)
     assert out["plots"] >= 4
 
+
+
+# ----------------------------------------------------------------------------- hostile names
+HOSTILE = "A1<!--<script>x</script>&[/]"
+
+
+@pytest.fixture(scope="module")
+def hostile(tmp_path_factory):
+    """The canned folder with an actuator id and a record name that an HTML parser reads as
+    markup, and the residual loop's record given with a folder (``data/run1.csv``)."""
+    import duckdb
+
+    results = report_data.build(tmp_path_factory.mktemp("hostile") / "results")
+    con = duckdb.connect(str(results / "eha.duckdb"))
+    for table in ("health_checks", "rul_predictions"):
+        con.execute(f"UPDATE {table} SET actuator = ? WHERE actuator = 'A1'", [HOSTILE])
+    con.execute("UPDATE explain_runs SET source = 'data/run1.csv<!--<script>'")
+    con.close()
+    res = build_report(results, results / "report.html")
+    return res
+
+
+def _json_scripts(text: str) -> dict[str, str]:
+    import re
+
+    return dict(re.findall(r'<script type="application/json" id="([^"]+)">(.*?)</script>',
+                           text, flags=re.S))
+
+
+def test_every_json_script_block_is_escaped_and_parses(hostile):
+    text = hostile.path.read_text(encoding="utf-8")
+    scripts = _json_scripts(text)
+    assert len(scripts) == hostile.figures + 1          # the figures and the template
+    for sid, body in scripts.items():
+        assert "<" not in body and ">" not in body and "&" not in body, sid
+        json.loads(body)
+    keys = set().union(*(json.loads(b) for s, b in scripts.items()
+                         if s.startswith("plot") and "data" not in json.loads(b)))
+    assert HOSTILE in keys
+
+
+def test_every_row_that_picks_a_figure_names_one_of_its_selector(hostile):
+    """Rows and figures keyed by one function: a click on any row finds its figure (the
+    record given with a folder threw a JavaScript error)."""
+    import html as html_mod
+    import re
+
+    text = hostile.path.read_text(encoding="utf-8")
+    scripts = _json_scripts(text)
+    checked = 0
+    for table in re.findall(r'<table class="data"[^>]*data-choice="([^"]+)"[^>]*>(.*?)</table>',
+                            text, flags=re.S):
+        pid, body = table
+        figs = json.loads(scripts[f"{pid}-data"])
+        for key in re.findall(r'<tr data-choice="([^"]*)"', body):
+            assert html_mod.unescape(key) in figs, key
+            checked += 1
+    assert checked >= 4
+
+
+@pytest.mark.slow
+def test_the_report_with_hostile_names_in_headless_chromium(hostile, tmp_path):
+    """Every figure drawn, no console error; a click on the hostile actuator's row shows its
+    figure."""
+    out = check_page(hostile.path, tmp_path, click_row=("fleet", HOSTILE))
+    assert out["plots"] == hostile.figures and out["selected"] == HOSTILE

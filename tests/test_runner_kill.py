@@ -71,7 +71,7 @@ def done_count(results):
 def state(results):
     runs = query(results, "SELECT * FROM runs JOIN metrics USING (run_key) ORDER BY run_key")
     return runs.drop(columns=["worker", "queued_at", "started_at", "finished_at", "sim_s",
-                              "elapsed_s"])
+                              "elapsed_s", "trace_mtime"])
 
 
 @pytest.mark.slow

@@ -88,7 +88,7 @@ def test_traces_view_joins_runs(results):
 
 
 def test_query_is_read_only(results):
-    with pytest.raises(StoreError, match="read-only|read only|Cannot execute"):
+    with pytest.raises(StoreError, match="read-only|read only|only reads|Cannot execute"):
         query(results, "DELETE FROM runs")
     assert len(query(results, "SELECT * FROM runs")) == 8
 

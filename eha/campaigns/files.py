@@ -58,7 +58,6 @@ the store has the kind's result table in its one schema (:data:`eha.campaigns.sc
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 import tomllib
@@ -66,9 +65,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 from eha.errors import InputError
+from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _dumps, _hash, _hash_text
 
-#: Upper bound on the number of jobs of one campaign (a typo in a grid should not explode).
-MAX_JOBS = 200_000
 #: Top-level keys of a campaign file, its simulation part included
 #: (:mod:`eha.campaigns.simulations`); job kinds add their own sections.
 TOP_KEYS = ("name", "description", "kind", "models", "commands", "seeds", "t_end", "signals",
@@ -83,29 +81,6 @@ class CampaignError(InputError):
 
     def __init__(self, problems: list[str]):
         super().__init__(problems, message="\n".join(problems))
-
-
-@dataclass(frozen=True)
-class JobDraft:
-    """A job before its run key: what an expander returns.
-
-    Attributes
-    ----------
-    kind : str
-        Job kind (``"simulate"``; others: :func:`eha.campaigns.jobs.register_section`).
-    spec : dict
-        Compact, JSON-serialisable description the worker needs (stored in ``runs.spec``).
-    identity : dict
-        What the run key hashes besides ``spec`` (e.g. the fully resolved parameters).
-    columns : dict
-        Values of the descriptive ``runs`` columns (model, command, faults, seed, t_end, label,
-        case_key).
-    """
-
-    kind: str
-    spec: dict
-    identity: dict = field(default_factory=dict)
-    columns: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -157,19 +132,6 @@ class Campaign:
             value = j.columns.get(column, j.kind if column == "kind" else None)
             out[value] = out.get(value, 0) + 1
         return out
-
-
-def _dumps(obj: Any) -> str:
-    """The canonical JSON text that keys are hashed from."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=float)
-
-
-def _hash(obj: Any, n: int = 16) -> str:
-    return _hash_text(_dumps(obj), n)
-
-
-def _hash_text(text: str, n: int = 16) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()[:n]
 
 
 def _run_key(name: str, draft: "JobDraft", version: str, identity_text: str | None) -> str:
@@ -291,13 +253,6 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
 
 def _unique(items: list[str]) -> list[str]:
     return list(dict.fromkeys(items))
-
-
-def _did_you_mean(key: str, allowed: tuple[str, ...] | list[str]) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(key, list(allowed), n=1)
-    return f" (did you mean {close[0]}?)" if close else ""
 
 
 # --------------------------------------------------------------------------- plan

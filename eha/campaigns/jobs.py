@@ -198,6 +198,8 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
     ``payload``: ``kind``, ``spec``, ``run_key``, ``campaign``, ``trace_file`` (absolute path),
     ``trace_path`` (relative, recorded in the database).
     """
+    from eha.campaigns.integrity import file_stamp
+
     started = _now()
     t0 = time.perf_counter()
     result: dict[str, Any] = {"run_key": payload["run_key"], "started_at": started,
@@ -213,6 +215,7 @@ def execute_job(payload: Mapping[str, Any]) -> dict[str, Any]:
             result["trace_path"] = payload["trace_path"]
             # recorded with the run: the resume checks the file against it (docs/reliability.md)
             result["trace_bytes"] = Path(payload["trace_file"]).stat().st_size
+            result["trace_hash"], result["trace_mtime"] = file_stamp(payload["trace_file"])
     except Exception as exc:  # recorded, the campaign goes on
         result["status"] = "failed"
         result["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
@@ -226,7 +229,7 @@ def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
     """Run one task in a worker: a chunk of runs of one kind (its ``run_chunk``), a bundle of
     chunks run in turn (``{"bundle": [result, ...]}``) or a single job
     (:func:`execute_job`)."""
-    from eha.campaigns.executors import tune_malloc
+    from eha.campaigns.malloc import tune_malloc
 
     tune_malloc()  # once per process: also a Dask worker restarted without the warm-up
     if task["kind"] == "bundle":

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from eha.campaigns.schema import TRACES
-from eha.campaigns.store import StoreError, connect
+from eha.campaigns.store import DatabaseDamaged, StoreError, StoreWriteError, connect
+from eha.errors import BAD_INPUT, FAILURE
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
 from eha.models import OUTPUTS
 
@@ -44,6 +45,109 @@ def _create_traces_view(con, results: Path) -> None:
                     f"NULL::VARCHAR AS run_key, {cols} WHERE false")
 
 
+#: Statement types that only read (DuckDB's parser: ``con.extract_statements``); DESCRIBE,
+#: SHOW, SUMMARIZE, FROM-first and WITH are SELECT statements to it. EXPLAIN passes when the
+#: statement it explains does, PRAGMA when it is one of :data:`READ_PRAGMAS`.
+READ_STATEMENTS = ("SELECT", "EXPLAIN", "PRAGMA")
+#: The PRAGMAs that only read the catalogue (the others set options or write files).
+READ_PRAGMAS = frozenset({"table_info", "show", "show_tables", "show_tables_expanded",
+                          "database_list", "database_size", "storage_info", "metadata_info",
+                          "version", "platform", "functions", "collations", "user_agent"})
+
+
+class TraceDamaged(StoreError):
+    """A trace file a query or an export would read is not the file recorded (exit 1)."""
+
+    exit_code = FAILURE
+
+
+def check_traces(con, results: Path, what: str) -> None:
+    """Refuse to read the traces while one of them is damaged: a file whose size or time
+    differs from the recorded ones is hashed (:func:`eha.campaigns.integrity.check_files`,
+    not ``full``); the message names the file and the command that repairs it."""
+    from eha.campaigns.integrity import check_files, damaged_message, recorded_files
+
+    files = recorded_files(con)
+    check = check_files(results, files, full=False)
+    if check.damaged:
+        raise TraceDamaged(damaged_message(results, files, check, what))
+
+
+def _reads_traces(sql: str) -> bool:
+    import re
+
+    return re.search(r"\btraces\b|_traces_raw", sql, flags=re.IGNORECASE) is not None
+
+
+class QueryRefused(StoreError):
+    """A statement of ``eha query`` that could write or reach outside the results folder."""
+
+    exit_code = BAD_INPUT
+
+
+def check_read_only(con, sql: str) -> None:
+    """Refuse ``sql`` unless every statement in it only reads (:data:`READ_STATEMENTS`).
+
+    DuckDB's own parser classifies the statements (no regular expression over the SQL);
+    ``SET``, ``ATTACH``, ``COPY``, ``EXPORT``, ``INSTALL``/``LOAD``, ``CREATE``, ``INSERT``,
+    ``CALL``, transactions, ... are refused with one line. The connection's own guards
+    (:func:`_connect_guarded`) hold even if a statement slipped through.
+
+    Raises
+    ------
+    QueryRefused
+        A statement that is not a read; StoreError: SQL that does not parse.
+    """
+    import re
+
+    import duckdb
+
+    try:
+        statements = con.extract_statements(sql)
+    except duckdb.Error as exc:
+        raise StoreError(f"query: {str(exc).splitlines()[0]}") from None
+    for st in statements:
+        kind = st.type.name
+        text = st.query.strip()
+        if kind == "EXPLAIN":  # what it explains (EXPLAIN ANALYZE runs it)
+            inner = re.sub(r"^EXPLAIN\s+(ANALY[SZ]E\s+|\([^)]*\)\s*)?", "", text,
+                           flags=re.IGNORECASE)
+            if inner != text and inner:
+                check_read_only(con, inner)
+                continue
+        if kind == "PRAGMA":
+            name = re.match(r"PRAGMA\s+(\w+)\s*(=)?", text, flags=re.IGNORECASE)
+            if name and name.group(2) is None and name.group(1).lower() in READ_PRAGMAS:
+                continue
+            kind = f"PRAGMA {name.group(1) if name else ''}".strip()
+        elif kind in READ_STATEMENTS:
+            continue
+        raise QueryRefused(f"query: {kind} statements are refused: eha query only reads "
+                           "(SELECT, WITH, EXPLAIN, DESCRIBE, SHOW, SUMMARIZE, PRAGMA "
+                           "table_info/show_tables/...)")
+
+
+def _connect_guarded(results: Path):
+    """A read-only connection whose configuration is locked: no file outside the results
+    folder's ``traces`` can be read or written (``enable_external_access`` false,
+    ``allowed_directories`` the traces folder), no extension installed or loaded, no setting
+    changed (``lock_configuration``); a statement that slipped past :func:`check_read_only`
+    meets these."""
+    import duckdb
+
+    con = connect(results, read_only=True)
+    try:
+        con.execute("SET autoinstall_known_extensions = false")
+        con.execute("SET autoload_known_extensions = false")
+        con.execute("SET allowed_directories = ?", [[str(results / TRACES) + os.sep]])
+        con.execute("SET enable_external_access = false")
+        con.execute("SET lock_configuration = true")
+    except duckdb.Error as exc:
+        con.close()
+        raise StoreError(f"query: {str(exc).splitlines()[0]}") from None
+    return con
+
+
 def query(results: str | Path, sql: str,
           params: Sequence[Any] | Mapping[str, Any] | None = None):
     """Run ``sql`` on a read-only connection to ``DIR/eha.duckdb``; returns a pandas DataFrame.
@@ -53,26 +157,35 @@ def query(results: str | Path, sql: str,
     placeholders with a sequence, ``$name`` with a mapping, e.g.
     ``query(results, "SELECT * FROM runs WHERE campaign = ?", ["thesis-matrix"])``.
 
+    Only statements that read pass (:func:`check_read_only`), on a connection that cannot
+    write, reach files outside the traces or change its settings (:func:`_connect_guarded`).
+
     Raises
     ------
     StoreError
-        No database, database locked, or an SQL error (first line of DuckDB's message).
+        No database, database locked, or an SQL error (first line of DuckDB's message);
+        :class:`QueryRefused` a statement that is not a read.
     """
     import duckdb
 
     results = Path(results).resolve()
-    con = connect(results, read_only=True)
+    con = _connect_guarded(results)
     try:
+        check_read_only(con, sql)
+        if _reads_traces(sql):
+            check_traces(con, results, "query")
         _create_traces_view(con, results)
         return _interruptible(con, lambda: (con.execute(sql, params) if params is not None
                                             else con.execute(sql)).df())
     except duckdb.Error as exc:
         first = str(exc).splitlines()[0]
         if ".parquet" in first:  # a stored trace is damaged: the resume re-runs it
-            first += ("; a stored trace is damaged, run its campaign again (eha campaign run) "
-                      "to re-run it")
+            from eha.campaigns.integrity import repair_hint
+
+            first += f"; a stored trace is damaged, repair it with: {repair_hint(results)}"
         elif "Corrupt" in first or "checksum" in first:
-            first += "; the database file is damaged: move it away and run the campaigns again"
+            raise DatabaseDamaged(f"query: {first}; the database file is damaged: move it "
+                                  "away and run the campaigns again") from None
         raise StoreError(f"query: {first}") from None
     finally:
         con.close()
@@ -111,6 +224,22 @@ def _interruptible(con, work):
     return out["value"]
 
 
+def _io_reason(text: str) -> str:
+    """The reason of a DuckDB I/O error, without its JSON wrapping: ``File too large`` of
+    ``IO Error: ... {"exception_type":"IO","exception_message":"Could not write file
+    \"x\": File too large",...}``."""
+    import json
+    import re
+
+    found = re.search(r"\{.*\}", text)
+    if found:
+        try:
+            text = json.loads(found.group(0)).get("exception_message", text)
+        except ValueError:
+            pass
+    return text.splitlines()[0].rsplit(": ", 1)[-1]
+
+
 def tables(results: str | Path) -> list[str]:
     """Names of the tables and views that :func:`export_csv` accepts."""
     con = connect(results, read_only=True)
@@ -140,12 +269,17 @@ def export_csv(results: str | Path, table: str, path: str | Path) -> int:
     os.close(fd)
     con = connect(results, read_only=True)
     try:
+        if table == "traces":
+            check_traces(con, results, "export traces")
         _create_traces_view(con, results)
         target = tmp.replace("'", "''")
         con.execute(f"COPY (SELECT * FROM \"{table}\") TO '{target}' (HEADER, DELIMITER ',')")
         n = con.execute(f'SELECT count(*) FROM "{table}"').fetchall()[0][0]
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
+    except duckdb.IOException as exc:  # the CSV could not be written (a full disk)
+        raise StoreWriteError(f"export {table}: {path}: could not be written "
+                              f"({_io_reason(str(exc))}); nothing was written") from None
     except duckdb.Error as exc:
         raise StoreError(f"export {table}: {str(exc).splitlines()[0]}") from None
     finally:

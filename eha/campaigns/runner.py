@@ -168,6 +168,59 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     return summary
 
 
+@dataclass
+class Verified:
+    """What :func:`verify_results` found (and repaired) in a results folder."""
+
+    files: int
+    runs: int
+    damaged: dict[str, str]                 # path -> reason
+    by_campaign: dict[str, list[str]]       # campaign -> its damaged paths
+    repaired: dict[str, int] = field(default_factory=dict)   # campaign -> runs re-run
+
+
+def verify_results(results: str | Path, repair: bool = False, workers: int | None = None,
+                   progress: bool = False) -> Verified:
+    """Check every trace file of every campaign of ``results`` against its recorded size and
+    checksum, reading every byte, without running anything; with ``repair``, run each
+    campaign with a damaged file again from the definition stored with it (the resume
+    re-runs the runs of the damaged files, and only those).
+
+    Raises
+    ------
+    eha.campaigns.store.StoreError
+        No database, or it is locked (a campaign is running).
+    """
+    import json
+
+    from eha.campaigns.integrity import check_files, recorded_files
+    from eha.campaigns.store import connect
+
+    results = Path(results).resolve()
+    con = connect(results, read_only=True)
+    try:
+        files = recorded_files(con)
+        definitions = {n: (d, s) for n, d, s in con.execute(
+            "SELECT name, definition, source FROM campaigns").fetchall()}
+    finally:
+        con.close()
+    check = check_files(results, files, full=True)
+    by_campaign: dict[str, list[str]] = {}
+    for f in files:
+        if f.path in check.damaged:
+            by_campaign.setdefault(f.campaign, []).append(f.path)
+    out = Verified(len(files), sum(len(f.keys) for f in files), check.damaged, by_campaign)
+    if repair:
+        from eha.campaigns.files import build_campaign
+
+        for name in sorted(by_campaign):
+            definition, source = definitions[name]
+            camp = build_campaign(json.loads(definition), source=source or "<stored>")
+            summary = run_campaign(camp, results, workers=workers, progress=progress)
+            out.repaired[name] = summary.done
+    return out
+
+
 _RUN_COLUMNS = {"model", "command", "faults", "fault_label", "seed", "t_end", "case_key", "label"}
 
 
@@ -319,4 +372,5 @@ def _collected(collectors: list) -> dict[str, list[dict]]:
     return rows
 
 
-__all__ = ["run_campaign", "RunSummary", "CampaignChanged", "BATCH_ROWS", "BATCH_SECONDS"]
+__all__ = ["run_campaign", "RunSummary", "CampaignChanged", "BATCH_ROWS", "BATCH_SECONDS",
+           "verify_results", "Verified"]

@@ -52,7 +52,9 @@ SCHEMA: dict[str, str] = {
             elapsed_s   DOUBLE,               -- s in the worker (simulation + metrics + write)
             spec        JSON,
             trace_bytes BIGINT,               -- size of the trace file at commit (integrity)
-            trace_rows  BIGINT)               -- samples in the trace file at commit""",
+            trace_rows  BIGINT,               -- samples in the trace file at commit
+            trace_hash  VARCHAR,              -- SHA-256 of the trace file's bytes (128 bits)
+            trace_mtime BIGINT)               -- its modification time at commit [ns]""",
     "metrics": """
         CREATE TABLE IF NOT EXISTS metrics (
             run_key          VARCHAR PRIMARY KEY,
@@ -139,6 +141,9 @@ ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (("fdi_results", "level", "DOU
                                                    ("fdi_results", "noise_rmse", "DOUBLE"),
                                                    ("runs", "trace_bytes", "BIGINT"),
                                                    ("runs", "trace_rows", "BIGINT"),
+                                                   # content hash (issue 43)
+                                                   ("runs", "trace_hash", "VARCHAR"),
+                                                   ("runs", "trace_mtime", "BIGINT"),
                                                    # residual loop: its verdict (issue 11)
                                                    ("explain_runs", "unexplained", "BOOLEAN"),
                                                    ("explain_runs", "verdict", "VARCHAR"),

@@ -15,7 +15,7 @@ import itertools
 import json
 from typing import Any, Callable, Mapping
 
-from eha.campaigns.files import MAX_JOBS, JobDraft, _did_you_mean, _hash
+from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _hash
 from eha.models.commands import Command, CommandError, make_command, pin_command
 from eha.models.params import MODELS, ParameterError, check_value, resolve
 

@@ -26,7 +26,6 @@ from typing import Any, Iterator, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
-from eha.campaigns.traces import DEEP_VERIFY_MAX, trace_intact
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
@@ -92,6 +91,16 @@ class StoreWriteError(StoreError):
     exit_code = FAILURE
 
 
+class DatabaseDamaged(StoreError):
+    """The result database file is damaged (DuckDB reports corruption): a failure, exit 1."""
+
+    exit_code = FAILURE
+
+
+def _damaged(text: str) -> bool:
+    return any(w in text for w in ("Corrupt", "checksum", "not a valid DuckDB"))
+
+
 def db_path(results: str | Path) -> Path:
     """``DIR/eha.duckdb``."""
     return Path(results) / DB_NAME
@@ -124,7 +133,11 @@ def connect(results: str | Path, read_only: bool = False):
             raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
                              f"{Path(match.group(1)).name}), probably a running campaign; "
                              "wait for it to finish or use another --results folder") from None
-        raise StoreError(f"{path}: {str(exc).splitlines()[0]}") from None
+        first = str(exc).splitlines()[0]
+        if _damaged(first):
+            raise DatabaseDamaged(f"{path}: {first}; the file is damaged: move it away and run "
+                                  "the campaigns again") from None
+        raise StoreError(f"{path}: {first}") from None
     if not read_only:
         try:
             for ddl in SCHEMA.values():
@@ -285,26 +298,29 @@ class ResultStore:
         """``(run keys, trace paths)`` of the done runs of ``campaign`` whose trace file is
         intact, and those files (relative to the results folder).
 
-        A file is checked once for all the runs it holds (:func:`trace_intact`): its size is
-        the one recorded at commit and its footer holds the sum of the rows recorded for its
-        runs (footers read up to :data:`DEEP_VERIFY_MAX` files).
+        A file is checked once for all the runs it holds: its size is the one recorded at
+        commit and its bytes hash to the recorded checksum
+        (:func:`eha.campaigns.integrity.check_files`, ``full``); a file recorded before the
+        checksum, that its footer holds the sum of the rows recorded for its runs. A file
+        whose bytes match but whose modification time changed gets the new time recorded
+        (queries then skip hashing it).
         """
-        rows = self.con.execute("""
-            SELECT trace_path, list(run_key), max(trace_bytes), min(trace_bytes),
-                   CASE WHEN count(trace_rows) = count(*) THEN sum(trace_rows) END
-            FROM runs WHERE campaign = ? AND status = 'done' GROUP BY trace_path""",
-                                [campaign]).fetchall()
-        deep = len(rows) <= DEEP_VERIFY_MAX
-        done: set[str] = set()
-        files: set[str] = set()
-        for path, keys, size, size_lo, n in rows:
-            if path is None or (size == size_lo and
-                                trace_intact(self.results / path, size,
-                                             None if n is None else int(n), deep=deep)):
-                done.update(keys)
-                files.add(path)
-        files.discard(None)
-        return done, files
+        from eha.campaigns.integrity import check_files, recorded_files
+
+        files = recorded_files(self.con, campaign)
+        check = check_files(self.results, files, full=True)
+        if check.restamp:
+            with _transaction(self.con):
+                self.con.executemany("UPDATE runs SET trace_mtime = ? WHERE trace_path = ?",
+                                     [[m, p] for p, m in check.restamp.items()])
+        done = {k for k, in self.con.execute(
+            "SELECT run_key FROM runs WHERE campaign = ? AND status = 'done' "
+            "AND trace_path IS NULL", [campaign]).fetchall()}
+        intact = {f.path for f in files if f.path not in check.damaged}
+        for f in files:
+            if f.path in intact:
+                done.update(f.keys)
+        return done, intact
 
     def add_pending(self, rows: Sequence[Mapping[str, Any]]) -> None:
         """Insert ``pending`` runs; runs already recorded are left as they are."""
@@ -332,7 +348,8 @@ class ResultStore:
         if not results and not extra and not batches:
             return
         run_cols = {"status", "error", "worker", "started_at", "finished_at", "sim_s",
-                    "elapsed_s", "trace_path", "trace_bytes", "trace_rows"}
+                    "elapsed_s", "trace_path", "trace_bytes", "trace_rows", "trace_hash",
+                    "trace_mtime"}
         updates = [{"run_key": r["run_key"], **{k: r.get(k) for k in run_cols}} for r in results]
         per_table: dict[str, list] = {}
         for r in results:

@@ -169,6 +169,7 @@ def write_table_atomic(table, path: str | Path,
                                               and f.type != "bool"],
                               use_byte_stream_split=floats or False,
                               max_rows_per_page=ROW_GROUP_ROWS,
+                              write_page_checksum=True,
                               data_page_size=PAGE_BYTES) as writer:
             writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
             if file_metadata:

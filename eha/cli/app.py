@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from eha.cli import campaign, explain, health, identify, models, prognostics, report
+from eha.cli import campaign, design, explain, health, identify, models, prognostics, report
 from eha.cli.guard import STATE, GuardedGroup
 
 app = typer.Typer(cls=GuardedGroup, add_completion=False, no_args_is_help=True,
@@ -33,6 +33,7 @@ app.command()(identify.fdi)
 app.command()(explain.explain)
 app.add_typer(report.report_app, name="report")
 app.add_typer(health.health_app, name="health")
+app.add_typer(design.design_app, name="design")
 app.add_typer(prognostics.fleet_app, name="fleet")
 app.command()(prognostics.rul)
 app.command()(prognostics.limits)

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, discard_stdout, fail, resumable, warn
@@ -37,7 +36,7 @@ def campaign_validate(file: Path = typer.Argument(..., help="Campaign TOML file.
     Example: eha campaign validate campaigns/thesis-matrix.toml
     """
     camp = _load(file)
-    console.print(escape(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs"))
+    console.print(f"{file}: campaign {camp.name!r} is valid, {len(camp.jobs)} jobs")
 
 
 @campaign_app.command("plan")
@@ -65,8 +64,8 @@ def campaign_plan(file: Path = typer.Argument(..., help="Campaign TOML file."),
                   f"{info['fault_sets']} fault sets, commands "
                   f"{', '.join(str(c) for c in info['by_command'] if c)}")
     if info["done"]:
-        console.print(escape(f"already done in {results}: {info['done']} of {info['jobs']} "
-                             f"runs (not run again)"))
+        console.print(f"already done in {results}: {info['done']} of {info['jobs']} runs "
+                      f"(not run again)")
     left = "nothing left to run" if info["done"] == info["jobs"] else duration(
         info["estimated_s"])
     console.print(f"estimated wall time on {workers} workers: {left}")
@@ -108,31 +107,75 @@ def campaign_run(
     if s.changed:
         console.print(f"{camp.name} changed since it was recorded: discarded {s.replaced} runs "
                       "it no longer has, kept the shared ones")
-    console.print(escape(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
-                         f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb"))
+    console.print(f"{s.campaign}: {s.total} runs, {s.done} run now, {s.skipped} already "
+                  f"done, {s.failed} failed, {s.wall_s:.1f} s -> {results}/eha.duckdb")
     for line in s.errors:  # a worker's message is text, brackets included
         warn(line, "failed")
     if s.failed:
         raise typer.Exit(1)
 
 
-def _write_frame(frame, format: str) -> None:
-    """The query's result on standard output as a table, CSV or JSON."""
+@campaign_app.command("verify")
+def campaign_verify(
+    results: ResultsOption = RESULTS,
+    repair: bool = typer.Option(False, "--repair",
+                                help="Re-run the runs of the damaged trace files (each "
+                                     "campaign from the definition stored with it)."),
+    workers: WorkersOption = WORKERS,
+):
+    """Check every trace file of a results folder against the size and checksum recorded with
+    its runs (every byte read, nothing run); exit 1 while a file is damaged.
+
+    Example: eha campaign verify --results results --repair
+    """
+    from eha.campaigns.integrity import repair_hint
+    from eha.campaigns.runner import verify_results
+
+    if repair:
+        check_out_dir(results, "--results")
+    with resumable("finished runs are saved, re-run the same command to resume"):
+        v = verify_results(results, repair=repair, workers=workers, progress=False)
+    for path, reason in sorted(v.damaged.items()):
+        warn(f"{results / path}: {reason}", "damaged")
+    for name, n in sorted(v.repaired.items()):
+        console.print(f"{name}: {n} runs of its damaged trace files run again")
+    console.print(f"{results}: {v.files} trace files of {v.runs} runs checked, "
+                  f"{len(v.damaged)} damaged"
+                  + (", repaired" if v.repaired else ""))
+    if v.damaged and not repair:
+        fail(f"{len(v.damaged)} damaged trace files; repair them with: "
+             f"{repair_hint(results)}", 1)
+
+
+def _write_frame(frame, format: str, limit: int = 0) -> None:
+    """The query's result on standard output as a table (its first ``limit`` rows, 0 all),
+    CSV or JSON (every row)."""
     if format == "csv":
         typer.echo(frame.to_csv(index=False), nl=False)
     elif format == "json":
         typer.echo(frame.to_json(orient="records", date_format="iso"))
     else:
+        hidden = len(frame) - limit if 0 < limit < len(frame) else 0
         table = Table(*[str(c) for c in frame.columns])
-        for row in frame.itertuples(index=False):
-            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+        for row in frame.head(len(frame) - hidden).itertuples(index=False):
+            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v)
+                            for v in row])
         console.print(table)
+        if hidden:
+            console.print(f"{hidden} more rows not shown (--limit 0 shows all; --format csv "
+                          "or json writes every row)")
 
 
 def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
           results: ResultsOption = RESULTS,
-          format: str = typer.Option("table", "--format", help="table, csv or json.")):
+          format: str = typer.Option("table", "--format", help="table, csv or json."),
+          limit: int = typer.Option(1000, "--limit", min=0,
+                                    help="Rows shown in the table format (0 = all); csv and "
+                                         "json write every row.")):
     """Query the result database read-only; Parquet traces are the view `traces`.
+
+    Only reading statements run (SELECT, WITH, EXPLAIN, DESCRIBE, SHOW, PRAGMA table_info);
+    SET, ATTACH, COPY, EXPORT, INSTALL, CREATE, INSERT, ... are refused (exit 2).
 
     Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
     (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
@@ -144,7 +187,7 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
     check_database(results)
     frame = run_query(results, sql)
     try:
-        _write_frame(frame, format)
+        _write_frame(frame, format, limit)
         sys.stdout.flush()  # a full disk or a closed pipe shows here, not silently at exit
     except OSError as exc:
         discard_stdout()
@@ -165,7 +208,7 @@ def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs
     check_out_file(csv, "--csv", (".csv",))
     check_database(results)
     n = export_csv(results, table, csv)
-    console.print(escape(f"{table}: {n} rows -> {csv}"))
+    console.print(f"{table}: {n} rows -> {csv}")
 
 
 def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),
@@ -180,4 +223,4 @@ def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the data
 
     check_out_dir(out if out is not None else results / "plots" / campaign, "--out")
     for p in plot_campaign(results, campaign, out):
-        console.print(escape(str(p)))
+        console.print(str(p))

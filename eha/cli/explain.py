@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail
@@ -119,9 +118,22 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             results=results, on_progress=step, settings=settings,
             null=record.at(healthy) if healthy is not None else "simulate")
     _render(run["result"])
+    _next_test(run["result"], json_out)
     print_paths(run["paths"])
     if run["db_error"]:
         fail(f"results database not written: {run['db_error']}", code=1)
+
+
+def _next_test(res, json_out: Optional[Path]) -> None:
+    """Rivals the record could not rule out: the command that designs the test deciding it
+    (docs/design.md)."""
+    if not res.not_excluded:
+        return
+    rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} "
+                       f"{e.get('value_unit', e['unit'])})" for e in res.not_excluded)
+    around = str(json_out) if json_out is not None else "OUT.json (rerun with --json OUT.json)"
+    console.print(f"to decide between the model and {rivals}: design the separating "
+                  f"test with: eha design --faults none --around {around}", highlight=False)
 
 
 class _progress_bar:
@@ -149,15 +161,15 @@ def _render(res) -> None:
     from eha.explain.verdict import structure_note, unseen_summary
     from eha.models.units import show, show_interval
 
-    console.print(f"record: {escape(str(res.source))} ({len(res.t)} samples at 1 kHz); held "
+    console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held "
                   f"out: {res.holdout}", highlight=False)
     console.print(_steps_table(res))
     note = structure_note(res)
     for line in ([note] if note else []) + _notes(res):
-        console.print(escape(line), highlight=False)
+        console.print(line, highlight=False)
     console.print(f"RMSE {1e6 * res.rmse_before:.3g} → {1e6 * res.rmse_after:.3g} µm; noise "
                   f"level {1e6 * res.noise_rmse:.3g} µm; above the noise "
-                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {escape(res.stop_reason)}",
+                  f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}",
                   highlight=False)
     if res.intervals:
         flow = "GQ" in res.intervals and res.settings.get("flow_gain_fitted")
@@ -167,16 +179,16 @@ def _render(res) -> None:
                else "")
             for k, (lo, hi) in res.intervals.items()), highlight=False)
     facts = res.verdict_facts
-    console.print(f"verdict ({facts.kind}): {escape(facts.finding)}", highlight=False)
+    console.print(f"verdict ({facts.kind}): {facts.finding}", highlight=False)
     for rival in facts.rivals:
-        console.print(f"  cannot be told apart on this command from {escape(rival)}",
+        console.print(f"  cannot be told apart on this command from {rival}",
                       highlight=False)
     if res.null:
         lines = res.undetectable()
         if lines:
-            console.print("  " + escape(unseen_summary(lines)), highlight=False)
+            console.print("  " + unseen_summary(lines), highlight=False)
         console.print(f"  decisions at alpha {res.null['alpha']:g} against "
-                      f"{escape(res.null['source'])} on this command", highlight=False)
+                      f"{res.null['source']} on this command", highlight=False)
     _warn(res)
 
 

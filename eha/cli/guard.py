@@ -34,7 +34,9 @@ def _on_broken_pipe(self) -> None:
 
 
 Console.on_broken_pipe = _on_broken_pipe
-console = Console()
+#: Standard output: text, never console markup (issue 43: an actuator id ``x[/]`` or ``[bold]``
+#: in a name is data, printed as it is, in tables too).
+console = Console(markup=False)
 err_console = Console(stderr=True)
 
 # The option parser's exceptions: click's, or the copy of click that typer >= 0.20 vendors.

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, resumable, warn
@@ -151,7 +150,7 @@ def _render_check(run, record: Path) -> None:
                       number(v.name, v.healthy, 4), "-" if v.threshold is None else
                       alarm_value(v.name, v.threshold, scale),
                       verdict, "-" if v.weight is None else f"{v.weight:.2f}")
-    console.print(escape(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}"),
+    console.print(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}",
                   highlight=False)
     console.print(table)
     status_text = run.to_dict()["status"]

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail, warn
@@ -121,7 +120,7 @@ def _render(run) -> None:
                       f"[{number(name, ilo, 4)}, {number(name, ihi, 4)}]",
                       f"{run.errors_pct[name]:+.3f}" if run.errors_pct else "-")
     hold = f"; command {run.command_hold}" if run.command_hold else ""
-    console.print(escape(f"reference: {run.source}; LF model: {run.base_model}{hold}"),
+    console.print(f"reference: {run.source}; LF model: {run.base_model}{hold}",
                   highlight=False)
     console.print(table)
     if run.errors_pct:

@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.markup import escape
 from rich.padding import Padding
 from rich.table import Table
+from rich.text import Text
 
 from eha.cli.guard import console, fail
 from eha.cli.options import PLOT_SUFFIXES, check_out_file, check_seed
@@ -48,8 +48,8 @@ def simulate(
         from eha.reports.plots import plot_traces
 
         plot_traces([trace], plot)
-    console.print(escape(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
-                         + (f", plot {plot}" if plot else "")))
+    console.print(f"{model.upper()} {command}: {len(trace)} samples -> {out}"
+                  + (f", plot {plot}" if plot else ""))
 
 
 def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or lf."),
@@ -78,8 +78,8 @@ def params(model: Optional[str] = typer.Option(None, "--model", help="Only hf or
         nominal = hf if lf in ("-", hf) else (lf if hf == "-" else f"{hf} (LF {lf})")
         facts = (f"{p.unit}, nominal {nominal}, range [{p.lo:g}, {p.hi:g}], "
                  f"{','.join(p.models)}" + (", fault" if p.fault else ""))
-        console.print(f"[bold]{escape(p.name)}[/bold]  {escape(facts)}", highlight=False)
-        console.print(Padding(escape(p.description), (0, 0, 0, 4)), highlight=False)
+        console.print(f"{p.name}  {facts}", highlight=False)
+        console.print(Padding(p.description, (0, 0, 0, 4)), highlight=False)
 
 
 def _nominals(p) -> tuple[str, str]:
@@ -125,7 +125,7 @@ def faults():
         trend = {1: "degrades up", -1: "degrades down", 0: "degrades either way"}[f.direction]
         tags = ", ".join(t for t in (f.role == "core" and "core", f.rul and "RUL") if t)
         head = f"{f.description} [{unit}], {trend}" + (f" ({tags})" if tags else "")
-        console.print(f"[bold]{escape(f.name)}[/bold]  {escape(head)}", highlight=False)
+        console.print(Text.assemble((f.name, "bold"), f"  {head}"), highlight=False)
         console.print(f"    healthy {f.healthy * k:g}{scatter}; search {f.bounds[0] * k:g} to "
                       f"{f.bounds[1] * k:g}; campaign levels "
                       f"{', '.join(f'{v * k:g}' for v in f.levels) or '-'}; loop effect "

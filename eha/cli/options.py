@@ -28,13 +28,13 @@ ResultsOption = Annotated[Path, typer.Option(
 WORKERS = 2
 WorkersOption = Annotated[int, typer.Option("--workers", min=1,
                                             help="Local worker processes.")]
-#: How a measured record's command is rebuilt between its samples (eha.measured).
+#: How a measured record's command is rebuilt between its samples (eha.identification.measured).
 COMMAND_HOLD = "auto"
 CommandHoldOption = Annotated[str, typer.Option(
     "--command-hold", help="How the record's command is rebuilt between its samples: zoh "
     "(held, as a digital controller's output), linear (interpolated) or auto (zoh when the "
     "command is flat between jumps, else linear).")]
-#: A measured record as its user has it (eha.measured.RecordFile).
+#: A measured record as its user has it (eha.identification.columns.RecordFile).
 ColumnsOption = Annotated[Optional[str], typer.Option(
     "--columns", help="Header of each signal of the record, SIGNAL=HEADER comma-separated "
     "(signals t, com, xu, p12, xs), e.g. t=time_s,com=command_mm,xu=position_mm; signals "
@@ -119,13 +119,13 @@ def check_names(text: str, option: str) -> None:
 
 
 def write_json(path: Optional[Path], data: Any, indent: int = 2) -> None:
-    """Write ``data`` as indented JSON to ``path`` (nothing when None)."""
+    """Write ``data`` as indented JSON to ``path``, whole (:func:`eha.outputs.write_json`;
+    nothing when None)."""
     if path is None:
         return
-    import json
+    from eha.outputs import write_json as write
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=indent))
+    write(path, data, indent=indent)
 
 
 def print_paths(paths: dict, skip: tuple[str, ...] = ()) -> None:

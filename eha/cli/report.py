@@ -7,12 +7,10 @@ Each command imports the report it builds inside its function: ``eha query`` and
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from eha.cli.guard import console, err_console, fail
@@ -22,17 +20,6 @@ from eha.cli.options import (RESULTS, WORKERS, ResultsOption, WorkersOption, che
 
 report_app = typer.Typer(no_args_is_help=True, help="Reports built from the result database."
                          "\n\nExample: eha report thesis --results results")
-
-
-@contextmanager
-def _store_failure() -> Iterator[None]:
-    """A report of results that cannot be read is a failure (exit 1), not bad input."""
-    from eha.campaigns.store import StoreError
-
-    try:
-        yield
-    except StoreError as exc:
-        fail(str(exc), code=1)
 
 
 @report_app.command("thesis")
@@ -49,8 +36,7 @@ def report_thesis(results: ResultsOption = RESULTS,
     from eha.reports.thesis import thesis_report
 
     check_out_dir(out if out is not None else results / "reports" / "thesis", "--out")
-    with _store_failure():
-        print_paths(thesis_report(results, out))
+    print_paths(thesis_report(results, out))
 
 
 @report_app.command("health")
@@ -97,11 +83,10 @@ def report_html(results: ResultsOption = RESULTS,
     check_out_file(out, "--out", (".html", ".htm"))
     if truth is not None and not truth.is_file():
         fail(f"--truth {truth}: file not found")
-    with _store_failure():
-        res = build_report(results, out, truth)
-    console.print(escape(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
-                         f"{', '.join(res.sections)}, {res.figures} figures, "
-                         f"{res.seconds:.1f} s)"))
+    res = build_report(results, out, truth)
+    console.print(f"report: {res.path} ({res.bytes / 1e6:.1f} MB, sections "
+                  f"{', '.join(res.sections)}, {res.figures} figures, "
+                  f"{res.seconds:.1f} s)")
 
 
 def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS):
@@ -142,5 +127,5 @@ def _render_reproduce(out: dict, results: Path) -> None:
     console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
                   f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
     html = out["html"]
-    console.print(escape(f"report (open in a browser): {html.path} "
-                         f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)"))
+    console.print(f"report (open in a browser): {html.path} "
+                  f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)")

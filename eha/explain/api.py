@@ -133,7 +133,8 @@ def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | No
                 on_progress=on_progress, fdi_options=fdi_options)
         return records_null(null, probe.bounds, names, settings,
                             command_hold=data.info.get("command_hold", "auto"), base=base,
-                            fixed=list(fixed), on_progress=on_progress, fdi_options=fdi_options)
+                            fixed=list(fixed), on_progress=on_progress, fdi_options=fdi_options,
+                            record=data)
     except NullError as exc:
         raise ExplainError(str(exc)) from None
 

@@ -374,14 +374,54 @@ def _assemble(source: str, key: str, names: Sequence[str],
                 created_at=datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
 
+#: How far a user's healthy record may be from the record it is the null of (issue 43): its
+#: duration [relative], sampling period [relative], command [RMS difference on the common
+#: 1 kHz grid, relative to the record's command peak] and noise [factor, either way].
+MATCH_DURATION = 0.02
+MATCH_PERIOD = 0.2
+MATCH_COMMAND = 0.05
+MATCH_NOISE = 2.0
+#: Noise below which two records' noise is not compared [m] (noise-free simulations).
+NOISE_FLOOR = 1e-8
+
+
+def record_mismatch(healthy, record) -> str | None:
+    """Why the healthy record ``healthy`` is not a null of ``record`` (both
+    :class:`~eha.identification.measured.MeasuredData`), naming the field; None when it
+    matches: the same length, sampling, command and noise class (within :data:`MATCH_*`).
+    The null's thresholds and detectable sizes hold for the command, length and noise it was
+    built on only."""
+    d_rec, d_h = record.t_end, healthy.t_end
+    if abs(d_h - d_rec) > MATCH_DURATION * d_rec + 1e-3:
+        return (f"length {d_h:g} s, the record {d_rec:g} s (allowed within "
+                f"{100 * MATCH_DURATION:g} %)")
+    p_rec, p_h = record.info.get("period_s"), healthy.info.get("period_s")
+    if p_rec and p_h and abs(p_h / p_rec - 1) > MATCH_PERIOD:
+        return (f"sampling {1 / p_h:.4g} Hz, the record {1 / p_rec:.4g} Hz (allowed within "
+                f"{100 * MATCH_PERIOD:g} %)")
+    n = min(len(record), len(healthy))
+    peak = float(np.max(np.abs(record.com[:n]))) or 1.0
+    diff = float(np.sqrt(np.mean((healthy.com[:n] - record.com[:n]) ** 2))) / peak
+    if diff > MATCH_COMMAND:
+        return (f"command differs from the record's by {100 * diff:.3g} % RMS of its peak "
+                f"(allowed {100 * MATCH_COMMAND:g} %): another command")
+    n_rec = float(record.info.get("noise_m", 0.0))
+    n_h = float(healthy.info.get("noise_m", 0.0))
+    if max(n_rec, n_h) > NOISE_FLOOR and not (n_rec / MATCH_NOISE <= n_h <= n_rec * MATCH_NOISE):
+        return (f"noise {1e6 * n_h:.3g} µm, the record {1e6 * n_rec:.3g} µm (another noise "
+                f"class; allowed within a factor {MATCH_NOISE:g})")
+    return None
+
+
 def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
                  effects: Sequence[str], settings, command_hold: str = "auto", base=None,
                  fixed: Sequence[str] = (), fdi_options: Mapping[str, float] | None = None,
-                 on_progress: Callable[[str], None] | None = None) -> Null:
+                 on_progress: Callable[[str], None] | None = None, record=None) -> Null:
     """The null from the user's own healthy records (every CSV/TSV/TXT/Parquet file in
     ``folder``): each is fitted as :func:`healthy_statistics` fits a simulated one.
-    Not cached (the files are the user's). A :class:`eha.measured.RecordFile` folder reads
-    its records with its columns and units."""
+    Not cached (the files are the user's). A :class:`eha.identification.columns.RecordFile` folder reads
+    its records with its columns and units. With ``record`` (the record the null is for),
+    each healthy record must match it (:func:`record_mismatch`), checked before any fit."""
     from eha.identification.measured import FILE_TYPES, MeasuredDataError, load, same_format
     from eha.models.simulate import MODEL_VERSION
 
@@ -398,6 +438,10 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
             records.append(load(same_format(spec, path), command_hold))
         except MeasuredDataError as exc:
             raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
+        why = None if record is None else record_mismatch(records[-1], record)
+        if why is not None:
+            raise NullError(f"--healthy {path}: {why}; a healthy null must be records of the "
+                            f"same test as {Path(str(record.source)).name}") from None
     names = covered_effects(effects)
     t0 = time.perf_counter()
     results = []

@@ -188,14 +188,23 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     paths = {"steps": out / "steps.csv", "candidates": out / "candidates.csv",
              "residuals": out / "residuals.png", "trace": out / "trace.png",
              "details": out / "explain.json"}
-    pd.DataFrame(result.steps_table()).to_csv(paths["steps"], index=False)
-    pd.DataFrame(result.candidates_table()).to_csv(paths["candidates"], index=False)
+    from eha.outputs import atomic_path, write_json
+
+    with atomic_path(paths["steps"]) as tmp:
+        pd.DataFrame(result.steps_table()).to_csv(tmp, index=False)
+    with atomic_path(paths["candidates"]) as tmp:
+        pd.DataFrame(result.candidates_table()).to_csv(tmp, index=False)
     plot_explain_residuals(result, paths["residuals"])
     plot_explain_trace(result, paths["trace"])
-    paths["details"].write_text(json.dumps(result.details(run_id), indent=2, default=float))
+    write_json(paths["details"], result.details(run_id), indent=2, default=float)
     if json_path is not None:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        Path(json_path).write_text(json.dumps(result.to_json(), indent=2))
+        doc = result.to_json()
+        if result.not_excluded:  # the test that would decide it (docs/design.md)
+            doc["separating_test"] = {
+                "rivals": [{"effect": e["effect"], "param": e["param"], "value": e["value"]}
+                           for e in result.not_excluded],
+                "design": f"eha design --faults none --around {json_path}"}
+        write_json(json_path, doc, indent=2)
         paths["json"] = Path(json_path)
     db_error = None
     try:

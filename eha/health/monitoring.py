@@ -293,8 +293,10 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
     paths: dict[str, Path] = {}
     import csv
 
+    from eha.outputs import atomic_path, write_atomic, write_json
+
     det = folder / "detection.csv"
-    with det.open("w", newline="") as fh:
+    with atomic_path(det) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["command", "fault", "injected", "deviation", "p_detect", "n", "threshold",
                     "min_detectable_deviation"])
@@ -305,7 +307,7 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
                                 lev["n"], f["threshold"], f["min_detectable_deviation"]])
     paths["detection"] = det
     conf = folder / "confusion.csv"
-    with conf.open("w", newline="") as fh:
+    with atomic_path(conf) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["command", "injected", "declared", "count"])
         for command, c in perf.items():
@@ -314,16 +316,15 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
                     w.writerow([command, injected, declared, n])
     paths["confusion"] = conf
     fa = folder / "false_alarms.csv"
-    with fa.open("w", newline="") as fh:
+    with atomic_path(fa) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["command", "healthy", "any_in_sample", "any_leave_one_out", "alpha"])
         for command, c in perf.items():
             w.writerow([command, c["false_alarms"]["n"], c["false_alarms"]["any"],
                         c["false_alarms_loo"]["any"], alpha])
     paths["false_alarms"] = fa
-    (folder / "performance.json").write_text(json.dumps(perf, indent=1, default=float))
-    paths["summary"] = folder / "summary.md"
-    paths["summary"].write_text(summary_markdown(perf, alpha))
+    write_json(folder / "performance.json", perf, indent=1, default=float)
+    paths["summary"] = write_atomic(folder / "summary.md", summary_markdown(perf, alpha))
     paths["json"] = folder / "performance.json"
     for command, c in perf.items():
         paths[f"roc {command}"] = plot_roc(c, command, folder / f"roc_{command}.png")

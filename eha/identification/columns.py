@@ -127,8 +127,8 @@ class RecordFile:
     (``columns``, signal -> header, e.g. ``{"com": "command_mm"}``) and the unit of length
     columns whose header declares none (``units``, :data:`LENGTH_UNITS`).
 
-    Path-like: the library's functions that take a record path (``eha.fdi.identify_source``,
-    ``eha.monitoring.check_record``, ``eha.explain.outputs.explain_report``) take one too, and
+    Path-like: the library's functions that take a record path (``eha.identification.fdi.identify_source``,
+    ``eha.health.monitoring.check_record``, ``eha.explain.outputs.explain_report``) take one too, and
     :func:`load` reads it with its columns and units.
 
     Raises

@@ -41,7 +41,7 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
     """
     import pandas as pd
 
-    from eha.identification.measured import resolve_hold
+    from eha.identification.holds import resolve_hold
     from eha.models.commands import as_command
     from eha.models.simulate import simulate
 

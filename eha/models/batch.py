@@ -107,6 +107,7 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     import numpy as np
     import pyarrow as pa
 
+    from eha.campaigns.integrity import file_stamp
     from eha.campaigns.traces import write_chunk
     from eha.models.commands import make_command
     from eha.models.run_metrics import PAIR_METRICS, RUN_METRICS, batch_metrics, batch_pair_metrics
@@ -147,13 +148,15 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
             metric_rows[n] += values[n].tolist()
         _pairs_inside(items, stack, pair_rows, batch_pair_metrics)
 
-    trace_bytes = None
+    trace_bytes = trace_hash = trace_mtime = None
     if done:
         try:
             trace_bytes = write_chunk(
                 [(it[0]["run_key"], it[1].data,
                   {**it[1].meta, "run_key": it[0]["run_key"], "campaign": task["campaign"]})
                  for it in done], task["trace_file"], task["signals"])
+            # recorded with the runs: the resume and queries check the file against it
+            trace_hash, trace_mtime = file_stamp(task["trace_file"])
         except Exception as exc:  # e.g. a full disk: every run of the chunk failed
             failed.update({it[0]["run_key"]: (_error(exc), it[3]) for it in done})
             done = []
@@ -165,10 +168,12 @@ def run_chunk(task: Mapping[str, Any]) -> dict[str, Any]:
     rows = [{"run_key": it[0]["run_key"], "status": "done", "error": None, "worker": worker,
              "started_at": it[3], "finished_at": finished, "sim_s": it[2],
              "elapsed_s": it[2] + overhead, "trace_path": task["trace_path"],
-             "trace_bytes": trace_bytes, "trace_rows": len(it[1])} for it in done]
+             "trace_bytes": trace_bytes, "trace_rows": len(it[1]), "trace_hash": trace_hash,
+             "trace_mtime": trace_mtime} for it in done]
     rows += [{"run_key": k, "status": "failed", "error": e, "worker": worker,
               "started_at": s, "finished_at": finished, "sim_s": None, "elapsed_s": overhead,
-              "trace_path": None, "trace_bytes": None, "trace_rows": None}
+              "trace_path": None, "trace_bytes": None, "trace_rows": None,
+              "trace_hash": None, "trace_mtime": None}
              for k, (e, s) in failed.items()]
     signals = {it[0]["run_key"]: {"xu": it[1].xu.copy(), "p12": it[1]["p12"].copy()}
                for it in done if it[0].get("want_signals")}
@@ -233,7 +238,8 @@ def _runs_schema():
                       ("started_at", pa.timestamp("us")), ("finished_at", pa.timestamp("us")),
                       ("sim_s", pa.float64()), ("elapsed_s", pa.float64()),
                       ("trace_path", pa.string()), ("trace_bytes", pa.int64()),
-                      ("trace_rows", pa.int64())])
+                      ("trace_rows", pa.int64()), ("trace_hash", pa.string()),
+                      ("trace_mtime", pa.int64())])
 
 
 # =========================================================================== the runner's kind

@@ -9,7 +9,7 @@ limits -> jack (2nd order, Borello friction, loads, end stops) -> output backlas
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from eha.models import OUTPUTS
 from eha.models.friction import (borello_velocity, borello_velocity_first_order, clamp,
@@ -116,6 +116,15 @@ def run_hf(p, com, dither, steps_per_out, out):
             xu = play(xj, xu, half_bkl)
             k += 1
         record(out, i, k * dt, com[k], xu, xj, dxj, xs, xf, p12, cor)
+
+
+@njit(cache=True, parallel=True)
+def run_hf_batch(params, com, dithers, steps_per_out, out):
+    """Run the HF model for every row of ``params`` (shape ``(n, n_par)``) with the dither
+    row of the same index (``dithers``, shape ``(n, n_out - 1)``), in parallel; ``out`` has
+    shape ``(n, n_out, len(OUTPUTS))``. The test design's many actuators on one command."""
+    for j in prange(params.shape[0]):
+        run_hf(params[j], com, dithers[j], steps_per_out, out[j])
 
 
 def dither_samples(sigma_ma, n, seed):

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from eha.models.commands import Command, as_command
 from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
-from eha.models.hf import dither_samples, run_hf
+from eha.models.hf import dither_samples, run_hf, run_hf_batch
 from eha.models.lf import run_lf, run_lf_batch
 from eha.models.params import ModelParams, ParameterError, resolve
 
@@ -151,6 +151,55 @@ def simulate(model: str, command: Command | str = "mixed",
     meta = {"model": model, "command": cmd.describe(), "params": changed, "seed": int(seed),
             "t_end": float(t_end), "model_version": MODEL_VERSION}
     return Trace(out, meta)
+
+
+def simulate_hf_batch(params: Sequence[Mapping[str, float]], command: Command | str,
+                      t_end: float, seeds: Sequence[int]) -> np.ndarray:
+    """The HF model for many parameter sets on one command, in one parallel numba call.
+
+    Parameters
+    ----------
+    params : sequence of mappings
+        Overrides of the nominal HF parameters, one per run (the same integration step DT).
+    seeds : sequence of int
+        Dither seed of each run.
+
+    Returns
+    -------
+    float64 array, shape (n, n_out, len(OUTPUTS)): what :func:`simulate` records for each run
+    (the position through the sensor).
+    """
+    sets = [_params("hf", p) for p in params]
+    if len(sets) != len(seeds) or not sets:
+        raise ParameterError("simulate_hf_batch: one seed per parameter set, at least one")
+    if len({p.DT for p in sets}) != 1:
+        raise ParameterError("simulate_hf_batch: every run needs the same integration step DT")
+    steps_per_out, n_out, t_steps = _grid(sets[0], t_end)
+    com = command_on_grid(as_command(command), t_steps)
+    rows = np.stack([p.to_array() for p in sets])
+    dithers = np.stack([dither_samples(p.dither_ma, n_out - 1, int(s))
+                        for p, s in zip(sets, seeds)])
+    out = np.empty((len(sets), n_out, len(OUTPUTS)))
+    run_hf_batch(rows, com, dithers, steps_per_out, out)
+    for j, p in enumerate(sets):
+        out[j, :, O_XU] = measure(out[j, :, O_T], out[j, :, O_XU], p)
+    return out
+
+
+def simulate_lf_rows(params: Sequence[Mapping[str, float]], command: Command | str,
+                     t_end: float) -> np.ndarray:
+    """The LF model for many parameter sets on one command, in one parallel numba call:
+    what :func:`simulate` records for each (shape ``(n, n_out, len(OUTPUTS))``)."""
+    sets = [_params("lf", p) for p in params]
+    if not sets or len({p.DT for p in sets}) != 1:
+        raise ParameterError("simulate_lf_rows: at least one run, every run with the same DT")
+    steps_per_out, n_out, t_steps = _grid(sets[0], t_end)
+    com = command_on_grid(as_command(command), t_steps)
+    out = np.empty((len(sets), n_out, len(OUTPUTS)))
+    run_lf_batch(np.stack([p.to_array() for p in sets]), com, steps_per_out, out)
+    for j, p in enumerate(sets):
+        out[j, :, O_XU] = measure(out[j, :, O_T], out[j, :, O_XU], p)
+    return out
 
 
 def xj0_for_recorded(recorded_start: float, sensor_bias, sensor_gain, XJM):

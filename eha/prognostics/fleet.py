@@ -466,7 +466,9 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
             for c in a["checks"]]
     manifest = write_manifest(out / "manifest.csv", rows)
     truth_path = out / "truth.json"
-    truth_path.write_text(json.dumps(truth, indent=1))
+    from eha.outputs import write_json
+
+    write_json(truth_path, truth, indent=1)
     censored = sum(1 for a in truth["actuators"].values() if a["eol"] is None)
     return FleetResult(out, manifest, truth_path, len(truth["actuators"]), n_rec, censored,
                        summary)

@@ -223,8 +223,12 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
     if path.suffix.lower() == ".csv":
         import csv
 
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
+        try:
+            with open(path, newline="", encoding="utf-8") as fh:
+                rows = list(csv.DictReader(fh))
+        except UnicodeDecodeError as exc:
+            raise PrognosticsError(f"--truth {path}: not UTF-8 text (byte {exc.start})") \
+                from None
         if not rows or "actuator" not in rows[0] or "eol" not in rows[0]:
             raise PrognosticsError(f"--truth {path}: a CSV needs the columns actuator, eol")
         out = {}
@@ -238,10 +242,12 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
                                        "number (or empty for not reached)") from None
         return out
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_bytes().decode("utf-8"))
         acts = data["actuators"]
         return {str(k): (None if v.get("eol") is None else float(v["eol"]))
                 for k, v in acts.items()}
+    except UnicodeDecodeError as exc:
+        raise PrognosticsError(f"--truth {path}: not UTF-8 text (byte {exc.start})") from None
     except (ValueError, KeyError, TypeError, AttributeError):
         raise PrognosticsError(f"--truth {path}: expected JSON {{\"actuators\": {{ID: "
                                "{\"eol\": number or null}}}} or a CSV actuator,eol") from None
@@ -348,9 +354,9 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     _store_predictions(results, camp.name, preds_all, limits)
     res.paths["database"] = results / "eha.duckdb"
     if json_out is not None:
-        json_out = Path(json_out)
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(output, indent=1, default=_json_default))
+        from eha.outputs import write_json
+
+        json_out = write_json(json_out, output, indent=1, default=_json_default)
         res.paths["json"] = json_out
     if plots is not None:
         from eha.prognostics.plots import write_plots

@@ -257,8 +257,9 @@ def _record_format(raw: list[str], header: list[str], where: str, problems: list
 def write_manifest(path: str | Path, rows: list[tuple[str, float, str]]) -> Path:
     """Write a manifest CSV (``actuator, cycle, record``; records relative to its folder)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as fh:
+    from eha.outputs import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(COLUMNS)
         for actuator, cycle, record in rows:

@@ -121,8 +121,10 @@ def plot_actuator(path: Path, aid: str, hist: Mapping[str, Any], preds: Sequence
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Actuator {aid}: health history and remaining useful life")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    from eha.outputs import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path
 
@@ -164,8 +166,10 @@ def plot_alpha_lambda(path: Path, preds_all: Mapping[str, Sequence[Any]],
     ax.set_title("Alpha-lambda plot: every actuator's RUL predictions")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    from eha.outputs import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path
 
@@ -199,7 +203,9 @@ def write_summary(folder: Path, rows: list[dict[str, Any]], fleet: Mapping[str, 
                   ) -> tuple[Path, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     csv_path = folder / "fleet_summary.csv"
-    with open(csv_path, "w", newline="") as fh:
+    from eha.outputs import atomic_path, write_atomic
+
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["actuator"])
         w.writeheader()
         for r in rows:
@@ -219,7 +225,7 @@ def write_summary(folder: Path, rows: list[dict[str, Any]], fleet: Mapping[str, 
     if fleet:
         md += ["", "Fleet: " + ", ".join(f"{k} = {v}" for k, v in fleet.items())]
     md_path = folder / "fleet_summary.md"
-    md_path.write_text("\n".join(md) + "\n")
+    write_atomic(md_path, "\n".join(md) + "\n")
     return csv_path, md_path
 
 

@@ -283,6 +283,8 @@ def campaign_report(results: str | Path, campaign: str) -> Path:
     frame = campaign_runs(results, campaign)
     frame["faults"] = frame["faults"].map(lambda f: json.dumps(f, sort_keys=True))
     path = Path(results) / "reports" / f"{campaign}.csv"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frame.drop(columns=["spec"]).to_csv(path, index=False)
+    from eha.outputs import atomic_path
+
+    with atomic_path(path) as tmp:
+        frame.drop(columns=["spec"]).to_csv(tmp, index=False)
     return path

@@ -15,8 +15,6 @@ figures), :mod:`~eha.reports.html.sections` (the sections' HTML), :mod:`~eha.rep
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -132,18 +130,9 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    from eha.campaigns.traces import FILE_MODE
+    from eha.outputs import write_atomic
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, text)
 
 
 __all__ = ["build_report", "ReportError", "ReportResult", "SECTIONS"]

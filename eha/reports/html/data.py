@@ -100,6 +100,13 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
         fleet = Fleet(str(run_id), rows, limits, faults)
         _attach_truth(con, fleet, truth)
         fleets.append(fleet)
+    if truth is not None and fleets and not any(f.truth_source == str(truth) for f in fleets):
+        from eha.prognostics.degradation import PrognosticsError
+
+        have = sorted(set(fleets[0].predictions["actuator"]))
+        raise PrognosticsError(f"--truth {truth}: no end of life for every actuator of any "
+                               f"eha rul run in the database (e.g. {', '.join(have[:5])} of "
+                               f"{fleets[0].run_id})")
     return fleets
 
 
@@ -109,15 +116,18 @@ def _attach_truth(con, fleet: Fleet, truth: str | Path | None) -> None:
 
     actuators = set(fleet.predictions["actuator"])
     candidates: list[Path] = []
-    if truth is not None:
-        candidates.append(Path(truth))
-    else:
-        rec = con.execute("SELECT record FROM health_checks WHERE campaign = ? LIMIT 1",
-                          [fleet.run_id]).fetchone() if "health_checks" in _tables(con) \
-            else None
-        if rec and rec[0]:
-            parents = Path(rec[0]).parents
-            candidates += [parents[i] / "truth.json" for i in range(min(3, len(parents)))]
+    if truth is not None:  # given: read (an unusable file is refused, never ignored)
+        eol = load_truth(truth)
+        if actuators <= set(eol):
+            fleet.truth, fleet.truth_source = eol, str(truth)
+            return
+    # not given, or not this run's actuators: the truth beside its records, if any
+    rec = con.execute("SELECT record FROM health_checks WHERE campaign = ? LIMIT 1",
+                      [fleet.run_id]).fetchone() if "health_checks" in _tables(con) \
+        else None
+    if rec and rec[0]:
+        parents = Path(rec[0]).parents
+        candidates += [parents[i] / "truth.json" for i in range(min(3, len(parents)))]
     for path in candidates:
         if not path.is_file():
             continue
@@ -263,7 +273,7 @@ def read_identification(con) -> Identification | None:
     """Every FDI campaign with results (the augmented thesis campaign joins the thesis table
     as its ``aug_*`` columns, as in ``fdi_table.csv``); None when there is none."""
     from eha.identification.cases import parse_fdi_campaign, rows_from_results
-    from eha.reports.thesis import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
+    from eha.reports.fdi_table import AUGMENTED_CAMPAIGN, FDI_CAMPAIGN, fdi_table
 
     if "fdi_results" not in _tables(con) or not _count(con, "fdi_results"):
         return None

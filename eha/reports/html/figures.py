@@ -485,12 +485,20 @@ def _sig3(logz: np.ndarray) -> np.ndarray:
                         otypes=[object])(logz)
 
 
+def script_json(text: str) -> str:
+    """JSON text safe inside a ``<script>`` element, whatever its strings hold: ``<``, ``>``
+    and ``&`` written as ``\\u003c``, ``\\u003e``, ``\\u0026`` (the same JSON value; none
+    of them is JSON syntax outside a string), so no ``</script``, ``<!--`` or ``<script`` of
+    a record name or an actuator id can end the element or change how HTML parses it."""
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
 def figure_json(fig: dict) -> str:
-    """A figure as JSON text safe inside a ``<script>`` element (numpy arrays converted)."""
+    """A figure as JSON text safe inside a ``<script>`` element (numpy arrays converted;
+    :func:`script_json`)."""
     from plotly.io.json import to_json_plotly
 
-    text = to_json_plotly(fig) if not isinstance(fig, str) else fig
-    return text.replace("</", "<\\/")
+    return script_json(to_json_plotly(fig) if not isinstance(fig, str) else fig)
 
 
 __all__ = ["fleet_overview", "actuator_figure", "alpha_lambda_figure", "verdict_figure",

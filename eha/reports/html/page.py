@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Callable, Mapping, Sequence
 
-from eha.reports.html.figures import figure_json, template_json
+from eha.reports.html.figures import figure_json, script_json, template_json
 
 #: The page allows no request: scripts and styles are inline, images data URLs only.
 CSP = ("default-src 'none'; script-src 'unsafe-inline'; "
@@ -129,7 +129,7 @@ class Page:
         first = selected if selected in figs else keys[0]
         options = "".join(f'<option value="{esc(k)}"{" selected" if k == first else ""}>'
                           f'{esc(k)}</option>' for k in keys)
-        body = ",".join(f"{json.dumps(str(k))}:{figure_json(f)}".replace("</", "<\\/")
+        body = ",".join(f"{script_json(json.dumps(str(k)))}:{figure_json(f)}"
                         for k, f in figs.items())
         return (f'<label class="choice" for="{pid}-select">{esc(label)}</label>'
                 f'<select class="choice" id="{pid}-select" data-plot="{pid}">{options}</select>'

@@ -192,6 +192,16 @@ def _explain_state(run: dict[str, Any]) -> str:
     return "above noise" if known(beyond) and not bool(beyond) else "unexplained"
 
 
+def explain_key(run: dict[str, Any]) -> str:
+    """The one key of a residual-loop run in the report: its table row and its figure in
+    the selector (a record given with a folder, ``data/run1.csv``, is shown by its name)."""
+    return f"{_base_name(run['source'])} ({str(run['run_id'])[:6]})"
+
+
+def _base_name(source: Any) -> str:
+    return str(source).replace("\\", "/").rsplit("/", 1)[-1]
+
+
 def explain_section(page: Page, data: dict[str, Any]) -> str:
     from eha.models.units import show
 
@@ -199,7 +209,7 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
     rows = []
     for r in runs.to_dict("records"):
         verdict = r.get("verdict")
-        rows.append({"source": str(r["source"]).replace("\\", "/").rsplit("/", 1)[-1],
+        rows.append({"source": _base_name(r["source"]), "key": explain_key(r),
                      "run_id": r["run_id"], "created_at": str(r["created_at"])[:19],
                      "fit": ", ".join(r["fit"] or {}),
                      "effects": ", ".join(r["effects"] or []) or "-",
@@ -218,7 +228,7 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
             Column("noise_rmse", "noise [µm]", fmt_num(3, 1e6)),
             Column("state", "residual", tag), Column("kind", "verdict kind", text=True),
             Column("verdict", "verdict", text=True)]
-    key = lambda r: f"{r['source']} ({r['run_id'][:6]})"  # noqa: E731
+    key = explain_key
     figs = {}
     step_tables = []
     for r in runs.to_dict("records"):
@@ -243,8 +253,6 @@ def explain_section(page: Page, data: dict[str, Any]) -> str:
         step_tables.append(f"<details><summary>{esc(key(r))}: {len(srows)} steps — "
                            f"{esc(r.get('verdict') or r.get('stop_reason') or '')}</summary>"
                            f"{body}</details>")
-    for r in rows:
-        r["key"] = f"{r['source']} ({r['run_id'][:6]})"
     choice_html, pid = page.choice("Record:", figs)
     return ('<p class="note">Every eha explain run in the database: the error of the LF model '
             "with the declared faults only, then with the effects the loop added (whole "

@@ -1,0 +1,200 @@
+"""Test design (`eha design`, docs/design.md): the seven-fault design at 1 s, predicted and
+verified by simulation against library commands, and the separating designs for the foreign
+set's five ambiguities.
+
+    python benchmarks/bench_design.py --json                 # design, verify, ambiguities
+    python benchmarks/bench_design.py --design DIR --json    # reuse DIR/design.{json,csv}
+    python benchmarks/bench_design.py --loop 2 --json        # + the loop on HF records
+
+Parts:
+
+1. **Seven-fault design** (1 s, +-1 cm, 0.1 m/s, alpha 0.01, position only; with
+   ``--signals xu,p12`` also the prediction with the load pressure): predicted minimum
+   detectable sizes against chirp_1cm, mixed, test and sine; its wall time.
+2. **Verification** (``eha design verify``): a health-detection campaign on the design and the
+   ``--library`` commands with the same fleets (``--healthy`` actuators, the first
+   ``--calibration`` set the thresholds, the rest measure false alarms) and each fault at 0.5,
+   1, 2 and 4 times its predicted size (``--per-level`` actuators each): measured minimum
+   detectable sizes (P_D >= 0.95), isolation, false-alarm rate with its 95 % bound.
+3. **Ambiguities**: for each pair the foreign set's loop could not separate, a design of at
+   most 2 s at the fitted values; its predicted separable sizes against chirp_1cm's; with
+   ``--loop N``, the residual loop on N HF records per truth made on the design (each pair
+   member as the truth, at its fitted size): how often the verdict names the truth alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _results import ROOT, write_result  # noqa: E402
+
+#: The foreign set's five ambiguities (docs/explain.md, benchmarks/results/explain_foreign.json):
+#: the effect found, its rival, and their fitted deviations from off on the record.
+AMBIGUITIES = {
+    "load-offset (f01, f02)": (("external_load", 800.0), ("offset", -0.009)),
+    "bias-offset (f09)": (("sensor_bias", 2e-5), ("offset", -0.0039)),
+    "motor gain-supply pressure (f13, f25)": (("motor_gain", -0.001),
+                                              ("supply_pressure", -1.2e6)),
+    "motor gain-viscous friction (f13, f25)": (("motor_gain", -0.001),
+                                               ("viscous_friction", 5500.0)),
+    "sensor gain-hinge moment (f21)": (("sensor_gain", -0.01), ("hinge_moment", 8270.0)),
+}
+
+
+def seven_faults(args) -> tuple[dict, Path]:
+    from eha.design import Limits, design
+
+    folder = Path(args.out) / "seven"
+    if args.design:
+        folder = Path(args.design)
+        doc = json.loads((folder / "design.json").read_text())
+        return {"reused": str(folder), "design": doc}, folder
+    start = time.perf_counter()
+    result = design(limits=Limits(1.0, 0.01, 0.1), seed=args.seed,
+                    on_progress=lambda m: print(m, flush=True))
+    result.save(folder)
+    out = {"seconds": time.perf_counter() - start, "design": result.to_dict()}
+    if "p12" in args.signals:
+        with_p12 = design(limits=Limits(1.0, 0.01, 0.1), seed=args.seed,
+                          signals=("xu", "p12"))
+        with_p12.save(folder, "design-p12")
+        out["design_p12"] = with_p12.to_dict()
+    return out, folder
+
+
+def verification(args, folder: Path) -> dict:
+    from eha.design.verify import verify
+
+    start = time.perf_counter()
+    # the design on the full healthy fleet (false alarms on 200 actuators never used to
+    # calibrate); the library commands on the same seeds, levels and calibration, a smaller
+    # held-out fleet (their false alarms are not the question)
+    v = verify(folder / "design.json", library=[], healthy=args.healthy,
+               calibration=args.calibration, per_level=args.per_level,
+               results=Path(args.out) / "runs", workers=args.workers, progress=False)
+    v.save(folder / "design-verification.json")
+    out = {"seconds": time.perf_counter() - start, **v.to_dict(), "table": v.markdown()}
+    library = [c for c in args.library.split(",") if c]
+    if library:
+        lib = verify(folder / "design.json", library=library, healthy=args.library_healthy,
+                     calibration=args.calibration, per_level=args.per_level,
+                     results=Path(args.out) / "runs-lib", workers=args.workers,
+                     progress=False, with_design=False)
+        out["library"] = {**lib.to_dict(), "table": lib.markdown()}
+        out["seconds"] = time.perf_counter() - start
+    return out
+
+
+def ambiguities(args) -> dict:
+    from eha.design import Limits, design
+
+    out = {}
+    for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
+        start = time.perf_counter()
+        result = design(faults=[], separate=[(a, b)], around={a: va, b: vb},
+                        limits=Limits(2.0, 0.01, 0.1), seed=args.seed,
+                        generations=args.generations)
+        folder = Path(args.out) / "ambiguities" / label.split(" ")[0]
+        result.save(folder)
+        entry = {"pair": [a, b], "at": {a: va, b: vb}, "seconds": time.perf_counter() - start,
+                 "separable_size": result.pairs()[0], "segments": result.segments,
+                 "command": str(folder / "design.csv")}
+        if args.loop:
+            entry["loop"] = loop_verdicts(folder / "design.csv", (a, va), (b, vb), args)
+        out[label] = entry
+        print(label, json.dumps(_finite(entry["separable_size"])), flush=True)
+    return out
+
+
+def loop_verdicts(command: Path, first, second, args) -> dict:
+    """The residual loop on ``--loop`` HF records per truth on the designed command."""
+    import eha
+    from eha.explain.effects import EFFECTS
+
+    out = {}
+    for truth, rival in ((first, second), (second, first)):
+        name, dev = truth
+        param = EFFECTS[name].tested
+        calls = []
+        for k in range(args.loop):
+            value = EFFECTS[name].off[param] + dev
+            df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0, param: value},
+                                      t_end=2.0, noise=1e-6, seed=5000 + k)
+            path = Path(args.out) / "loop" / f"{name}-{k}.csv"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            df.to_csv(path, index=False)
+            res = eha.explain(eha.load(path), fit="BKL,FDJ", seed=k)
+            found = [e for e in res.effects if e not in ("orifice_law", "flapper_dynamics")]
+            rivals = [e["effect"] for e in res.not_excluded]
+            calls.append({"found": found, "rivals": rivals,
+                          "decisive_and_right": found == [name] and not rivals,
+                          "confidently_wrong": bool(found) and name not in found and not rivals,
+                          "verdict": res.verdict})
+        out[name] = {"records": calls,
+                     "decisive_and_right": sum(c["decisive_and_right"] for c in calls),
+                     "confidently_wrong": sum(c["confidently_wrong"] for c in calls)}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench-design"))
+    ap.add_argument("--design", help="reuse a design folder (design.json, design.csv)")
+    ap.add_argument("--signals", default="xu")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--library", default="chirp_1cm")
+    ap.add_argument("--healthy", type=int, default=230)
+    ap.add_argument("--calibration", type=int, default=30)
+    ap.add_argument("--per-level", type=int, default=6)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--generations", type=int, default=20, help="of each ambiguity's design")
+    ap.add_argument("--loop", type=int, default=0, help="HF records per truth and pair")
+    ap.add_argument("--skip", default="", help="parts to skip: verify, ambiguities")
+    ap.add_argument("--json", action="store_true", help="write the result file")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the result file's parts not rerun (each part has its seconds)")
+    ap.add_argument("--library-healthy", type=int, default=70,
+                    help="healthy actuators of the library commands' campaign")
+    args = ap.parse_args()
+    load = os.getloadavg()
+    doc, folder = seven_faults(args)
+    skip = set(args.skip.split(","))
+    if "verify" not in skip:
+        doc["verification"] = verification(args, folder)
+    if "ambiguities" not in skip:
+        doc["ambiguities"] = ambiguities(args)
+    doc["what"] = ("the seven-fault design at 1 s predicted and verified against library "
+                   "commands; separating designs for the foreign ambiguities")
+    print(json.dumps({k: v for k, v in doc.items() if k != "design"}, indent=1,
+                     default=lambda v: None if isinstance(v, float) and math.isinf(v) else str(v))
+          [:4000])
+    if args.json:
+        from _results import result_path
+
+        if args.merge and result_path("bench_design").exists():
+            old = json.loads(result_path("bench_design").read_text())
+            old.pop("provenance", None)
+            doc = {**old, **doc}
+        write_result("bench_design", _finite(doc), load_start=load)
+
+
+def _finite(value):
+    """``value`` with every infinite number as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+if __name__ == "__main__":
+    main()

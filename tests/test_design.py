@@ -1,0 +1,164 @@
+"""Test design (eha.design, `eha design`): the family within its limits, the prediction against
+analytic facts, the search end to end, the verification's statistics, bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from helpers import error_line, files_under, invoke_eha
+from eha.design import DesignError, Limits, design
+from eha.design.family import at_rest_at_the_end, command_samples, genes, n_genes
+from eha.design.predict import predict
+from eha.design.targets import from_explain, resolve_targets
+from eha.design.verify import levels_around, measured, upper_bound
+from eha.models.commands import array_command, load_command_file, make_command
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_every_family_member_respects_the_limits_and_starts_at_rest(seed):
+    limits = Limits(duration=0.8, max_stroke=4e-3, max_rate=0.05, max_freq=15.0)
+    x = np.random.default_rng(seed).random(n_genes())
+    t, com = command_samples(x, limits)
+    assert t[0] == 0.0 and t[-1] == pytest.approx(0.8) and com[0] == 0.0
+    assert np.max(np.abs(com)) <= 4e-3 + 1e-15
+    assert np.max(np.abs(np.diff(com))) / 1e-3 <= 0.05 * (1 + 1e-9)
+    if at_rest_at_the_end(com, limits):
+        assert abs(com[-1]) < 1e-9
+
+
+def test_a_family_member_copies_a_slow_chirp():
+    """One chirp segment filling the test: the segments left out take no time."""
+    limits = Limits()
+    t, com = command_samples(genes([{"shape": "chirp", "share": 1.0, "amplitude": 1.0,
+                                     "frequency": 1.5}], limits), limits)
+    assert np.max(np.abs(com)) == pytest.approx(0.01, rel=0.02)
+    assert at_rest_at_the_end(com, limits)
+    assert np.count_nonzero(np.abs(com[:900]) > 5e-3) > 100
+
+
+def test_prediction_facts():
+    """(a) the sensor noise: where it dominates (100 µm, far above the healthy scatter's and
+    the model form's few µm) a target needs twice the size at twice the noise, within 5 %; at
+    1 µm the offset on chirp_1cm is limited by the healthy fleet's scatter instead (twice the
+    noise, less than 30 % more); (b) a command that holds
+    still shows no backlash (no reversal: no signature, infinite size); (c) the 5 Hz sine
+    saturates the jack's rate: the check's LF cannot follow it (its measured campaign detects
+    nothing), the slow chirp it can."""
+    targets = resolve_targets(["Ofs", "BKL"])
+    chirp = make_command("chirp_1cm")
+    loud = predict(chirp, targets, 1.0, noise={"xu": 1e-4}, n_actuators=1)
+    louder = predict(chirp, targets, 1.0, noise={"xu": 2e-4}, n_actuators=1)
+    assert louder.mds["Ofs"] / loud.mds["Ofs"] == pytest.approx(2.0, rel=0.05)
+    one = predict(chirp, targets, 1.0, noise={"xu": 1e-6}, n_actuators=1)
+    two = predict(chirp, targets, 1.0, noise={"xu": 2e-6}, n_actuators=1)
+    assert 1.0 < two.mds["Ofs"] / one.mds["Ofs"] < 1.3
+    still = array_command(np.array([0.0, 1.0]), np.array([0.0, 0.0]), "still")
+    assert math.isinf(predict(still, targets, 1.0, n_actuators=1).mds["BKL"])
+    assert one.followed and not predict(make_command("sine"), targets, 1.0,
+                                        n_actuators=1).followed
+    assert set(one.separable) == {"Ofs", "BKL"} and one.separable["Ofs"]["BKL"] > 0
+
+
+def test_a_design_end_to_end_writes_a_command_that_runs(tmp_path):
+    """A short search on two targets: the command file loads as a command within the limits,
+    the JSON has every target's prediction next to the library's, the PNG exists; the same
+    seed gives the same command."""
+    limits = Limits(duration=0.5, max_stroke=5e-3)
+    kw = dict(faults=["BKL", "Ofs"], limits=limits, seed=3, population=6, generations=2,
+              actuators=1)
+    result = design(**kw)
+    paths = result.save(tmp_path, "d")
+    cmd = load_command_file(str(paths["command"]))
+    assert np.max(np.abs(cmd.samples[1])) <= 5e-3 + 1e-12
+    doc = json.loads(paths["json"].read_text())
+    assert set(doc["targets"]) == {"BKL", "Ofs"}
+    assert set(doc["targets"]["Ofs"]["library"]) == {"chirp_1cm", "mixed", "test", "sine"}
+    assert doc["settings"]["max_stroke"] == 5e-3 and paths["png"].stat().st_size > 10_000
+    assert np.array_equal(design(**kw).com, result.com)
+    assert len(result.to_pandas()) == 2
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--duration", "0"], "--duration 0.0: allowed range [0.2, 10] s"),
+    (["--max-stroke", "0"], "--max-stroke 0.0: allowed range [0.0001, 0.2] m"),
+    (["--faults", "BKX"], "--faults: 'BKX' is not a health fault"),
+    (["--separate", "offset,offset"], "--separate: 'offset,offset' must be two different"),
+    (["--separate", "offset"], "--separate: 'offset' must be two different"),
+    (["--effects", "orifice_law"], "effect 'orifice_law': structure of the LF model"),
+    (["--signals", "xs"], "--signals: 'xs'; allowed xu, p12, cor"),
+    (["--sampling", "300"], "--sampling 300.0: allowed a divisor of 1000 Hz"),
+    (["--alpha", "0.7"], "--alpha 0.7: allowed range (0, 0.5)"),
+])
+def test_bad_design_input_is_one_line_exit_2_nothing_written(tmp_path, args, message):
+    out = tmp_path / "out"
+    proc = invoke_eha("design", *args, "--out", out)
+    assert message in error_line(proc, 2)
+    assert not out.exists() or files_under(out) == []
+
+
+def test_around_reads_the_rivals_of_an_explain_json():
+    doc = {"steps": [{"effect": "orifice_law", "params": {}},
+                     {"effect": "external_load", "params": {"FRC": 829.0}}],
+           "not_excluded": [{"effect": "offset", "param": "Ofs", "value": -0.009, "unit": "mA"}]}
+    pairs, around = from_explain(doc)
+    assert pairs == [("external_load", "offset")]
+    assert around == {"external_load": 829.0, "offset": -0.009}
+    with pytest.raises(DesignError, match="no rival"):
+        from_explain({"steps": [], "not_excluded": []})
+
+
+def test_verification_statistics_on_canned_assessments():
+    """Thresholds from the first 10 healthy seeds only; false alarms counted on the 40 others
+    with the Clopper-Pearson bound; the measured detectable size is the smallest level with
+    P_D >= 0.95; isolation counts the declared fault."""
+    from eha.models.faults import FAULTS
+
+    rng = np.random.default_rng(1)
+
+    def row(seed, grp="healthy", ofs=0.0, weight=0.0):
+        means = {n: FAULTS[n].healthy for n in FAULTS}
+        means["Ofs"] = ofs + rng.normal(0, 0.001)
+        return {"command": "c", "grp": grp, "seed": seed, "means": means,
+                "spread": {n: 0.0 for n in FAULTS}, "weights": {"Ofs": weight, "none": 1 - weight}}
+
+    rows = [row(s) for s in range(50)]
+    rows += [row(100 + s, "Ofs=0.002", 0.002, 0.9) for s in range(10)]
+    rows += [row(200 + s, "Ofs=0.02", 0.02, 0.9) for s in range(10)]
+    m = measured(rows, 10, 0.01)["c"]
+    assert m["calibration_actuators"] == 10 and m["false_alarms"]["n"] == 40
+    assert m["false_alarms"]["upper_95"] == pytest.approx(
+        upper_bound(m["false_alarms"]["alarms"], 40))
+    levels = m["faults"]["Ofs"]["levels"]
+    assert [e["deviation"] for e in levels] == pytest.approx([0.002, 0.02])
+    assert m["faults"]["Ofs"]["min_detectable"] == pytest.approx(0.02)
+    assert levels[1]["isolated"] == 1.0
+    assert upper_bound(0, 200) == pytest.approx(1 - 0.05 ** (1 / 200), rel=1e-6)
+
+
+def test_levels_around_the_prediction_stay_inside_the_bounds():
+    lv = levels_around({"GM": 0.001, "Clk": math.inf, "BKL": 1e-3})
+    assert lv["GM"] == pytest.approx([0.006, 0.008, 0.009, 0.0095])
+    assert lv["Clk"] == [5e-13, 1.5e-12, 4e-12]            # undetectable: campaign levels
+    assert max(lv["BKL"]) == 1.25e-3
+
+
+def test_an_undecided_explain_answer_names_the_test_that_decides_it(tmp_path):
+    """`eha explain` with rivals it cannot rule out prints the `eha design --around` line
+    (and its --json carries it, eha/explain/outputs.py); without rivals, nothing."""
+    from types import SimpleNamespace
+
+    from eha.cli.explain import _next_test
+    from eha.cli.guard import console
+
+    res = SimpleNamespace(not_excluded=[{"effect": "offset", "param": "Ofs", "value": -0.009,
+                                         "unit": "mA"}])
+    with console.capture() as cap:
+        _next_test(res, tmp_path / "out.json")
+        _next_test(SimpleNamespace(not_excluded=[]), tmp_path / "out.json")
+    text = " ".join(cap.get().split())
+    assert "offset (Ofs -0.009 mA)" in text
+    assert f"eha design --faults none --around {tmp_path / 'out.json'}" in text.replace("\n", "")
