@@ -123,8 +123,9 @@ def _work_record(results: Path, summaries) -> list[dict]:
             old = record[s.campaign] = {"done": s.done, "failed": s.failed,
                                         "wall_s": s.wall_s, "at": now}
         out.append(old)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(record, indent=1), encoding="utf-8")
+    from eha.outputs import write_json
+
+    write_json(path, record, indent=1)
     return out
 
 
