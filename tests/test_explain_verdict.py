@@ -150,3 +150,12 @@ def test_the_report_names_the_absent_sections_and_the_error_sign(tmp_path):
     src = inspect.getsource(sections.identification_section)
     assert "Error = (in − out) / in × 100" in src
     assert src.index('"thesis_mean_err_pct", "thesis mean err') < src.index('f"{ln}_in"')
+
+
+def test_an_effect_of_two_parameters_names_each_in_its_unit():
+    r = result(1.0e-6, unexplained=False, beyond=False,
+               params=LFParams().replace(PSR=1.71e7, XSSK=0.0, orifice_law=1.0),
+               steps=[step("orifice_law"), step("supply_pressure", {"PSR": 1.8e7, "XSSK": 0})],
+               intervals={"PSR": (1.68e7, 1.74e7), "XSSK": (0.0, 0.1)})
+    assert r.verdict.startswith("explained: found supply pressure PSR 17.1 MPa [16.8, 17.4], "
+                                "XSSK 0 [0, 0.1] (90 %); residual 1 µm"), r.verdict
