@@ -84,7 +84,7 @@ def verification(args, folder: Path) -> dict:
     library = [c for c in args.library.split(",") if c]
     if library:
         lib = verify(folder / "design.json", library=library, healthy=args.library_healthy,
-                     calibration=args.calibration, per_level=args.per_level,
+                     calibration=args.calibration, per_level=args.library_per_level,
                      results=Path(args.out) / "runs-lib", workers=args.workers,
                      progress=False, with_design=False)
         out["library"] = {**lib.to_dict(), "table": lib.markdown()}
@@ -162,6 +162,8 @@ def main() -> None:
                     help="keep the result file's parts not rerun (each part has its seconds)")
     ap.add_argument("--library-healthy", type=int, default=70,
                     help="healthy actuators of the library commands' campaign")
+    ap.add_argument("--library-per-level", type=int, default=5,
+                    help="actuators per fault level of the library commands' campaign")
     args = ap.parse_args()
     load = os.getloadavg()
     doc, folder = seven_faults(args)
