@@ -168,7 +168,8 @@ def _show(result) -> None:
         lib, ref = best[t.name]
         size = result.prediction.mds[t.name]
         shown = t.shown(size) if result.prediction.detectable(t) else "not detectable"
-        table.add_row(t.name, shown, f"{t.shown(ref)} ({lib})", f"{result.ratio(t.name):.2f}")
+        on_library = f"{t.shown(ref)} ({lib})" if ref < t.limit else "not detectable"
+        table.add_row(t.name, shown, on_library, f"{result.ratio(t.name):.2f}")
     console.print(table)
     for t in result.targets:
         if not result.prediction.detectable(t):

@@ -79,6 +79,8 @@ class DesignResult:
         size = self.prediction.mds[target.name]
         if self.prediction.detectable(target):
             lib, ref = self.best_library()[target.name]
+            if ref >= target.limit:
+                return f"detectable from {target.shown(size)}; no library command shows it"
             return (f"detectable from {target.shown(size)} ({size / ref:.2f}x the best library "
                     f"command's, {lib})")
         alt = self.alternatives.get(target.name, {})
