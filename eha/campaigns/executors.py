@@ -16,7 +16,7 @@ import socket
 import time
 from typing import Any, Callable, Iterable, Iterator
 
-from eha.campaigns.malloc import MALLOC_MMAP_THRESHOLD, MALLOC_TRIM_THRESHOLD, tune_malloc
+from eha.campaigns.malloc import tune_malloc
 
 #: Numba threads per worker process (one process per core already).
 WORKER_NUMBA_THREADS = 1

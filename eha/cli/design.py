@@ -7,7 +7,6 @@ The design stack (numba kernels, pymoo) is imported inside the commands.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import List, Optional
 

@@ -105,7 +105,7 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
 
     check_out_dir(results, "--results")
     out = reproduce_thesis(results, workers=workers, on_phase=lambda message: err_console.print(
-        f"{escape(message)} ...", highlight=False))
+        f"{message} ...", highlight=False, markup=False))
     _render_reproduce(out, results)
 
 

@@ -19,8 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-import numpy as np
-
 from eha.design.family import DesignError
 from eha.health.detection import calibrate_thresholds, isolate_row, statistic
 from eha.health.monitoring import _assessments
