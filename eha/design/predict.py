@@ -1,27 +1,29 @@
 """Predicted detectability and separability of targets on one command (docs/design.md).
 
-For each target ``f`` the signature ``s_f`` is the change of the recorded signals per unit of
+For each target ``f`` the *truth* ``s_f`` is the change of the recorded signals per unit of
 the parameter (an HF secant from a healthy actuator, the same dither on both runs), whitened by
-each signal's sensor noise. The check fits ``f`` together with its nuisance parameters ``N``
-(the core faults; for an effect also the flow gain); by Frisch-Waugh its least-squares estimate
-moves along ``v = (I - P_N) s_f`` and
+each signal's sensor noise. The check fits the LF model's column of ``f`` together with its
+nuisance parameters ``N`` (the core faults, and for a core fault the bank's best-fitting
+one-more-fault hypothesis; for an effect also the flow gain); by Frisch-Waugh its
+least-squares estimate moves along ``v = (I - P_N) c_f`` (``c_f`` the LF column) and
 
-    estimate error = u'(e + d) / |v|,   u = v / |v|,
+    estimate error = u'(e + d) / |v|,   u = v / |v|,   gain = u' s_f / |v|,
 
 with ``e`` the white sensor noise (unit variance once whitened) and ``d`` a healthy actuator's
 departure from nominal: manufacturing scatter (a secant column per scattered parameter times
-its std, :func:`eha.identification.healthy.DISPERSION`) and the dither (two reruns with other
-seeds). The healthy spread of the estimate is ``sigma = sqrt(1 + sum (u'g)^2 + mean (u'd)^2) /
-|v|``, the OLS (sandwich) variance of the estimator the check really runs, not the Fisher bound
-of an ideal one. With the health check's union bound the minimum detectable size at
-``P_D`` is
+its std, :data:`eha.identification.healthy.DISPERSION`), the dither (two reruns with other
+seeds) and the check's LF model-form error (its mean square times its correlation time). The
+healthy spread of the estimate is ``sigma = sqrt(1 + model form + sum (u'd)^2) / |v|``, the
+OLS (sandwich) variance of the estimator the check really runs, not the Fisher bound of an
+ideal one. With the health check's union bound and the check's own model-form floor, the
+minimum detectable size at ``P_D`` is
 
-    MDS_f = (z(1 - alpha/m) + z(P_D)) * sigma.
+    MDS_f = (z(1 - alpha/m) * sqrt(sigma^2 + floor^2) + z(P_D) * sigma) / gain.
 
-Telling ``f`` from a rival ``g`` is the same computation with ``g`` among the nuisances: the
-part of ``f``'s signature that ``g``'s best refit cannot mimic, ``(I - P_{N+g}) s_f``; the size
-of ``f`` at which that part stands out at 97.5 % / P_D is its *separable size*, reported as a
-multiple of MDS_f (<= 2: told apart at twice the detectable size).
+Telling ``f`` from a rival ``g``: on ``f``'s truth, the residual ``g``'s best refit leaves
+beyond ``f``'s own; the size of ``f`` at which it stands out by the same margin is its
+*separable size* (kept absolute, and as a multiple of MDS_f: <= 2 told apart at twice the
+detectable size).
 
 Robust to the actuator's own scatter: every number is the worst over the design's actuators
 (the nominal one and scattered ones).
@@ -48,8 +50,6 @@ from eha.models.simulate import simulate_hf_batch, simulate_lf_rows
 
 #: Probability of detection the minimum detectable size is stated at.
 P_DETECT = 0.95
-#: Error level of telling two hypotheses apart (one-sided).
-ALPHA_SEPARATE = 0.025
 #: Seeds of the design's scattered actuators (apart from the fleets' seeds 0..1e6 that
 #: calibrations and verifications draw).
 DESIGN_SEED0 = 1_000_000
@@ -373,5 +373,4 @@ def _separable(truth: np.ndarray, own, rival, spread, model_form, c: float) -> f
     return c * math.sqrt(var) / math.sqrt(excess)
 
 
-__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT",
-           "ALPHA_SEPARATE"]
+__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT"]
