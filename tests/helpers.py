@@ -75,6 +75,20 @@ def write_campaign(folder: Path, text: str, name: str = "campaign.toml") -> Path
     return path
 
 
+def small_campaign(folder: Path, t_end: float = 0.05) -> Path:
+    """``folder/small.toml``: 6 nominal runs (HF and LF on step_1mm, 3 seeds) of ``t_end`` s,
+    the smallest real campaign a test of the store and its readers needs."""
+    return write_campaign(folder, textwrap.dedent(f"""
+        name = "small"
+        models = ["hf", "lf"]
+        commands = ["step_1mm"]
+        seeds = [0, 1, 2]
+        t_end = {t_end}
+        [faults]
+        nominal = true
+    """), "small.toml")
+
+
 def close(actual, expected, rel: float = 1e-9, abs: float = 0.0, what: str = "") -> None:
     """Assert ``|actual - expected| <= abs + rel*|expected|`` element-wise."""
     np.testing.assert_allclose(np.asarray(actual, dtype=float),

@@ -10,29 +10,18 @@ import shutil
 import signal
 import subprocess
 import sys
-import textwrap
 
 import pytest
-from helpers import Inline, error_line, invoke_eha
+from helpers import Inline, error_line, invoke_eha, small_campaign
 
 import report_data
 from eha.campaigns.runner import run_campaign
-
-SMALL = textwrap.dedent("""
-    name = "small"
-    models = ["hf", "lf"]
-    commands = ["step_1mm"]
-    seeds = [0, 1, 2]
-    t_end = 0.05
-    [faults]
-    nominal = true
-""")
 
 
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory):
     root = tmp_path_factory.mktemp("codes")
-    (root / "small.toml").write_text(SMALL)
+    small_campaign(root, 0.05)
     assert run_campaign(root / "small.toml", root / "results", executor=Inline(),
                         progress=False).failed == 0
     report_data.build(root / "report")

@@ -6,29 +6,18 @@ every file of both results folders as it was."""
 from __future__ import annotations
 
 import shutil
-import textwrap
 
 import pytest
-from helpers import Inline, error_line, invoke_eha
+from helpers import Inline, error_line, invoke_eha, small_campaign
 
 from eha.campaigns.query import QueryRefused, _connect_guarded, check_read_only, query
 from eha.campaigns.runner import run_campaign
-
-SMALL = textwrap.dedent("""
-    name = "small"
-    models = ["hf", "lf"]
-    commands = ["step_1mm"]
-    seeds = [0, 1, 2]
-    t_end = 0.02
-    [faults]
-    nominal = true
-""")
 
 
 @pytest.fixture(scope="module")
 def two(tmp_path_factory):
     root = tmp_path_factory.mktemp("guard")
-    (root / "small.toml").write_text(SMALL)
+    small_campaign(root, 0.02)
     s = run_campaign(root / "small.toml", root / "a", executor=Inline(), progress=False)
     assert s.failed == 0
     shutil.copytree(root / "a", root / "b")
