@@ -33,7 +33,7 @@ def test_a_user_header_is_refused_without_columns_and_loads_with_them(tmp_path):
     path = _record(tmp_path / "rec.csv")
     with pytest.raises(MeasuredDataError) as err:
         load(path)
-    assert any("column com: missing" in line and "--columns com=HEADER" in line
+    assert any("column com: missing" in line and "`columns` com=HEADER" in line
                for line in err.value.lines())
     rec = load(path, columns=COLUMNS)          # the _mm suffix is the unit
     assert rec.com.max() == pytest.approx(2e-3, rel=1e-3)
@@ -44,7 +44,7 @@ def test_a_user_header_is_refused_without_columns_and_loads_with_them(tmp_path):
 
 def test_units_apply_to_length_columns_without_a_unit_of_their_own(tmp_path):
     path = _record(tmp_path / "rec.csv", {"t": "t", "com": "cmd", "xu": "pos"})
-    with pytest.raises(MeasuredDataError, match="millimetres.*--units mm"):
+    with pytest.raises(MeasuredDataError, match="millimetres.*`units` mm"):
         load(path)
     rec = load(path, units="mm")
     assert rec.xu.max() == pytest.approx(0.98 * 2e-3, rel=1e-3)
@@ -63,12 +63,12 @@ def test_columns_map_any_header_and_leave_the_others_to_the_aliases(tmp_path):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"columns": "pos=position_mm"}, "--columns pos=position_mm: unknown signal 'pos'"),
-    ({"columns": "com=command_mm,xu=nope"}, "--columns xu=nope: no column 'nope' in the file"),
-    ({"columns": "com"}, "--columns com=: no header"),
+    ({"columns": "pos=position_mm"}, "`columns` pos=position_mm: unknown signal 'pos'"),
+    ({"columns": "com=command_mm,xu=nope"}, "`columns` xu=nope: no column 'nope' in the file"),
+    ({"columns": "com"}, "`columns` com=: no header"),
     ({"columns": "com=command_mm,com=position_mm"}, "com given twice"),
     ({"columns": "com=command_mm,xu=command_mm"}, "header 'command_mm' given for two signals"),
-    ({"units": "inch"}, "--units 'inch': allowed m, mm, um"),
+    ({"units": "inch"}, "`units` 'inch': allowed m, mm, um"),
 ])
 def test_bad_columns_or_units_are_one_line_naming_the_option(tmp_path, kwargs, message):
     path = _record(tmp_path / "rec.csv")
@@ -160,8 +160,8 @@ def test_loop_settings_are_checked_in_one_place():
 
     with pytest.raises(ExplainError) as err:
         LoopSettings(min_gain=float("nan"), alpha=1.5)
-    assert err.value.lines() == ["--min-gain nan: allowed range [0, 1]",
-                                 "--alpha 1.5: allowed range (0, 1)"]
+    assert err.value.lines() == ["`min_gain` nan: allowed range [0, 1]",
+                                 "`alpha` 1.5: allowed range (0, 1)"]
     assert LoopSettings().problems() == []
 
 

@@ -213,7 +213,7 @@ def test_p12_weight_measures_each_signal_in_its_noise():
     assert w == pytest.approx(2.0 * 1e-6 / sigma)
     # a noise-free position: nothing to weigh P12 against
     assert p12_objective_weight(0.0, smooth)[0] == 0.0
-    with pytest.raises(ExplainError, match="p12-weight"):
+    with pytest.raises(ExplainError, match="`p12_weight`"):
         LoopSettings(p12_weight=-1.0)
 
 
@@ -345,9 +345,9 @@ def test_max_steps_holds_when_a_combination_wins(tmp_path):
 @pytest.mark.slow
 def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
     data = load(_record(tmp_path, "nominal", "mixed", 0.3))
-    with pytest.raises(ExplainError, match="--set BKL: also a fitted fault"):
+    with pytest.raises(ExplainError, match="`fixed` BKL: also a fitted fault"):
         explain(data, fixed=["BKL"], **FAST)
-    with pytest.raises(ExplainError, match="--set XJ0"):
+    with pytest.raises(ExplainError, match="`fixed` XJ0"):
         explain(data, fixed=["XJ0"], **FAST)
     # FRC held at 0 (its off value): external_load must still not be a candidate
     res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
@@ -747,7 +747,7 @@ def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off
         (0.1, 0.3)
     wide = ResidualLoop(data, base=LFParams(GQ=0.25), settings=LoopSettings(flow_gain_spread=0.2))
     assert wide.bounds["GQ"] == (0.2, 0.3)
-    with pytest.raises(ExplainError, match=r"--flow-gain-spread 0.6: allowed range \[0, 0.5\]"):
+    with pytest.raises(ExplainError, match=r"`flow_gain_spread` 0.6: allowed range \[0, 0.5\]"):
         LoopSettings(flow_gain_spread=0.6)
     result = CliRunner().invoke(app, ["explain", str(tmp_path / "lf_test.csv"),
                                       "--flow-gain-spread", "-1", "--no-progress"])

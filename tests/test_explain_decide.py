@@ -231,9 +231,9 @@ def test_an_unstable_run_without_the_effect_keeps_it():
 
 
 def test_the_loop_refits_with_a_global_method():
-    with pytest.raises(ExplainError, match="--method lm"):
+    with pytest.raises(ExplainError, match="`method` lm"):
         LoopSettings(method="lm")
-    with pytest.raises(ExplainError, match="--method ps"):
+    with pytest.raises(ExplainError, match="`method` ps"):
         LoopSettings(method="ps")
 
 

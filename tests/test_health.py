@@ -140,8 +140,8 @@ def test_calibration_fleet_size_is_checked_by_the_library_before_anything_runs(t
     with pytest.raises(DetectionError) as err:
         calibrate_fleet(actuators=3, alpha=1.5, results=tmp_path / "res", t_end=0.3)
     assert err.value.problems == [
-        "--actuators 3: allowed range [5, 10000] (a threshold needs at least 5 healthy "
-        "actuators)", "--alpha 1.5: allowed range (0, 1)"]
+        "`actuators` 3: allowed range [5, 10000] (a threshold needs at least 5 healthy "
+        "actuators)", "`alpha` 1.5: allowed range (0, 1)"]
     for n in ("4", "10001"):
         proc = invoke_eha("health", "calibrate", "--actuators", n, "--results",
                           tmp_path / "res", "--no-progress")
@@ -178,7 +178,7 @@ def test_the_level_is_checked_by_the_library_before_any_file_is_read(tmp_path):
             check_record(tmp_path / "none.csv", tmp_path / "none.json", level=level,
                          results=tmp_path / "res")
         assert isinstance(err.value, InputError) and err.value.exit_code == 2
-        assert err.value.problems == [f"--level {level!r}: allowed range (0, 1), e.g. 0.9"]
+        assert err.value.problems == [f"`level` {level!r}: allowed range (0, 1), e.g. 0.9"]
     assert not files_under(tmp_path)
 
 

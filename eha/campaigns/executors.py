@@ -249,14 +249,14 @@ class DaskExecutor(Executor):
         try:
             from distributed import Client
         except ImportError:  # pragma: no cover - depends on the install
-            raise RuntimeError("--scheduler needs Dask: pip install 'eha[dask]'") from None
+            raise RuntimeError("`scheduler` needs Dask: pip install 'eha[dask]'") from None
         if isinstance(scheduler, Client):
             self.client, self._own = scheduler, False
         else:
             try:
                 self.client, self._own = Client(scheduler, timeout="10s"), True
             except (OSError, TimeoutError, ValueError, TypeError) as exc:
-                raise RuntimeError(f"--scheduler {scheduler}: cannot connect "
+                raise RuntimeError(f"`scheduler` {scheduler}: cannot connect "
                                    f"({type(exc).__name__}: {exc})") from None
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info()["workers"].values()))
@@ -300,7 +300,7 @@ def check_scheduler(address: str) -> str:
     ok = re.fullmatch(r"(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
                       r":(\d{1,5})", address.strip())
     if not ok or not 0 < int(ok.group(1)) < 65536:
-        raise InputError(f"--scheduler {address!r}: not a scheduler address; expected "
+        raise InputError(f"`scheduler` {address!r}: not a scheduler address; expected "
                          "tcp://HOST:PORT (PORT in [1, 65535])")
     return address
 

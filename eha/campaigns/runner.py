@@ -134,7 +134,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
                     f"campaign {camp.name!r} in {db.results / 'eha.duckdb'} was recorded from a "
                     f"different definition (file edited or model version changed: "
                     f"{len(recorded)} recorded runs, {len(camp.jobs)} planned, {common} in "
-                    "common); give it a new name, or pass --replace to discard the recorded runs")
+                    "common); give it a new name, or pass `replace` to discard the recorded runs")
             # Runs of the new definition already recorded are the same runs (same key): kept.
             summary.changed = True
             summary.replaced = db.discard_runs(camp.name, {j.run_key for j in camp.jobs})

@@ -132,7 +132,7 @@ def connect(results: str | Path, read_only: bool = False):
         if match:
             raise StoreError(f"{path} is locked by another process (PID {match.group(2)}, "
                              f"{Path(match.group(1)).name}), probably a running campaign; "
-                             "wait for it to finish or use another --results folder") from None
+                             "wait for it to finish or use another `results` folder") from None
         first = str(exc).splitlines()[0]
         if _damaged(first):
             raise DatabaseDamaged(f"{path}: {first}; the file is damaged: move it away and run "

@@ -15,7 +15,7 @@ from typing import List, Optional
 import typer
 from rich.table import Table
 
-from eha.cli.guard import console, err_console, fail
+from eha.cli.guard import console, err_console, fail, keywords_as
 from eha.cli import defaults
 from eha.cli.options import (COMMAND_HOLD, RESULTS, ColumnsOption, CommandHoldOption,
                              ResultsOption, UnitsOption, check_out_dir, check_out_file,
@@ -76,6 +76,7 @@ NULL_ACTUATORS = typer.Option(
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress display.")
 
 
+@keywords_as(fixed="--set", null="--healthy")
 def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             holdout: Optional[float] = HOLDOUT, validate: Optional[Path] = VALIDATE,
             prior: Optional[Path] = PRIOR, known: List[str] = KNOWN,

@@ -10,10 +10,11 @@ traceback reaches a user (docs/reliability.md).
 from __future__ import annotations
 
 import os
+import re
 import signal
 import sys
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Callable, Iterator
 
 import typer
 from rich.console import Console
@@ -57,7 +58,60 @@ _INTERRUPTED_LINE = "interrupted (Ctrl-C); outputs are written only when complet
 
 __all__ = ["BAD_INPUT", "FAILURE", "TERMINATED", "INTERRUPTED", "PIPE_CLOSED", "GuardedGroup", "Terminated",
            "console", "err_console", "error_line", "fail", "fail_lines", "warn", "resumable",
-           "discard_stdout", "stdout_failed"]
+           "discard_stdout", "stdout_failed", "keywords_as", "as_flags"]
+
+#: How the library names one of its keyword arguments in an error or a note: in backticks
+#: (`holdout`). The command line shows the flag that sets it (``--holdout``): see
+#: :func:`as_flags`.
+KEYWORD = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+
+
+def keywords_as(**flags: str) -> Callable:
+    """Declare, on a command function, the flags of library keywords that its options do not
+    name alike: ``@keywords_as(fixed="--set", null="--healthy")`` (the library's ``fixed`` is
+    this command's ``--set``). Options named as the keyword (``holdout`` -> ``--holdout``)
+    need no declaration."""
+    def mark(function: Callable) -> Callable:
+        function.keyword_flags = dict(flags)
+        return function
+    return mark
+
+
+def _command_flags(command) -> dict[str, str]:
+    """``{keyword: flag}`` of one command: its options' names, then its declared aliases."""
+    flags = {}
+    for param in getattr(command, "params", ()):
+        longs = [o for o in getattr(param, "opts", ()) if o.startswith("--")]
+        if longs and param.name:
+            flags[param.name] = longs[0]
+    callback = getattr(command, "callback", None)
+    flags.update(getattr(getattr(callback, "__wrapped__", callback), "keyword_flags", {}))
+    return flags
+
+
+def _leaf_command(group, args: list[str]):
+    """The command a command line runs: down the groups by the first word that names a
+    subcommand (``eha health check ...`` -> ``check``)."""
+    command = group
+    for word in args:
+        commands = getattr(command, "commands", None)
+        if commands is None:
+            break
+        if word.startswith("-"):
+            continue
+        if word not in commands:
+            break
+        command = commands[word]
+    return command
+
+
+def as_flags(message: str) -> str:
+    """A library text as the command line says it: each backticked keyword of the running
+    command becomes its flag (`holdout` -> --holdout); other backticked words stay as they
+    are."""
+    flags = STATE.get("flags") or {}
+    return KEYWORD.sub(lambda m: flags.get(m.group(1), m.group(0)), message)
+
 
 
 class Terminated(KeyboardInterrupt):
@@ -127,13 +181,14 @@ def _report_known(exc: Exception, args=None) -> int | None:
 
 def error_line(message: str) -> None:
     """``error: message`` on stderr, as text (escaped: "[fdi]", "[0, 0.1] m" are not markup)."""
-    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
+    err_console.print(f"[bold red]error:[/] {escape(as_flags(message))}", highlight=False,
                       soft_wrap=True)
 
 
 def warn(message: str, prefix: str = "warning") -> None:
     """``warning: message`` (or another ``prefix``) on stderr, as text."""
-    err_console.print(f"{prefix}: {escape(message)}", highlight=False, soft_wrap=True)
+    err_console.print(f"{prefix}: {escape(as_flags(message))}", highlight=False,
+                      soft_wrap=True)
 
 
 def fail(message: str, code: int = BAD_INPUT) -> None:
@@ -278,6 +333,9 @@ class GuardedGroup(TyperGroup):
                                 standalone_mode=False, **extra)
         _RECEIVED.clear()  # a new command line (in-process callers run several)
         STATE.pop("pipe_closed", None)
+        # the running command's flags, for the library's keywords in its errors (as_flags)
+        STATE["flags"] = _command_flags(_leaf_command(self, list(
+            sys.argv[1:] if args is None else args)))
         previous = _handle_signals()  # from here on: parsing reads defaults from the library
         try:
             rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,

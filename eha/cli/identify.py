@@ -85,9 +85,9 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
             status.update(f"identifying ({method}): generation {gen}, best "
                           f"{objective} {1e6 * best:.4g} µm")
 
-        run = identify_source(command=command, faults=parse_assignments(set_), data=record,
+        run = identify_source(command=command, faults=parse_assignments(set_, "--set"), data=record,
                               fit=split_names(fit), bounds=parse_bounds(bounds),
-                              base=parse_assignments(base), method=method, pop=pop, seed=seed,
+                              base=parse_assignments(base, "--base"), method=method, pop=pop, seed=seed,
                               objective=objective, t_end=t_end, on_generation=progress,
                               level=level, base_model=base_model, command_hold=command_hold)
     _render(run)

@@ -40,7 +40,7 @@ def simulate(
     check_out_file(out, "--out")
     check_out_file(plot, "--plot", PLOT_SUFFIXES)
     check_seed(seed)
-    trace = run(model, command, parse_assignments(set_), t_end=t_end, seed=seed)
+    trace = run(model, command, parse_assignments(set_, "--set"), t_end=t_end, seed=seed)
     from eha.campaigns.traces import write_trace
 
     write_trace(trace, out)

@@ -14,7 +14,7 @@ from typing import List, Optional
 import typer
 from rich.table import Table
 
-from eha.cli.guard import console, resumable, warn
+from eha.cli.guard import console, keywords_as, resumable, warn
 from eha.cli import defaults
 from eha.cli.options import (RESULTS, WORKERS, ColumnsOption, ResultsOption, UnitsOption,
                              WorkersOption, check_out_dir, check_out_file, check_seed,
@@ -82,6 +82,7 @@ RUL_LIMIT_ERROR = typer.Option(None, "--limit-error", help="Relative std of the 
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress bar.")
 
 
+@keywords_as(limits="--limit")
 def rul(
     manifest: Path = RUL_MANIFEST,
     limit: List[str] = RUL_LIMIT,
@@ -161,6 +162,7 @@ def _render_rul(res, results: Path) -> None:
         warn(line, "failed")
 
 
+@keywords_as(requirement="--require")
 def limits(
     fault: str = typer.Option(..., "--fault", help="HF fault parameter, e.g. FDJ or BKL."),
     require: str = typer.Option(..., "--require", help="Failure condition METRIC(COMMAND) "
@@ -183,7 +185,7 @@ def limits(
 
     check_out_file(json_out, "--json", (".json",))
     check_seed(seed)
-    res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_), tol=tol,
+    res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_, "--set"), tol=tol,
                        seed=seed, t_end=t_end)
     console.print(f"{fault} limit for '{res.requirement}': {res.limit:.6g} "
                   f"({len(res.points)} HF runs, bracket [{lo:g}, {hi:g}], tol {tol:g})")

@@ -63,9 +63,10 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         fixed = set(fixed)
         for name in sorted(fixed):
             if name in self.bounds:
-                raise ExplainError(f"--set {name}: also a fitted fault (--fit); give it one role")
+                raise ExplainError(f"`fixed` {name}: also a fitted fault (`fit`); give it one "
+                                   "role")
             if name == "XJ0":
-                raise ExplainError("--set XJ0: the initial position is taken from the record")
+                raise ExplainError("`fixed` XJ0: the initial position is taken from the record")
         self.flow_gain_fitted = (settings.flow_gain_spread > 0 and "GQ" not in self.bounds
                                  and "GQ" not in fixed)
         if self.flow_gain_fitted:
@@ -100,7 +101,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                                  else "none (scored on the fitted data)")
         if self.n_fit < 20:
             raise ExplainError(f"record: {self.n_fit} samples left to fit after the hold-out; "
-                               f"at least 20 are required (lower --holdout)")
+                               f"at least 20 are required (lower `holdout`)")
         self.record = Record(data, base)
         self.check = (Record(validate, initial_position(validate, base))
                       if validate is not None else None)

@@ -302,7 +302,7 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
 
     names = covered_effects(effects)
     if actuators < MIN_RECORDS:
-        raise NullError(f"--null-actuators {actuators}: allowed range [{MIN_RECORDS}, ...]")
+        raise NullError(f"`null_actuators` {actuators}: allowed range [{MIN_RECORDS}, ...]")
     key = null_key(data, fit, names, settings, actuators, seed, base, fixed, fdi_options)
     path = cache_dir() / f"{key}.json"
     if use_cache:
@@ -427,20 +427,20 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
 
     spec, folder = folder, Path(folder)
     if not folder.is_dir():
-        raise NullError(f"--healthy {folder}: not a folder")
+        raise NullError(f"`null` {folder}: not a folder")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in FILE_TYPES)
     if len(files) < MIN_RECORDS:
-        raise NullError(f"--healthy {folder}: {len(files)} records; at least {MIN_RECORDS} "
+        raise NullError(f"`null` {folder}: {len(files)} records; at least {MIN_RECORDS} "
                         f"healthy records are needed")
     records = []
     for path in files:
         try:
             records.append(load(same_format(spec, path), command_hold))
         except MeasuredDataError as exc:
-            raise NullError(f"--healthy {path}: {'; '.join(exc.problems)}") from None
+            raise NullError(f"`null` {path}: {'; '.join(exc.problems)}") from None
         why = None if record is None else record_mismatch(records[-1], record)
         if why is not None:
-            raise NullError(f"--healthy {path}: {why}; a healthy null must be records of the "
+            raise NullError(f"`null` {path}: {why}; a healthy null must be records of the "
                             f"same test as {Path(str(record.source)).name}") from None
     names = covered_effects(effects)
     t0 = time.perf_counter()

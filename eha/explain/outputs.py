@@ -107,14 +107,14 @@ def read_prior(path: str | Path) -> list:
     try:
         prior = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ExplainError(f"--prior {path}: not a readable JSON file "
+        raise ExplainError(f"`prior` {path}: not a readable JSON file "
                            f"({getattr(exc, 'strerror', None) or str(exc).splitlines()[0]})"
                            ) from None
     steps = prior.get("steps") if isinstance(prior, dict) else prior
     if not isinstance(steps, list) or not all(isinstance(s, dict) and "effect" in s
                                               for s in steps):
         keys = ", ".join(sorted(prior)) if isinstance(prior, dict) else type(prior).__name__
-        raise ExplainError(f"--prior {path}: expected the --json of an earlier eha explain (key "
+        raise ExplainError(f"`prior` {path}: expected the `json_out` of an earlier eha explain (key "
                            f"'steps', a list of {{effect, params}}); found "
                            f"{keys or 'an empty object'}")
     return steps
@@ -161,9 +161,9 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
 
     if known is not None and not isinstance(known, Mapping):
         try:
-            known = parse_assignments(known)
+            known = parse_assignments(known, "`known`")
         except ParameterError as exc:
-            raise ExplainError(f"--set {exc}") from None
+            raise ExplainError(str(exc)) from None
     steps = read_prior(prior) if prior is not None else None
     record = load(data, command_hold=command_hold)
     check = load(validate, command_hold=command_hold) if validate is not None else None
@@ -172,7 +172,7 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
         try:
             base = resolve("lf", dict(known), base=base)
         except ParameterError as exc:
-            raise ExplainError(f"--set {exc}") from None
+            raise ExplainError(f"`known` {exc}") from None
     result = explain(record, fit=fit, effects=effects, holdout=holdout, validate=check,
                      base=base, on_progress=on_progress, fixed=tuple(known or ()), **options)
 

@@ -242,33 +242,33 @@ class LoopSettings:
         and prints these). Values are shown as given (``-1.0``, ``nan``)."""
         problems = []
         if not 0.0 <= self.holdout <= 0.8:
-            problems.append(f"--holdout {self.holdout}: allowed range [0, 0.8]")
+            problems.append(f"`holdout` {self.holdout}: allowed range [0, 0.8]")
         if not 0.0 <= self.min_gain <= 1.0:  # also refuses nan
-            problems.append(f"--min-gain {self.min_gain}: allowed range [0, 1]")
+            problems.append(f"`min_gain` {self.min_gain}: allowed range [0, 1]")
         if not 0.0 <= self.penalty <= 1.0:
             problems.append(f"penalty {self.penalty}: allowed range [0, 1]")
         if not 0.0 < self.alpha < 1.0:
-            problems.append(f"--alpha {self.alpha}: allowed range (0, 1)")
+            problems.append(f"`alpha` {self.alpha}: allowed range (0, 1)")
         if not 0.0 < self.significance < 1.0:
             problems.append(f"significance {self.significance}: allowed range (0, 1)")
         if not self.null_actuators >= MIN_RECORDS:
-            problems.append(f"--null-actuators {self.null_actuators}: allowed range "
+            problems.append(f"`null_actuators` {self.null_actuators}: allowed range "
                             f"[{MIN_RECORDS}, ...]")
         if not self.max_steps >= 0:
-            problems.append(f"--max-steps {self.max_steps}: allowed range [0, ...]")
+            problems.append(f"`max_steps` {self.max_steps}: allowed range [0, ...]")
         if not self.candidates >= 0:
-            problems.append(f"--candidates {self.candidates}: allowed range [0, ...] (0 = all)")
+            problems.append(f"`candidates` {self.candidates}: allowed range [0, ...] (0 = all)")
         if not self.noise_factor >= 0.0:
             problems.append(f"noise_factor {self.noise_factor}: allowed range [0, ...]")
         if not 0.0 <= self.p12_weight <= 100.0:
-            problems.append(f"--p12-weight {self.p12_weight}: allowed range [0, 100]")
+            problems.append(f"`p12_weight` {self.p12_weight}: allowed range [0, 100]")
         if not 0.0 <= self.flow_gain_spread <= 0.5:
-            problems.append(f"--flow-gain-spread {self.flow_gain_spread}: allowed range "
+            problems.append(f"`flow_gain_spread` {self.flow_gain_spread}: allowed range "
                             f"[0, 0.5]")
         if not self.pop >= 2:
-            problems.append(f"--pop {self.pop}: allowed range [2, ...]")
+            problems.append(f"`pop` {self.pop}: allowed range [2, ...]")
         if self.method not in GLOBAL_METHODS:
-            problems.append(f"--method {self.method}: the loop's refits search globally; "
+            problems.append(f"`method` {self.method}: the loop's refits search globally; "
                             f"allowed ga, ga+ps")
         return problems
 
@@ -295,13 +295,13 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
         items = {}
         for part in filter(None, parts):
             try:
-                name, rng = parse_name_value(part, "--fit", "[LO:HI]")
+                name, rng = parse_name_value(part, "`fit`", "[LO:HI]")
             except ParameterError:
-                raise ExplainError(f"--fit {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
+                raise ExplainError(f"`fit` {part!r}: bounds must be NAME=LOW:HIGH, e.g. "
                                    f"BKL=0:1e-3") from None
             if name in items:
                 given = spec if isinstance(spec, str) else ",".join(parts)
-                raise ExplainError(f"--fit {given}: {name} given twice; name each parameter "
+                raise ExplainError(f"`fit` {given}: {name} given twice; name each parameter "
                                    f"once")
             if rng is not None:
                 items[name] = rng
@@ -311,7 +311,7 @@ def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
                 except FDIError as exc:
                     raise ExplainError(str(exc)) from None
     if not items:
-        raise ExplainError("--fit: no parameter given; e.g. --fit BKL,FDJ")
+        raise ExplainError("`fit`: no parameter given; e.g. `fit` BKL,FDJ")
     try:
         return check_bounds(items)
     except FDIError as exc:

@@ -299,23 +299,23 @@ def load_calibration(path: str | Path) -> Calibration:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise DetectionError(f"--calibration {path}: no such file") from None
+        raise DetectionError(f"`calibration` {path}: no such file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DetectionError(f"--calibration {path}: not a calibration file "
+        raise DetectionError(f"`calibration` {path}: not a calibration file "
                              f"({type(exc).__name__})") from None
     required = {"format", "model_version", "command", "command_sig", "t_end", "thresholds"}
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT or \
             not required <= set(data):
-        raise DetectionError(f"--calibration {path}: not a calibration file of format "
+        raise DetectionError(f"`calibration` {path}: not a calibration file of format "
                              f"{CALIBRATION_FORMAT} (make one with eha health calibrate)")
     if data.get("model_version") != MODEL_VERSION:
-        raise DetectionError(f"--calibration {path}: made for model version "
+        raise DetectionError(f"`calibration` {path}: made for model version "
                              f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
                              "calibrate again (eha health calibrate)")
     try:
         return Calibration(**data)
     except TypeError as exc:
-        raise DetectionError(f"--calibration {path}: unexpected content ({exc})") from None
+        raise DetectionError(f"`calibration` {path}: unexpected content ({exc})") from None
 
 
 def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,

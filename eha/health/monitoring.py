@@ -67,7 +67,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     try:  # a command file is named by its content (the calibration checks its signature)
         command, label = pin_command(command), command_label(command)
     except CommandError as exc:
-        raise DetectionError(f"--command: {exc}") from None
+        raise DetectionError(f"`command`: {exc}") from None
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
@@ -77,7 +77,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                                "description": f"healthy fleet of {actuators} for thresholds"})
     except CampaignError as exc:
         first = str(exc).splitlines()[0]
-        raise DetectionError(first.replace("health.commands: command: ", "--command: ")
+        raise DetectionError(first.replace("health.commands: command: ", "`command`: ")
                              .replace("health.", "--")) from None
     summary = run_campaign(camp, results, workers=workers, progress=progress)
     rows = _assessments(results, name)
@@ -113,11 +113,11 @@ def _check_calibration_inputs(actuators: Any, alpha: Any) -> None:
     problems = []
     if isinstance(actuators, bool) or not isinstance(actuators, int) or \
             not MIN_HEALTHY <= actuators <= MAX_ACTUATORS:
-        problems.append(f"--actuators {actuators!r}: allowed range [{MIN_HEALTHY}, "
+        problems.append(f"`actuators` {actuators!r}: allowed range [{MIN_HEALTHY}, "
                         f"{MAX_ACTUATORS}] (a threshold needs at least {MIN_HEALTHY} healthy "
                         "actuators)")
     if not 0 < alpha < 1:
-        problems.append(f"--alpha {alpha!r}: allowed range (0, 1)")
+        problems.append(f"`alpha` {alpha!r}: allowed range (0, 1)")
     if problems:
         raise DetectionError(problems)
 
@@ -175,14 +175,14 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         try:
             level = check_level(level)
         except ValueError:
-            raise DetectionError(f"--level {level!r}: allowed range (0, 1), e.g. 0.9") from None
+            raise DetectionError(f"`level` {level!r}: allowed range (0, 1), e.g. 0.9") from None
     cal = load_calibration(calibration) if calibration is not None else None
     if level is None:
         level = cal.level if cal else DEFAULT_LEVEL
         try:
             level = check_level(level)
         except ValueError:
-            raise DetectionError(f"--calibration {calibration}: level {level!r}: allowed "
+            raise DetectionError(f"`calibration` {calibration}: level {level!r}: allowed "
                                  "range (0, 1)") from None
     data = load(record)
     lo, hi = RECORD_SECONDS

@@ -106,7 +106,7 @@ def parse_columns(spec: str | Mapping[str, str] | None) -> tuple[dict[str, str],
     problems: list[str] = []
     for signal, header in items:
         signal, header = str(signal).strip(), str(header).strip()
-        item = f"--columns {signal}={header}"
+        item = f"`columns` {signal}={header}"
         if signal.lower() not in SIGNALS:
             problems.append(f"{item}: unknown signal {signal!r}; allowed: "
                             f"{', '.join(SIGNALS)} (SIGNAL=HEADER, e.g. com=command_mm)")
@@ -146,7 +146,7 @@ class RecordFile:
         columns, problems = parse_columns(self.columns)
         units = None if self.units is None else str(self.units).strip().lower()
         if units is not None and units not in LENGTH_UNITS:
-            problems.append(f"--units {self.units!r}: allowed {', '.join(LENGTH_UNITS)} "
+            problems.append(f"`units` {self.units!r}: allowed {', '.join(LENGTH_UNITS)} "
                             f"(the unit of com, xu and xs columns whose header has none)")
         if problems:
             raise MeasuredDataError(str(self.path), problems)
@@ -197,7 +197,7 @@ def match_columns(headers: list[str], columns: Mapping[str, str] | None = None
     for name, given in (columns or {}).items():
         header = _find_header(headers, given)
         if header is None:
-            problems.append(f"--columns {name}={given}: no column {given!r} in the file "
+            problems.append(f"`columns` {name}={given}: no column {given!r} in the file "
                             f"(found: {found})")
         mapping[name] = header if header is not None else given
     claimed = set(mapping.values())
@@ -218,5 +218,5 @@ def match_columns(headers: list[str], columns: Mapping[str, str] | None = None
         if name not in mapping:
             problems.append(f"column {name}: missing (accepted names: "
                             f"{', '.join(ALIASES[name])}; found: {found}; or name its "
-                            f"header: --columns {name}=HEADER)")
+                            f"header: `columns` {name}=HEADER)")
     return mapping, problems

@@ -309,7 +309,7 @@ def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
     out: dict[str, tuple[float, float]] = {}
     for item in items:
         try:
-            name, rng = parse_name_value(item, "--bounds", "LO:HI")
+            name, rng = parse_name_value(item, "`bounds`", "LO:HI")
         except ParameterError as exc:
             raise FDIError(str(exc)) from None
         out[name] = rng
@@ -363,23 +363,23 @@ def identify_source(command: str | None = None, faults: Mapping[str, float] | No
     progress hook.
     """
     if (command is None) == (data is None):
-        raise FDIError("give either --command (HF reference) or --data FILE (measured record)")
+        raise FDIError("give either `command` (HF reference) or `data` (a measured record file)")
     names = tuple(dict.fromkeys(fit))
     if not names:
-        raise FDIError("--fit: name at least one LF parameter, e.g. BKL,FDJ")
+        raise FDIError("`fit`: name at least one LF parameter, e.g. BKL,FDJ")
     extra = set(bounds or {}) - set(names)
     if extra:
-        raise FDIError(f"--bounds {sorted(extra)[0]}: not among the fitted parameters "
+        raise FDIError(f"`bounds` {sorted(extra)[0]}: not among the fitted parameters "
                        f"({', '.join(names)})")
     chosen = {**default_bounds(names), **{k: tuple(v) for k, v in (bounds or {}).items()}}
     if base_model is None:
         base_model = DEFAULT_BASE_MODEL["data" if data is not None else "hf"]
     if base_model not in BASE_MODELS:
-        raise FDIError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
+        raise FDIError(f"`base_model` {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     try:
         lf_base = resolve("lf", {**BASE_MODELS[base_model], **dict(base or {})})
     except ParameterError as exc:
-        raise FDIError(f"--base {exc}") from None
+        raise FDIError(f"`base` {exc}") from None
     noise = None
     truth = None
     hold = None

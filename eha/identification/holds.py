@@ -59,7 +59,7 @@ def detect_hold(com: np.ndarray) -> tuple[str, str]:
 def resolve_hold(command_hold: str, com: np.ndarray, source: str = "data") -> tuple[str, str]:
     """``command_hold`` resolved for a record's command samples (``auto`` -> detected)."""
     if command_hold not in COMMAND_HOLDS:
-        raise MeasuredDataError(source, [f"--command-hold {command_hold!r}: allowed: "
+        raise MeasuredDataError(source, [f"`command_hold` {command_hold!r}: allowed: "
                                          f"{', '.join(COMMAND_HOLDS)}"])
     if command_hold == "auto":
         return detect_hold(com)

@@ -174,7 +174,7 @@ def validate(columns: dict[str, Any], source: str = "data",
         if out.any():
             worst = float(values[np.argmax(np.abs(values))])
             hint = (f" (SI units required: millimetres? declare them: '{name} [mm]' or "
-                    f"--units mm)" if name in LENGTH_SIGNALS else "")
+                    f"`units` mm)" if name in LENGTH_SIGNALS else "")
             problems.append(f"column {name}: {int(out.sum())} value(s) outside the physical "
                             f"range [{lo:g}, {hi:g}] {unit}, e.g. {worst:g}{hint}")
     if problems:

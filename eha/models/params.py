@@ -214,7 +214,7 @@ LF = IntEnum("LF", [(p.name, i) for i, p in enumerate(specs_for("lf"))], module=
 _CLASSES = {"hf": HFParams, "lf": LFParams}
 
 
-def parse_name_value(text: str, option: str = "--set", form: str = "VALUE"
+def parse_name_value(text: str, option: str = "item", form: str = "VALUE"
                      ) -> tuple[str, float | tuple[float, float] | None]:
     """The one parser of ``NAME=VALUE`` and ``NAME=LO:HI`` command-line items.
 
@@ -259,17 +259,19 @@ def parse_name_value(text: str, option: str = "--set", form: str = "VALUE"
                              "BKL=0:1.25e-3") from None
 
 
-def parse_assignment(text: str) -> tuple[str, float]:
-    """Parse ``NAME=VALUE`` (e.g. ``BKL=1e-4``) into a name and a float."""
-    name, value = parse_name_value(text, "--set", "VALUE")
+def parse_assignment(text: str, option: str = "item") -> tuple[str, float]:
+    """Parse ``NAME=VALUE`` (e.g. ``BKL=1e-4``) into a name and a float; an error names
+    ``option`` (the command line passes its flag, ``--set``)."""
+    name, value = parse_name_value(text, option, "VALUE")
     return name, value
 
 
-def parse_assignments(items: Iterable[str]) -> dict[str, float]:
-    """Parse several ``NAME=VALUE`` strings; a repeated name is an error."""
+def parse_assignments(items: Iterable[str], option: str = "item") -> dict[str, float]:
+    """Parse several ``NAME=VALUE`` strings; a repeated name is an error (naming
+    ``option``, as :func:`parse_assignment`)."""
     out: dict[str, float] = {}
     for item in items:
-        name, value = parse_assignment(item)
+        name, value = parse_assignment(item, option)
         if name in out:
             raise ParameterError(f"{name}: set twice")
         out[name] = value

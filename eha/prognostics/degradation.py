@@ -328,7 +328,7 @@ def _check_history(t: Sequence[float], y: Sequence[float], sigma: Sequence[float
         raise PrognosticsError(f"fit: scale {scale!r} must be a positive number")
     bad = [law for law in laws if law not in LAWS]
     if bad or not laws:
-        raise PrognosticsError(f"--laws {','.join(bad) or '(none)'}: allowed "
+        raise PrognosticsError(f"`laws` {','.join(bad) or '(none)'}: allowed "
                                f"{', '.join(LAWS)}")
     t_ref = float(t[-1])
     if not t_ref > 0:

@@ -52,15 +52,15 @@ def parse_limits(items: Sequence[str]) -> dict[str, float]:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise PrognosticsError(f"--limit {item!r}: expected NAME=VALUE, e.g. FDJ=2000")
+            raise PrognosticsError(f"`limits` {item!r}: expected NAME=VALUE, e.g. FDJ=2000")
         try:
             v = float(value)
         except ValueError:
-            raise PrognosticsError(f"--limit {item!r}: {value!r} is not a number") from None
+            raise PrognosticsError(f"`limits` {item!r}: {value!r} is not a number") from None
         try:
             out[name] = check_value(name, v, "lf")
         except ParameterError as exc:
-            raise PrognosticsError(f"--limit {exc}") from None
+            raise PrognosticsError(f"`limits` {exc}") from None
     return out
 
 
@@ -219,7 +219,7 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
     """
     path = Path(path)
     if not path.is_file():
-        raise PrognosticsError(f"--truth {path}: file not found")
+        raise PrognosticsError(f"`truth` {path}: file not found")
     if path.suffix.lower() == ".csv":
         import csv
 
@@ -227,10 +227,10 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
             with open(path, newline="", encoding="utf-8") as fh:
                 rows = list(csv.DictReader(fh))
         except UnicodeDecodeError as exc:
-            raise PrognosticsError(f"--truth {path}: not UTF-8 text (byte {exc.start})") \
+            raise PrognosticsError(f"`truth` {path}: not UTF-8 text (byte {exc.start})") \
                 from None
         if not rows or "actuator" not in rows[0] or "eol" not in rows[0]:
-            raise PrognosticsError(f"--truth {path}: a CSV needs the columns actuator, eol")
+            raise PrognosticsError(f"`truth` {path}: a CSV needs the columns actuator, eol")
         out = {}
         for i, r in enumerate(rows):
             v = (r["eol"] or "").strip()
@@ -238,7 +238,7 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
                 out[r["actuator"].strip()] = float(v) if v and v.lower() not in (
                     "null", "none", "nan") else None
             except ValueError:
-                raise PrognosticsError(f"--truth {path}: line {i + 2}: eol {v!r} is not a "
+                raise PrognosticsError(f"`truth` {path}: line {i + 2}: eol {v!r} is not a "
                                        "number (or empty for not reached)") from None
         return out
     try:
@@ -247,9 +247,9 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
         return {str(k): (None if v.get("eol") is None else float(v["eol"]))
                 for k, v in acts.items()}
     except UnicodeDecodeError as exc:
-        raise PrognosticsError(f"--truth {path}: not UTF-8 text (byte {exc.start})") from None
+        raise PrognosticsError(f"`truth` {path}: not UTF-8 text (byte {exc.start})") from None
     except (ValueError, KeyError, TypeError, AttributeError):
-        raise PrognosticsError(f"--truth {path}: expected JSON {{\"actuators\": {{ID: "
+        raise PrognosticsError(f"`truth` {path}: expected JSON {{\"actuators\": {{ID: "
                                "{\"eol\": number or null}}}} or a CSV actuator,eol") from None
 
 
@@ -389,15 +389,15 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws,
     except MeasuredDataError as exc:
         raise PrognosticsError(exc.problems) from None
     if limit_error is not None and not 0 <= limit_error < 1:
-        raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
+        raise PrognosticsError(f"`limit_error` {limit_error:g}: allowed range [0, 1) "
                                "(relative standard deviation)")
     if not limits:
-        raise PrognosticsError("--limit: give at least one NAME=VALUE (a fault's end-of-life "
-                               "limit), e.g. --limit FDJ=2000")
+        raise PrognosticsError("`limits`: give at least one NAME=VALUE (a fault's end-of-life "
+                               "limit), e.g. `limits` FDJ=2000")
     names = list(dict.fromkeys(list(fit or rul_faults()) + list(limits)))
     bad_laws = [x for x in laws if x not in LAWS]
     if bad_laws or not laws:
-        raise PrognosticsError(f"--laws {','.join(bad_laws) or '(none)'}: allowed "
+        raise PrognosticsError(f"`laws` {','.join(bad_laws) or '(none)'}: allowed "
                                f"{', '.join(LAWS)}")
     from eha.identification.problem import BASE_MODELS, FDIError, check_bounds
 
@@ -406,10 +406,10 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws,
     except FDIError as exc:
         raise PrognosticsError(str(exc)) from None
     if base_model is not None and base_model not in BASE_MODELS:
-        raise PrognosticsError(f"--base-model {base_model!r}: allowed {', '.join(BASE_MODELS)}")
+        raise PrognosticsError(f"`base_model` {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     truth_eol = load_truth(truth) if truth is not None else None
     if json_out is not None and Path(json_out).suffix.lower() != ".json":
-        raise PrognosticsError(f"--json {json_out}: the file must end in .json")
+        raise PrognosticsError(f"`json_out` {json_out}: the file must end in .json")
     return manifest, names, chosen, truth_eol
 
 

@@ -68,11 +68,11 @@ def parse_requirement(text: str) -> Requirement:
 
     m = _REQ.match(text or "")
     if not m:
-        raise PrognosticsError(f"--require {text!r}: expected METRIC(COMMAND) OP VALUE, e.g. "
+        raise PrognosticsError(f"`requirement` {text!r}: expected METRIC(COMMAND) OP VALUE, e.g. "
                                "'lag(mixed) > 0.02' or 'spool_saturation(chirp_1cm) > 0'")
     metric, cmd, args, op, value = m.groups()
     if metric not in METRICS:
-        raise PrognosticsError(f"--require {text!r}: unknown metric {metric!r}; allowed: "
+        raise PrognosticsError(f"`requirement` {text!r}: unknown metric {metric!r}; allowed: "
                                f"{', '.join(METRICS)}")
     sets: dict[str, float] = {}
     for part in filter(None, (a.strip() for a in (args or "").split(","))):
@@ -80,16 +80,16 @@ def parse_requirement(text: str) -> Requirement:
         try:
             sets[k.strip()] = float(v)
         except ValueError:
-            raise PrognosticsError(f"--require {text!r}: command parameter {part!r}: "
+            raise PrognosticsError(f"`requirement` {text!r}: command parameter {part!r}: "
                                    "expected NAME=NUMBER") from None
     try:
         make_command(cmd, **sets)
     except CommandError as exc:
-        raise PrognosticsError(f"--require {text!r}: {exc}") from None
+        raise PrognosticsError(f"`requirement` {text!r}: {exc}") from None
     try:
         val = float(value)
     except ValueError:
-        raise PrognosticsError(f"--require {text!r}: {value!r} is not a number") from None
+        raise PrognosticsError(f"`requirement` {text!r}: {value!r} is not a number") from None
     return Requirement(metric, cmd, sets, op, val, text.strip())
 
 
@@ -169,9 +169,9 @@ def derive_limit(fault: str, requirement: str, lo: float, hi: float,
     except ParameterError as exc:
         raise PrognosticsError(str(exc)) from None
     if not lo < hi:
-        raise PrognosticsError(f"--lo {lo:g} must be below --hi {hi:g}")
+        raise PrognosticsError(f"`lo` {lo:g} must be below `hi` {hi:g}")
     if not 0 < tol < 0.5:
-        raise PrognosticsError(f"--tol {tol:g}: allowed range (0, 0.5)")
+        raise PrognosticsError(f"`tol` {tol:g}: allowed range (0, 0.5)")
     base = dict(base or {})
     points: list[dict[str, Any]] = []
 
@@ -182,11 +182,11 @@ def derive_limit(fault: str, requirement: str, lo: float, hi: float,
         return bad
 
     if evaluate(lo):
-        raise PrognosticsError(f"the requirement already fails at --lo {fault}={lo:g} "
-                               f"({req.metric} = {points[-1][req.metric]!r}); lower --lo")
+        raise PrognosticsError(f"the requirement already fails at `lo` {fault}={lo:g} "
+                               f"({req.metric} = {points[-1][req.metric]!r}); lower `lo`")
     if not evaluate(hi):
-        raise PrognosticsError(f"the requirement still holds at --hi {fault}={hi:g} "
-                               f"({req.metric} = {points[-1][req.metric]!r}); raise --hi")
+        raise PrognosticsError(f"the requirement still holds at `hi` {fault}={hi:g} "
+                               f"({req.metric} = {points[-1][req.metric]!r}); raise `hi`")
     a, b = lo, hi
     width = tol * (hi - lo)
     for _ in range(max_iter):

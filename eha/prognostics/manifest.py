@@ -248,7 +248,7 @@ def _record_format(raw: list[str], header: list[str], where: str, problems: list
         # the loader names its options ("--units 'inch': allowed ..."): here they are columns
         for problem in exc.problems:
             detail = problem.split(": ", 1)[-1]
-            name = "columns" if problem.startswith("--columns") else "units"
+            name = "columns" if problem.startswith("`columns`") else "units"
             problems.append(f"{where}: {name} {cells[name]!r}: {detail}")
         return None
     return (fmt.columns or None), fmt.units

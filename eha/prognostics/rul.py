@@ -164,7 +164,7 @@ def predict_history(actuator: str, histories: Mapping[str, FaultHistory],
     if limit_error is None:
         limit_error = LIMIT_ERROR
     if not 0 <= limit_error < 1:
-        raise PrognosticsError(f"--limit-error {limit_error:g}: allowed range [0, 1) "
+        raise PrognosticsError(f"`limit_error` {limit_error:g}: allowed range [0, 1) "
                                "(relative standard deviation)")
     names = list(histories)
     first = histories[names[0]]

@@ -87,10 +87,10 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     t0 = time.perf_counter()
     results, out = Path(results), Path(out)
     if not results.is_dir():
-        raise ReportError(f"--results {results}: no such folder; run eha reproduce, eha rul or "
+        raise ReportError(f"`results` {results}: no such folder; run eha reproduce, eha rul or "
                           "eha campaign run first")
     if not db_path(results).is_file():
-        raise ReportError(f"--results {results}: empty results folder (no {db_path(results).name}"
+        raise ReportError(f"`results` {results}: empty results folder (no {db_path(results).name}"
                           "); run eha reproduce, eha rul or eha campaign run first")
     con = connect(results, read_only=True)
     try:
@@ -115,7 +115,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
             if value is not None:
                 page.add_section(sid, SECTIONS[sid], build(page, value))
     if not page.sections:
-        raise ReportError(f"--results {results}: the database holds no result to report; run "
+        raise ReportError(f"`results` {results}: the database holds no result to report; run "
                           "eha reproduce, eha rul or eha campaign run first")
     absent = [sid for sid in SECTIONS if sid not in {s[0] for s in page.sections}]
     if absent:

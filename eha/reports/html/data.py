@@ -104,7 +104,7 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
         from eha.prognostics.degradation import PrognosticsError
 
         have = sorted(set(fleets[0].predictions["actuator"]))
-        raise PrognosticsError(f"--truth {truth}: no end of life for every actuator of any "
+        raise PrognosticsError(f"`truth` {truth}: no end of life for every actuator of any "
                                f"eha rul run in the database (e.g. {', '.join(have[:5])} of "
                                f"{fleets[0].run_id})")
     return fleets
