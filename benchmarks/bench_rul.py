@@ -79,10 +79,12 @@ def main(argv=None) -> int:
     limits = dict(fleet.limits)
     t1 = time.perf_counter()
     fit = list(dict.fromkeys([*rul_faults(), *(f.name for f in fleet.faults)]))
-    res = run_rul(fr.manifest, limits, fit=fit,
-                  results=out / "results", truth=fr.truth, plots=args.plots,
-                  json_out=out / "rul.json", workers=args.workers, progress=False,
+    res = run_rul(fr.manifest, limits=limits, fit=fit, results=out / "results",
+                  truth=fr.truth, workers=args.workers, progress=False,
                   limit_error=args.limit_error, base_model=args.base_model)
+    res.save(out / "rul.json")
+    if args.plots:
+        res.plot(args.plots)
     t_rul = time.perf_counter() - t1
     f = res.metrics["fleet"]
     truth = json.loads(fr.truth.read_text())

@@ -92,3 +92,13 @@ def test_as_flags_keeps_what_it_cannot_map():
         assert as_flags("`holdout` 2; see `other`") == "--holdout 2; see `other`"
     finally:
         STATE.pop("flags")
+
+
+def test_the_steps_table_has_its_columns_when_nothing_was_added():
+    """``ExplainResult.to_pandas()`` of a run that added nothing still names its columns
+    (a notebook selects them), and they are the CSV's columns when something was."""
+    from eha.explain.results import STEP_COLUMNS, ExplainResult
+
+    res = ExplainResult.__new__(ExplainResult)
+    res.steps = []
+    assert list(res.to_pandas().columns) == list(STEP_COLUMNS)

@@ -97,33 +97,37 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
     Example (healthy actuator under a known 4 kN test load): eha explain loadtest.csv --set
     FRC=4000 --json calibration.json
     """
-    from eha.explain.outputs import explain_report
-    from eha.explain.settings import DEFAULTS, LoopSettings
+    from eha.campaigns.store import StoreError
+    from eha.explain.from_file import explain_file
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(results, "--results")
-    check_out_dir(out if out is not None else results / "explain" / data.stem, "--out")
+    folder = out if out is not None else results / "explain" / data.stem
+    check_out_dir(folder, "--out")
     check_seed(seed)
-    settings = LoopSettings(  # the one check of the loop's ranges
-        holdout=DEFAULTS["holdout"] if holdout is None else holdout, min_gain=min_gain,
-        alpha=alpha, null_actuators=null_actuators, max_steps=max_steps, candidates=candidates,
-        p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
-        seed=seed)
     record = record_file(data, columns, units)
     with _progress_bar(progress) as step:
-        run = explain_report(
-            record, fit=fit, effects=effects, validate=validate and record.at(validate),
-            prior=prior, json_path=json_out, out=out, known=known, command_hold=command_hold,
-            results=results, on_progress=step, settings=settings,
-            null=record.at(healthy) if healthy is not None else "simulate")
-    _render(run["result"])
-    _next_test(run["result"], json_out)
-    print_paths(run["paths"])
-    if run["db_error"]:
-        fail(f"results database not written: {run['db_error']}", code=1)
-
+        res = explain_file(
+            record, fit=fit, effects=effects, holdout=holdout,
+            validate=validate and record.at(validate), prior=prior, known=known,
+            command_hold=command_hold, on_progress=step, min_gain=min_gain, alpha=alpha,
+            null_actuators=null_actuators, max_steps=max_steps, candidates=candidates,
+            p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
+            seed=seed, null=record.at(healthy) if healthy is not None else "simulate")
+    paths = res.save(folder, json_out)
+    try:
+        paths["database"] = res.store(results)
+    except StoreError as exc:
+        db_error = str(exc)
+    else:
+        db_error = None
+    _render(res)
+    _next_test(res, json_out)
+    print_paths(paths)
+    if db_error:
+        fail(f"results database not written: {db_error}", code=1)
 
 def _next_test(res, json_out: Optional[Path]) -> None:
     """Rivals the record could not rule out: the command that designs the test deciding it

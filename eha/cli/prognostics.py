@@ -122,12 +122,15 @@ def rul(
     check_out_dir(results, "--results")
     check_seed(seed)
     with resumable("finished assessments are saved, re-run to resume"):
-        res = run_rul(manifest, parse_limits(limit), fit=split_names(fit),
-                      bounds=parse_bounds(bounds), results=results, json_out=json_out,
-                      truth=truth, plots=plots, seed=seed, workers=workers,
-                      laws=split_names(laws), skip_flagged=skip_flagged, progress=progress,
-                      limit_error=limit_error, base_model=base_model, columns=columns,
-                      units=units)
+        res = run_rul(manifest, limits=parse_limits(limit), fit=split_names(fit),
+                      bounds=parse_bounds(bounds), results=results, truth=truth, seed=seed,
+                      workers=workers, laws=split_names(laws), skip_flagged=skip_flagged,
+                      progress=progress, limit_error=limit_error, base_model=base_model,
+                      columns=columns, units=units)
+    if json_out is not None:
+        res.save(json_out)
+    if plots is not None:
+        res.plot(plots)
     _render_rul(res, results)
     if res.failed:
         raise typer.Exit(1)

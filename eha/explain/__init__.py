@@ -38,7 +38,7 @@ The package, by concern:
   :mod:`~eha.explain.final_check` (f);
 - :mod:`~eha.explain.api`: :func:`explain`, its passes and :func:`healthy_null`;
 - :mod:`~eha.explain.null`: the healthy null; :mod:`~eha.explain.leads`: leads for a residual
-  no library effect explains; :mod:`~eha.explain.outputs`: ``eha explain``'s files.
+  no library effect explains; :mod:`~eha.explain.from_file`: the loop on measured files; :mod:`~eha.explain.outputs`: what a result writes.
 
 The names below are re-exported for ``from eha.explain import ...``; a constant is read where
 it is used, so a test that patches one patches the module that reads it.

@@ -19,17 +19,18 @@ from eha.identification.measured import MeasuredData
 from eha.models.params import LFParams
 
 
-def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | None = None,
-            holdout: float | None = None, validate: MeasuredData | None = None,
-            base: LFParams | None = None, method: str | None = None, pop: int = 20,
-            seed: int = 0, min_gain: float | None = None, penalty: float | None = None,
+def explain(data: MeasuredData, *, fit: Any = None,
+            effects: Iterable[str] | str | None = None, holdout: float | None = None,
+            validate: MeasuredData | None = None, base: LFParams | None = None,
+            fixed: Iterable[str] = (), null: Any = "simulate", method: str | None = None,
+            pop: int = 20, seed: int = 0, min_gain: float | None = None,
+            penalty: float | None = None, alpha: float | None = None,
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
-            alpha: float | None = None, p12_weight: float | None = None,
-            flow_gain_spread: float | None = None, null: Any = "simulate",
+            p12_weight: float | None = None, flow_gain_spread: float | None = None,
             null_actuators: int | None = None,
-            on_progress: Callable[[str], None] | None = None, fixed: Iterable[str] = (),
-            settings: LoopSettings | None = None, **fdi_options: float) -> ExplainResult:
+            on_progress: Callable[[str], None] | None = None,
+            **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
 
     Parameters
@@ -75,9 +76,10 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
         Healthy actuators of a simulated null (:class:`LoopSettings`, default 12).
     on_progress : callable(str), optional
         Called with a short message before each fit.
-    settings : LoopSettings, optional
-        All the loop's settings at once (``eha explain`` builds them); the keyword arguments
-        above that are given replace its values.
+
+    Every setting is a keyword, checked in one place (:meth:`LoopSettings.problems`): a value
+    outside its range raises :class:`ExplainError` naming the keyword (`` `holdout` ``),
+    before any fit.
 
     Returns
     -------
@@ -88,10 +90,7 @@ def explain(data: MeasuredData, fit: Any = None, effects: Iterable[str] | str | 
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
              "null_actuators": null_actuators}
     given = {k: v for k, v in given.items() if v is not None}
-    if settings is None:
-        settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
-    elif given or method is not None:
-        settings = replace(settings, **given, **({"method": method} if method else {}))
+    settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
                         fdi_options)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,

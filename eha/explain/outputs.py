@@ -1,12 +1,11 @@
-"""``eha explain``'s input and output: read the measured files, run the residual loop
-(:func:`eha.explain.explain`), write its tables, figures, JSON and database rows (all of them
-made by the result's serialisation, :class:`eha.explain.results.ExplainResult`)."""
+"""What a residual loop's result writes: its figures, its files and its database rows, all
+made from the result's serialisation (:class:`eha.explain.results.ExplainResult`, whose
+``.plot()``, ``.save()`` and ``.store()`` call these). Reading the measured files and running
+the loop on them is :mod:`eha.explain.from_file`."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -14,8 +13,9 @@ from eha.figures import pyplot as _pyplot
 from eha.figures import save as _save
 
 
-def plot_explain_residuals(result, path: str | Path) -> Path:
-    """Measured vs LF before/after, and the residual before/after the added effects (PNG).
+def plot_explain_residuals(result, path: str | Path | None = None):
+    """Measured vs LF before/after, and the residual before/after the added effects: the
+    figure (matplotlib), or, with ``path``, written as PNG (the path returned).
 
     ``result`` is an :class:`eha.explain.results.ExplainResult`; the held-out part is shaded.
     """
@@ -49,19 +49,20 @@ def plot_explain_residuals(result, path: str | Path) -> Path:
                      color="tab:orange")
     fig.suptitle(f"Residual loop — {Path(result.source).name}: RMSE "
                  f"{1e6 * result.rmse_before:.3g} → {1e6 * result.rmse_after:.3g} µm")
-    return _save(fig, Path(path))
+    return fig if path is None else _save(fig, Path(path))
 
 
-def plot_explain_trace(result, path: str | Path) -> Path:
+def plot_explain_trace(result, path: str | Path | None = None):
     """How the first residual traces to effects: signature correlation, the fraction each
-    effect's linearised fit explains, held-out gain of the refits, and signal correlations."""
+    effect's linearised fit explains, held-out gain of the refits, and signal correlations
+    (the figure, or, with ``path``, written as PNG)."""
     plt = _pyplot()
     if not result.rounds:
         fig, ax = plt.subplots(figsize=(7, 2))
         ax.axis("off")
         ax.text(0.5, 0.5, f"Residual not traced: {result.stop_reason}", ha="center",
                 va="center", wrap=True, fontsize=9)
-        return _save(fig, Path(path))
+        return fig if path is None else _save(fig, Path(path))
     rnd = result.rounds[0]
     cands = sorted((c for c in rnd.candidates if "+" not in c.effect),  # single effects
                    key=lambda c: c.explained)
@@ -90,113 +91,38 @@ def plot_explain_trace(result, path: str | Path) -> Path:
     ax2.grid(True, axis="x", alpha=0.3)
     fig.suptitle(f"Tracing the residual ({1e6 * rnd.residual_rmse:.3g} µm RMS on the fitted "
                  f"part) — {Path(result.source).name}")
-    return _save(fig, Path(path))
+    return fig if path is None else _save(fig, Path(path))
 
 
-def read_prior(path: str | Path) -> list:
-    """``--prior``: the ``--json`` of an earlier ``eha explain`` (an object whose ``steps`` is a
-    list of ``{"effect": ..., "params": {...}}``, or that list itself); its steps.
-
-    Raises
-    ------
-    ExplainError
-        Not a readable JSON file, or not of that shape (one line naming ``--prior``).
-    """
-    from eha.explain.settings import ExplainError
-
-    try:
-        prior = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ExplainError(f"`prior` {path}: not a readable JSON file "
-                           f"({getattr(exc, 'strerror', None) or str(exc).splitlines()[0]})"
-                           ) from None
-    steps = prior.get("steps") if isinstance(prior, dict) else prior
-    if not isinstance(steps, list) or not all(isinstance(s, dict) and "effect" in s
-                                              for s in steps):
-        keys = ", ".join(sorted(prior)) if isinstance(prior, dict) else type(prior).__name__
-        raise ExplainError(f"`prior` {path}: expected the `json_out` of an earlier eha explain (key "
-                           f"'steps', a list of {{effect, params}}); found "
-                           f"{keys or 'an empty object'}")
-    return steps
-
-
-def explain_report(data: str | Path, fit: str | None = None, effects: str | None = None,
-                   holdout: float | None = None, validate: str | Path | None = None,
-                   prior: str | Path | None = None, json_path: str | Path | None = None,
-                   out: str | Path | None = None, results: str | Path = "results",
-                   on_progress=None, known=None, command_hold: str = "auto",
-                   **options) -> dict:
-    """``eha explain``: run the residual loop on a measured file and write its outputs.
-
-    Everything is read and validated before anything is written. Writes, under ``out``
-    (default ``results/explain/<file stem>``): ``steps.csv`` (the steps table),
+def save_result(result, folder: str | Path, json_path: str | Path | None = None
+                ) -> dict[str, Path]:
+    """Write a result's files under ``folder`` (created): ``steps.csv`` (the steps table),
     ``candidates.csv`` (every candidate of every round), ``residuals.png``, ``trace.png``,
-    ``explain.json`` (everything); the rows of ``explain_runs``/``explain_steps`` in
-    ``results/eha.duckdb``; and, when given, ``json_path`` with the contract of issue 5.
-    ``known`` holds LF parameters fixed at known values (test conditions such as a test load
-    ``{"FRC": 4000}``, or ``--set`` items ``["FRC=4000"]``), on top of the ``prior``'s effects;
-    they are not candidates. ``command_hold`` says how the records' commands are rebuilt
-    between their samples (:data:`eha.identification.measured.COMMAND_HOLDS`). ``data`` and ``validate`` may
-    be :class:`eha.identification.measured.RecordFile` (a record's columns and units); ``options`` go to
-    :func:`eha.explain.api.explain` (``settings``: a :class:`LoopSettings`).
+    ``explain.json`` (everything); and, with ``json_path``, the contract of ``--json``
+    (:meth:`~eha.explain.results.ExplainResult.to_json`, with the test that would decide
+    between rivals the record could not rule out). Each file is written whole or not at all.
 
     Returns
     -------
     dict
-        ``result`` (:class:`eha.explain.results.ExplainResult`), ``paths`` (name -> Path),
-        ``run_id``, ``db_error`` (None, or why the database could not be written).
+        Name -> path of each file written.
     """
-    import datetime
-    import hashlib
-
     import pandas as pd
 
-    from eha.explain.api import explain
-    from eha.explain.record import augmented_base
-    from eha.explain.settings import ExplainError
-    from eha.identification.measured import load
-    from eha.campaigns.store import StoreError, save_explain
-
-    from eha.models.params import ParameterError, parse_assignments, resolve
-
-    if known is not None and not isinstance(known, Mapping):
-        try:
-            known = parse_assignments(known, "`known`")
-        except ParameterError as exc:
-            raise ExplainError(str(exc)) from None
-    steps = read_prior(prior) if prior is not None else None
-    record = load(data, command_hold=command_hold)
-    check = load(validate, command_hold=command_hold) if validate is not None else None
-    base = augmented_base(steps) if steps is not None else None
-    if known:
-        try:
-            base = resolve("lf", dict(known), base=base)
-        except ParameterError as exc:
-            raise ExplainError(f"`known` {exc}") from None
-    result = explain(record, fit=fit, effects=effects, holdout=holdout, validate=check,
-                     base=base, on_progress=on_progress, fixed=tuple(known or ()), **options)
-
-    out = Path(out) if out is not None else Path(results) / "explain" / Path(data).stem
-    out.mkdir(parents=True, exist_ok=True)
-    digest = hashlib.sha1(Path(data).read_bytes())
-    digest.update(json.dumps([str(validate), str(prior), dict(known or {}), result.settings,
-                              {k: list(v) for k, v in result.fit_bounds.items()}],
-                             sort_keys=True, default=str).encode())
-    if getattr(data, "columns", None) or getattr(data, "units", None):   # a RecordFile's format
-        digest.update(json.dumps([data.columns, data.units], sort_keys=True).encode())
-    run_id = digest.hexdigest()[:16]
-    paths = {"steps": out / "steps.csv", "candidates": out / "candidates.csv",
-             "residuals": out / "residuals.png", "trace": out / "trace.png",
-             "details": out / "explain.json"}
     from eha.outputs import atomic_path, write_json
 
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {"steps": folder / "steps.csv", "candidates": folder / "candidates.csv",
+             "residuals": folder / "residuals.png", "trace": folder / "trace.png",
+             "details": folder / "explain.json"}
     with atomic_path(paths["steps"]) as tmp:
         pd.DataFrame(result.steps_table()).to_csv(tmp, index=False)
     with atomic_path(paths["candidates"]) as tmp:
         pd.DataFrame(result.candidates_table()).to_csv(tmp, index=False)
     plot_explain_residuals(result, paths["residuals"])
     plot_explain_trace(result, paths["trace"])
-    write_json(paths["details"], result.details(run_id), indent=2, default=float)
+    write_json(paths["details"], result.details(result.key), indent=2, default=float)
     if json_path is not None:
         doc = result.to_json()
         if result.not_excluded:  # the test that would decide it (docs/design.md)
@@ -206,11 +132,22 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
                 "design": f"eha design --faults none --around {json_path}"}
         write_json(json_path, doc, indent=2)
         paths["json"] = Path(json_path)
-    db_error = None
-    try:
-        paths["database"] = save_explain(
-            results, result.run_row(run_id, str(data), datetime.datetime.now()),
-            result.step_rows(run_id))
-    except StoreError as exc:
-        db_error = str(exc)
-    return {"result": result, "paths": paths, "run_id": run_id, "db_error": db_error}
+    return paths
+
+
+def store_result(result, results: str | Path = "results") -> Path:
+    """Write a result's rows of ``explain_runs`` and ``explain_steps`` into the results
+    folder's database (a run of the same ``run_id`` is replaced); returns the database's path.
+
+    Raises
+    ------
+    eha.campaigns.store.StoreError
+        The database cannot be written (locked by a running campaign, a full disk).
+    """
+    import datetime
+
+    from eha.campaigns.store import save_explain
+
+    key = result.key
+    return save_explain(results, result.run_row(key, str(result.source), datetime.datetime.now()),
+                        result.step_rows(key))

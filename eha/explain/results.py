@@ -138,6 +138,13 @@ class Round:
     candidates: list[Candidate]
 
 
+#: The columns of :meth:`ExplainResult.steps_table` (``steps.csv``), in order.
+STEP_COLUMNS = ("step", "effect", "params", "rmse_fit_before_m", "rmse_fit_after_m",
+                "rmse_holdout_before_m", "rmse_holdout_after_m", "rmse_before_m",
+                "rmse_after_m", "faults_before", "faults_after", "gain", "score", "chosen",
+                "chosen_score", "alternatives")
+
+
 @dataclass
 class ExplainResult:
     """Outcome of :func:`explain` (RMSE in metres)."""
@@ -181,6 +188,60 @@ class ExplainResult:
     #: size and the threshold; non-empty only for a model at the noise level, then
     #: ``unexplained``
     not_excluded: list[dict[str, Any]] = field(default_factory=list)
+    #: the run's name in the files and the database: :func:`eha.explain.from_file.explain_file`
+    #: names it by the file's bytes and what went in; otherwise (:attr:`key`) by the record's
+    #: samples and the settings
+    run_id: str = ""
+
+    @property
+    def key(self) -> str:
+        """:attr:`run_id`, or, when none was given, 16 hex digits of a hash of the record's
+        samples, the fitted bounds and the settings (the same run, the same key)."""
+        if self.run_id:
+            return self.run_id
+        import hashlib
+        import json
+
+        digest = hashlib.sha1(np.ascontiguousarray(self.measured, dtype=float).tobytes())
+        digest.update(json.dumps([self.source, self.settings,
+                                  {k: list(v) for k, v in self.fit_bounds.items()}],
+                                 sort_keys=True, default=str).encode())
+        return digest.hexdigest()[:16]
+
+    def to_pandas(self):
+        """The steps table (:meth:`steps_table`) as a pandas DataFrame: one row per added
+        effect, RMSE columns in m."""
+        import pandas as pd
+
+        return pd.DataFrame(self.steps_table(), columns=list(STEP_COLUMNS))
+
+    def plot(self, path=None, kind: str = "residuals"):
+        """The residuals figure (measured vs LF before and after, the residuals), or with
+        ``kind="trace"`` how the first residual traced to effects: a matplotlib figure, or,
+        with ``path``, written as PNG (the path returned)."""
+        from eha.explain.outputs import plot_explain_residuals, plot_explain_trace
+
+        plots = {"residuals": plot_explain_residuals, "trace": plot_explain_trace}
+        if kind not in plots:
+            from eha.explain.settings import ExplainError
+
+            raise ExplainError(f"`kind` {kind!r}: allowed {', '.join(plots)}")
+        return plots[kind](self, path)
+
+    def save(self, folder, json_path=None) -> dict:
+        """Write the run's files under ``folder`` (:func:`eha.explain.outputs.save_result`):
+        steps and candidates CSV, the two figures, ``explain.json``, and with ``json_path``
+        the JSON contract; returns name -> path."""
+        from eha.explain.outputs import save_result
+
+        return save_result(self, folder, json_path)
+
+    def store(self, results="results"):
+        """Write the run's rows into ``results``' database (``explain_runs``,
+        ``explain_steps``; :func:`eha.explain.outputs.store_result`); returns its path."""
+        from eha.explain.outputs import store_result
+
+        return store_result(self, results)
 
     def undetectable(self) -> list[str]:
         """One line per testable effect not in the model: below which size this record's

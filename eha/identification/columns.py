@@ -128,7 +128,7 @@ class RecordFile:
     columns whose header declares none (``units``, :data:`LENGTH_UNITS`).
 
     Path-like: the library's functions that take a record path (``eha.identification.fdi.identify_source``,
-    ``eha.health.monitoring.check_record``, ``eha.explain.outputs.explain_report``) take one too, and
+    ``eha.health.monitoring.check_record``, ``eha.explain.from_file.explain_file``) take one too, and
     :func:`load` reads it with its columns and units.
 
     Raises

@@ -19,7 +19,6 @@ import hashlib
 import json
 import re
 import time
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -29,6 +28,7 @@ import numpy as np
 from eha.campaigns.jobs import register_job
 from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
+from eha.prognostics.result import RulResult
 from eha.prognostics.rul import histories_from_checks, predict_history
 from eha.prognostics.rul import LIMIT_ERROR as PRED_LIMIT_ERROR
 
@@ -254,32 +254,17 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
 
 
 # =========================================================================== the pipeline
-@dataclass
-class RulResult:
-    """What :func:`run_rul` produced."""
-
-    run_id: str
-    output: dict[str, Any]
-    predictions: dict[str, list]
-    metrics: dict[str, Any] | None
-    paths: dict[str, Path] = field(default_factory=dict)
-    failed: list[str] = field(default_factory=list)
-    assessed: int = 0
-    reused: int = 0
-    seconds: dict[str, float] = field(default_factory=dict)
-
-
-def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
+def run_rul(manifest_path: str | Path, *, limits: Mapping[str, float],
             fit: Sequence[str] | None = None,
             bounds: Mapping[str, Sequence[float]] | None = None,
-            results: str | Path = "results", json_out: str | Path | None = None,
-            truth: str | Path | None = None, plots: str | Path | None = None,
+            results: str | Path = "results", truth: str | Path | None = None,
             seed: int = 0, workers: int = 2, laws: Sequence[str] = LAWS,
             skip_flagged: bool = False, progress: bool = True,
             limit_error: float | None = None, base_model: str | None = None,
             columns: Mapping[str, str] | str | None = None,
             units: str | None = None) -> RulResult:
-    """Assess, predict, store and (optionally) evaluate and plot one manifest.
+    """Assess, predict, store and (with a truth) evaluate one manifest; the result's
+    ``.save(json_path)``, ``.plot(folder)`` and ``.to_pandas()`` are separate steps.
 
     Parameters
     ----------
@@ -292,9 +277,7 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
     bounds : mapping, optional
         Search bounds overriding :func:`health_bounds`.
     results : path
-        Results folder (``eha.duckdb``).
-    json_out, plots : path, optional
-        JSON output file; plot folder.
+        Results folder (``eha.duckdb``): the assessments and the predictions are stored.
     truth : path, optional
         True end of life (:func:`load_truth`): adds the metrics.
     seed : int
@@ -326,8 +309,8 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
 
     t0 = time.perf_counter()
     manifest, names, chosen, truth_eol = _check_rul_inputs(
-        manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error, base_model,
-        columns, units)
+        manifest_path, limits, fit, bounds, truth, laws, limit_error, base_model, columns,
+        units)
     results = Path(results)
     camp = health_campaign(manifest, chosen, seed, base_model=base_model, columns=columns,
                            units=units)
@@ -350,19 +333,10 @@ def run_rul(manifest_path: str | Path, limits: Mapping[str, float],
         metrics = evaluate_predictions(preds_all, truth_eol)
         output["metrics"] = metrics
     res = RulResult(camp.name, output, preds_all, metrics, failed=failed,
-                    assessed=summary.done, reused=summary.skipped)
+                    assessed=summary.done, reused=summary.skipped, histories=hist,
+                    truth=truth_eol)
     _store_predictions(results, camp.name, preds_all, limits)
     res.paths["database"] = results / "eha.duckdb"
-    if json_out is not None:
-        from eha.outputs import write_json
-
-        json_out = write_json(json_out, output, indent=1, default=_json_default)
-        res.paths["json"] = json_out
-    if plots is not None:
-        from eha.prognostics.plots import write_plots
-
-        res.paths.update(write_plots(Path(plots), hist, preds_all, limits, truth_eol,
-                                     metrics, seed=seed, laws=laws))
     res.seconds = {"assess": t_assess, "predict": t_predict,
                    "total": time.perf_counter() - t0}
     return res
@@ -376,7 +350,7 @@ def _split_rows(rows: list[dict[str, Any]], camp) -> tuple[list[dict[str, Any]],
     return [r for r in rows if r["status"] == "done" and r.get("run_key") in keys], failed
 
 
-def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws, limit_error,
+def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, laws, limit_error,
                       base_model, columns=None, units=None):
     """Validate :func:`run_rul`'s inputs (nothing written): the manifest, the records' columns
     and units, the tracked fault names, the checked bounds and the true end of life (or None)."""
@@ -408,8 +382,6 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, json_out, laws,
     if base_model is not None and base_model not in BASE_MODELS:
         raise PrognosticsError(f"`base_model` {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     truth_eol = load_truth(truth) if truth is not None else None
-    if json_out is not None and Path(json_out).suffix.lower() != ".json":
-        raise PrognosticsError(f"`json_out` {json_out}: the file must end in .json")
     return manifest, names, chosen, truth_eol
 
 
@@ -430,12 +402,6 @@ def _predict_all(actuators, hist, limits, seed, laws, limit_error):
     return out_acts, preds_all
 
 
-def _json_default(v):
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, np.bool_):
-        return bool(v)
-    raise TypeError(type(v).__name__)
 
 
 def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, float | None]
