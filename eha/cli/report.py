@@ -109,23 +109,23 @@ def reproduce(results: ResultsOption = RESULTS, workers: WorkersOption = WORKERS
     _render_reproduce(out, results)
 
 
-def _render_reproduce(out: dict, results: Path) -> None:
+def _render_reproduce(out, results: Path) -> None:
     """The campaigns run, the HF-vs-LF errors, where the plots and reports are."""
     table = Table("campaign", "runs", "run now", "already done", "failed", "wall [s]")
-    for s in out["summaries"]:
+    for s in out.summaries:
         table.add_row(s.campaign, str(s.total), str(s.done), str(s.skipped), str(s.failed),
                       f"{s.wall_s:.1f}")
         if s.changed:
             console.print(f"{s.campaign}: its file changed; {s.replaced} old runs discarded")
     console.print(table)
     table = Table("command", "RMSE xu HF vs LF [µm]", "% of command peak")
-    for r in out["nominal"]:
+    for r in out.nominal:
         table.add_row(r["command"], f"{1e6 * r['rmse_xu_m']:.2f}", f"{r['rmse_pct_of_peak']:.3f}")
     console.print(table)
-    console.print(f"{len(out['plots'])} plots under {results}/plots, reports under "
+    console.print(f"{len(out.plots)} plots under {results}/plots, reports under "
                   f"{results}/reports (summary.md), database {results}/eha.duckdb")
-    console.print(f"thesis fault identification (Figure 6.17): {out['fdi']['table']}, "
-                  f"{out['fdi']['plot'].name}, {out['fdi']['summary'].name}")
-    html = out["html"]
+    console.print(f"thesis fault identification (Figure 6.17): {out.fdi['table']}, "
+                  f"{out.fdi['plot'].name}, {out.fdi['summary'].name}")
+    html = out.html
     console.print(f"report (open in a browser): {html.path} "
                   f"({html.bytes / 1e6:.1f} MB, {html.seconds:.1f} s)")

@@ -8,8 +8,9 @@ Reads what the runner stored in ``DIR/eha.duckdb``; draws with :mod:`eha.reports
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -32,8 +33,30 @@ def _markdown_table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
 
 
-def reproduce_thesis(results: str | Path = "results", workers: int = 2,
-                     progress: bool = True, on_phase=None) -> dict:
+@dataclass
+class Reproduction:
+    """What :func:`reproduce_thesis` did: the campaigns' :class:`eha.campaigns.runner.RunSummary`
+    (``summaries``), the nominal HF-vs-LF error per command (``nominal``: ``rmse_xu_m`` in m,
+    ``rmse_pct_of_peak`` in % of the command's peak), the figures and reports written, the
+    FDI report's paths (``fdi``) and the HTML report (``html``)."""
+
+    summaries: list
+    nominal: list[dict]
+    plots: list[Path]
+    reports: list[Path]
+    fdi: dict
+    html: Any
+
+    def to_pandas(self) -> "pd.DataFrame":
+        """The nominal HF-vs-LF error, one row per command (``rmse_xu_m`` in m)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.nominal, columns=["command", "rmse_xu_m",
+                                                   "rmse_pct_of_peak"])
+
+
+def reproduce_thesis(results: str | Path = "results", *, workers: int = 2,
+                     progress: bool = True, on_phase=None) -> Reproduction:
     """Thesis chapters 5 and 6 end to end: run :data:`THESIS_CAMPAIGNS` and the FDI campaign
     :data:`FDI_CAMPAIGN`, then figures and reports (the FDI ones by :func:`thesis_report`).
 
@@ -94,8 +117,7 @@ def reproduce_thesis(results: str | Path = "results", workers: int = 2,
     say("HTML report of the folder (reports/report.html)")
     html = build_report(results, results / "reports" / "report.html")   # one page of it all
     reports.append(html.path)
-    return {"summaries": summaries, "nominal": nominal, "plots": plots, "reports": reports,
-            "fdi": fdi, "html": html}
+    return Reproduction(summaries, nominal, plots, reports, fdi, html)
 
 
 #: per campaign, the call of eha reproduce that ran its runs (kept across calls)
