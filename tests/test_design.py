@@ -11,7 +11,8 @@ import pytest
 
 from helpers import error_line, files_under, invoke_eha
 from eha.design import DesignError, Limits, design
-from eha.design.family import at_rest_at_the_end, command_samples, genes, n_genes
+from eha.design.family import (at_rest_at_the_end, command_samples, genes, n_genes,
+                               outside_limits)
 from eha.design.predict import predict
 from eha.design.targets import from_explain, resolve_targets
 from eha.design.verify import levels_around, measured, upper_bound
@@ -162,3 +163,41 @@ def test_an_undecided_explain_answer_names_the_test_that_decides_it(tmp_path):
     text = " ".join(cap.get().split())
     assert "offset (Ofs -0.009 mA)" in text
     assert f"eha design --faults none --around {tmp_path / 'out.json'}" in text.replace("\n", "")
+
+
+def test_a_library_command_within_the_limits_is_outside_only_when_it_breaks_one():
+    """``outside_limits`` names the limit a command breaks: chirp_1cm fits a 2-s, 1-cm,
+    0.1-m/s test; the 5 Hz sine is too fast for it, and a 1-s cut of chirp_1cm is not at rest
+    at its end."""
+    t2 = np.round(np.arange(0.0, 2.0 + 5e-4, 1e-3), 9)
+    limits = Limits(duration=2.0, max_stroke=1e-2, max_rate=0.1)
+    assert outside_limits(make_command("chirp_1cm").sample(t2), limits) is None
+    assert "m/s" in outside_limits(make_command("sine").sample(t2), limits)
+    t1 = t2[t2 <= 1.0]
+    assert "rest" in outside_limits(make_command("chirp_1cm").sample(t1),
+                                    Limits(duration=1.0, max_stroke=1e-2, max_rate=0.1))
+
+
+@pytest.mark.slow
+def test_the_design_is_never_worse_than_a_library_command_within_the_limits():
+    """With a search too short to find much (4 candidates, 1 generation), the design still
+    scores at least as well, by the search's own objective, as every library command that
+    fits the limits and that the LF model follows: the incumbent is a candidate."""
+    from eha.design.search import best_library, score
+    from eha.design.targets import resolve_targets
+
+    limits = Limits(duration=2.0, max_stroke=1e-2, max_rate=0.1)
+    result = design(faults=["Ofs", "BKL"], limits=limits, seed=0, population=4,
+                    generations=1, actuators=1)
+    targets = resolve_targets(["Ofs", "BKL"], (), [])
+    reference = best_library(targets, result.library)
+    mine = score(predict(array_command(result.t, result.com, "d"), targets, 2.0,
+                         n_actuators=1), targets, reference)
+    eligible = [name for name, pred in result.library.items() if pred.followed and
+                outside_limits(make_command(name).sample(result.t), limits) is None]
+    assert eligible, "no library command fits the limits: the test shows nothing"
+    for name in eligible:   # 1e-3: a log ratio (0.1 %), the samples against the formula
+        assert mine <= score(result.library[name], targets, reference) + 1e-3, name
+    if result.settings["chosen"] != "searched":
+        assert result.settings["chosen"].startswith("library command ")
+        assert outside_limits(result.com, limits) is None

@@ -17,11 +17,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from eha.design.family import COMMAND_DT, DesignError, Limits, command_samples, decode
+from eha.design.family import (COMMAND_DT, DesignError, Limits, command_samples, decode,
+                               outside_limits)
 from eha.design.predict import FOLLOW_RATIO, Prediction, predict
-from eha.design.search import LIBRARY, best_library, library_predictions, search
+from eha.design.search import LIBRARY, best_library, library_predictions, score, search
 from eha.design.targets import SIGNALS, Target, resolve_targets, with_probes
-from eha.models.commands import array_command, write_command_file
+from eha.models.commands import array_command, make_command, write_command_file
 
 #: A test load the "what would make it visible" line tries [N] (an eighth of the jack's
 #: 16 kN stall force).
@@ -246,6 +247,15 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                            generations=generations, on_progress=say,
                            at_size=bool(around), **options)
     t, com = command_samples(x, limits)
+    segments = decode(x, limits)
+    incumbent = _better_library_command(t, com, targets, limits, reference, pairs,
+                                        bool(around), library, options)
+    if incumbent is not None:   # the search found nothing better: the library's command is
+        name, com = incumbent   # the design (never worse than what the user already has)
+        segments = [{"shape": f"library command {name}", "start": 0.0,
+                     "length": limits.duration}]
+        say(f"no member of the family found beats the library command {name} within the "
+            f"limits: it is the design")
     command = array_command(t, com, "design")
     say("final prediction: signatures at the predicted sizes")
     first = predict(command, targets, limits.duration, **options)
@@ -260,9 +270,33 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                 **limits.to_dict(), "signals": list(signals), "sampling": sampling,
                 "noise": options["noise"], "alpha": alpha, "seed": seed,
                 "actuators": actuators, "population": population, "generations": generations,
-                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO}
-    return DesignResult(t, com, refined, prediction, library, settings, decode(x, limits),
+                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO,
+                "chosen": (f"library command {incumbent[0]}" if incumbent is not None
+                           else "searched")}
+    return DesignResult(t, com, refined, prediction, library, settings, segments,
                         alternatives, history, time.perf_counter() - start)
+
+
+def _better_library_command(t, com, targets, limits, reference, pairs, at_size, library,
+                            options) -> tuple[str, np.ndarray] | None:
+    """The library command within ``limits`` (:func:`eha.design.family.outside_limits`) that
+    the LF model follows and that scores better than the searched command by the search's own
+    objective (:func:`eha.design.search.score`), with its samples; None when the searched
+    command is at least as good. A search over a family is a local answer: the incumbent
+    designs are candidates too."""
+    all_pairs = [q for f, g in pairs for q in ((f, g), (g, f))]
+    searched = predict(array_command(t, com, "design"), targets, limits.duration,
+                       pairs=all_pairs, **options)
+    best = score(searched, targets, reference, pairs, at_size)
+    chosen = None
+    for name, pred in library.items():
+        samples = make_command(name).sample(t)
+        if not pred.followed or outside_limits(samples, limits) is not None:
+            continue
+        value = score(pred, targets, reference, pairs, at_size)
+        if value < best - 1e-9:
+            best, chosen = value, (name, samples)
+    return chosen
 
 
 def _check(signals, sampling, noise, alpha, actuators, population, generations, seed) -> dict:

@@ -173,5 +173,24 @@ def at_rest_at_the_end(com: np.ndarray, limits: Limits) -> bool:
     return bool(np.all(np.abs(com[-tail:]) <= 1e-9 * max(1.0, limits.max_stroke * 1e3)))
 
 
+def outside_limits(com: np.ndarray, limits: Limits) -> str | None:
+    """Why a command sampled at 1 kHz over the test is outside ``limits`` (a library command
+    offered as the design), or None: beyond the stroke, faster than the rate, not at rest at
+    the start or the end, or with more than 1 % of its energy above ``max_freq``."""
+    stroke = limits.max_stroke * (1.0 + 1e-6)
+    if np.max(np.abs(com)) > stroke:
+        return f"reaches {np.max(np.abs(com)) * 1e3:.3g} mm (stroke {limits.max_stroke * 1e3:g} mm)"
+    rate = np.max(np.abs(np.diff(com))) / COMMAND_DT if com.size > 1 else 0.0
+    if rate > limits.max_rate * 1.001:
+        return f"moves at {rate:.3g} m/s (rate {limits.max_rate:g} m/s)"
+    if abs(com[0]) > 1e-9 or not at_rest_at_the_end(com, limits):
+        return "does not start and end at rest"
+    power = np.abs(np.fft.rfft(com - com.mean())) ** 2
+    freq = np.fft.rfftfreq(com.size, COMMAND_DT)
+    if power.sum() > 0 and power[freq > limits.max_freq].sum() > 0.01 * power.sum():
+        return f"has more than 1 % of its energy above {limits.max_freq:g} Hz"
+    return None
+
+
 __all__ = ["Limits", "DesignError", "N_SEGMENTS", "GENES", "SHAPES", "n_genes", "decode", "genes",
-           "command_samples", "slew_limit", "at_rest_at_the_end"]
+           "command_samples", "slew_limit", "at_rest_at_the_end", "outside_limits"]
