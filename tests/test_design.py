@@ -140,6 +140,31 @@ def test_verification_statistics_on_canned_assessments():
     assert upper_bound(0, 200) == pytest.approx(1 - 0.05 ** (1 / 200), rel=1e-6)
 
 
+def test_a_size_detected_at_the_smallest_level_tried_is_reported_as_a_bound():
+    """Every level detected: the measured size is the smallest level, which bounds the true
+    one from above; the table says ``<=``, and a size found above the smallest level does
+    not."""
+    from eha.design.verify import Verification
+    from eha.models.faults import FAULTS
+
+    def row(seed, grp="healthy", ofs=0.0):
+        means = {n: FAULTS[n].healthy for n in FAULTS}
+        means["Ofs"] = ofs + 0.001 * ((seed * 7919) % 13 - 6) / 6
+        return {"command": "c", "grp": grp, "seed": seed, "means": means,
+                "spread": {n: 0.0 for n in FAULTS}, "weights": {"Ofs": 0.9, "none": 0.1}}
+
+    rows = [row(s) for s in range(50)] + [row(100 + s, "Ofs=0.02", 0.02) for s in range(10)]
+    rows += [row(200 + s, "Ofs=0.04", 0.04) for s in range(10)]
+    figures = measured(rows, 10, 0.01)
+    assert figures["c"]["faults"]["Ofs"]["at_lowest_level"]
+    table = Verification(figures, {}, {}, "x", "r").markdown()
+    assert "| Ofs | <= 0.02" in table
+    rows += [row(300 + s, "Ofs=0.0005", 0.0005) for s in range(10)]
+    figures = measured(rows, 10, 0.01)
+    assert not figures["c"]["faults"]["Ofs"]["at_lowest_level"]
+    assert "| Ofs | 0.02" in Verification(figures, {}, {}, "x", "r").markdown()
+
+
 def test_levels_around_the_prediction_stay_inside_the_bounds():
     lv = levels_around({"GM": 0.001, "Clk": math.inf, "BKL": 1e-3})
     assert lv["GM"] == pytest.approx([0.006, 0.008, 0.009, 0.0095])

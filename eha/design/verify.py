@@ -100,7 +100,9 @@ def measured(rows: Sequence[Mapping[str, Any]], calibration: int, alpha: float
                                "isolated": e["isolated"] / e["n"], "n": e["n"]}
                               for v, e in levs.items()), key=lambda e: e["deviation"])
             ok = [e["deviation"] for e in entries if e["p_detect"] >= P_DETECT]
-            table[name] = {"levels": entries, "min_detectable": min(ok) if ok else None}
+            # detected at the smallest level tried: the size is a bound, not a measurement
+            table[name] = {"levels": entries, "min_detectable": min(ok) if ok else None,
+                           "at_lowest_level": bool(ok) and min(ok) == entries[0]["deviation"]}
         out[command] = {"thresholds": thresholds, "calibration_actuators": len(cal),
                         "false_alarms": {"n": len(held), "alarms": int(alarms),
                                          "rate": alarms / len(held),
@@ -134,7 +136,8 @@ class Verification:
 
     def markdown(self) -> str:
         """The table a person reads: per fault and command the measured minimum detectable
-        deviation and its isolation at the first level detected, then false alarms."""
+        deviation (``<=`` where the smallest level tried was already detected: a bound) and
+        its isolation at the first level detected, then false alarms."""
         commands = list(self.figures)
         lines = ["| fault | " + " | ".join(commands) + " |", "|---|" + "---|" * len(commands)]
         for name in FAULTS:
@@ -148,7 +151,9 @@ class Verification:
                 top = f["levels"][-1]["deviation"] if f["levels"] else float("nan")
                 iso = next((e["isolated"] for e in f["levels"]
                             if md is not None and e["deviation"] >= 2 * md), None)
-                cells.append(("> " + f"{top:.3g}" if md is None else f"{md:.3g}")
+                size = (f"<= {md:.3g}" if f.get("at_lowest_level") else f"{md:.3g}") \
+                    if md is not None else f"> {top:.3g}"
+                cells.append(size
                              + ("" if iso is None else f" (isolated {iso:.0%} at >= 2x)"))
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         lines += ["", "| command | held-out healthy | alarms | rate | 95 % upper bound |",
