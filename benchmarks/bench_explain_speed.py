@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import result_path, write_result  # noqa: E402
 from eha.models.commands import array_command, as_command  # noqa: E402

@@ -272,7 +272,7 @@ def foreign_record(command: Command | str, effect: str, magnitude: float,
 
 
 #: The faults of the outside-the-library records (tests/test_explain_unexplained.py and
-#: benchmarks/bench_explain_outside.py).
+#: validation/explain_outside.py).
 OUTSIDE_TRUTH = {"BKL": 1e-4, "FDJ": 800.0}
 #: Magnitudes: the module's defaults, but spool overlap at 50 µm: at 20 µm leakage plus a
 #: supply-pressure change mimic it on `mixed` to 1.6x the noise (docs/explain.md, Limits).

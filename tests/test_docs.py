@@ -41,6 +41,8 @@ def test_docs_refer_to_nothing_outside_the_repository():
     assert not found, "references to files outside the repository:\n" + "\n".join(found)
 
 
+
+
 # ---- the README's snippets run as written --------------------------------------------------
 
 FENCE = re.compile(r"```(bash|python)\n(.*?)```", re.S)
@@ -53,6 +55,8 @@ NOT_RUN = {
     "xdg-open": "opens a browser",
     "python -m venv": "creates a virtual environment",
     "python benchmarks/": "a benchmark (minutes; its result is benchmarks/results/<name>.json)",
+    "python validation/": "a validation study (minutes to hours; its result is "
+                          "validation/results/<name>.json)",
     "eha ": "reads the user's record.csv / a results folder, or runs minutes of simulations: "
             "its command and options are checked against the CLI",
 }
@@ -136,38 +140,67 @@ def test_readme_commands_exist_with_their_options():
     assert problems == [], "\n".join(problems)
 
 
-# ---- benchmarks/results: one current file per benchmark, quoted by the docs -------------------
+# ---- benchmarks/ and validation/: one current result file per script, quoted by the docs ------
 
-RESULTS = ROOT / "benchmarks" / "results"
-#: Result files not named after a benchmark script, and why.
+#: The folders of scripts with result files: the speed benchmarks and the validation studies,
+#: each script writing ``<folder>/results/<script>.json`` (tools/_results.py).
+FOLDERS = ("benchmarks", "validation")
+#: Result files not named after a script of their folder, and why.
 NOT_A_SCRIPT = {
-    "explain_foreign.json": "bench_explain_foreign.py's result (the independent simulator's "
-                            "records, scored outside the repository): it keeps the name the "
-                            "docs quote",
-    "health-detection": "`eha report health` on campaigns/health-detection.toml (a folder)",
+    "validation/results/health-detection": "`eha report health` on "
+                                           "campaigns/health-detection.toml (a folder)",
 }
 
 
-def test_every_result_file_is_the_current_file_of_a_benchmark():
-    scripts = {p.stem for p in (ROOT / "benchmarks").glob("*.py")}
-    stray = [p.name for p in RESULTS.iterdir()
-             if p.name not in NOT_A_SCRIPT and not (p.suffix == ".json" and p.stem in scripts)]
-    assert stray == [], f"not <benchmark script>.json: {stray}"
+def _result_files():
+    return [p for folder in FOLDERS for p in sorted((ROOT / folder / "results").iterdir())]
+
+
+def test_every_result_file_is_the_current_file_of_a_script():
+    stray = []
+    for folder in FOLDERS:
+        scripts = {p.stem for p in (ROOT / folder).glob("*.py")}
+        stray += [str(p.relative_to(ROOT)) for p in sorted((ROOT / folder / "results").iterdir())
+                  if str(p.relative_to(ROOT)) not in NOT_A_SCRIPT
+                  and not (p.suffix == ".json" and p.stem in scripts)]
+    assert stray == [], f"not <folder>/results/<script of the folder>.json: {stray}"
+
+
+def test_the_validation_studies_and_the_speed_benchmarks_are_apart():
+    """benchmarks/ keeps the speed benchmarks (``bench_*``), validation/ the studies; the
+    helper they share lives in tools/, in neither."""
+    assert sorted(p.name for p in (ROOT / "benchmarks").glob("*.py")
+                  if not p.name.startswith("bench_")) == []
+    assert sorted(p.name for p in (ROOT / "validation").glob("*.py")
+                  if p.name.startswith("bench_")) == []
+    assert sorted(p.relative_to(ROOT).as_posix() for p in ROOT.glob("*/_results.py")) \
+        == ["tools/_results.py"]
+
+
+@pytest.mark.parametrize("script", sorted(
+    f"{folder}/{p.name}" for folder in FOLDERS for p in (ROOT / folder).glob("*.py")))
+def test_every_script_runs_from_the_repository_root(script):
+    """``python <folder>/<script>.py --help`` from the root: its imports (the shared helper, a
+    sibling script) resolve."""
+    proc = subprocess.run([sys.executable, script, "--help"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "usage" in proc.stdout.lower(), proc.stdout[-500:]
 
 
 def test_every_result_file_has_its_provenance():
     import json
 
     missing = {}
-    for path in sorted(RESULTS.glob("*.json")):
-        if path.name in NOT_A_SCRIPT:
+    for path in _result_files():
+        if path.suffix != ".json":
             continue
         prov = json.loads(path.read_text(encoding="utf-8")).get("provenance") or {}
         keys = {"commit", "date", "machine", "cores"} - set(prov)
         if not {"load", "loadavg_start"} & set(prov):
             keys.add("load")
         if keys:
-            missing[path.name] = sorted(keys)
+            missing[str(path.relative_to(ROOT))] = sorted(keys)
     assert missing == {}
 
 
@@ -175,12 +208,12 @@ def test_docs_link_result_files_that_exist():
     """Every result file a page links exists (a script's `--json` output not yet run is named
     in backticks, not linked)."""
     pages = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
-    # a quoted figure links its file: [...](../benchmarks/results/NAME.json)
+    # a quoted figure links its file: [...](../validation/results/NAME.json)
     named = {m for p in pages
-             for m in re.findall(r"\]\((?:\.\./)?benchmarks/results/([\w.-]+\.json)\)",
+             for m in re.findall(r"\]\((?:\.\./)?((?:benchmarks|validation)/results/[\w./-]+)\)",
                                  p.read_text("utf-8"))}
     assert len(named) >= 5, f"the docs link few result files: {sorted(named)}"
-    assert sorted(n for n in named if not (RESULTS / n).is_file()) == []
+    assert sorted(n for n in named if not (ROOT / n).exists()) == []
 
 
 #: Dotted names that are not Python objects: entry-point groups (pyproject.toml) and the

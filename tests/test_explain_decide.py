@@ -181,7 +181,7 @@ def test_rivals_share_no_effect_and_structure_is_always_specific():
 # -- the model's known structure first ------------------------------------------------------
 
 def test_the_structure_comes_before_an_effect_that_gains_more():
-    # healthy `test` record (bench_explain_fp seed 2203): a leak gained 0.74, the structural
+    # healthy `test` record (explain_fp seed 2203): a leak gained 0.74, the structural
     # pair 0.69; the leak was a stand-in for the flapper dynamics
     tried = [cand("leakage", 0.74), cand("orifice_law+flapper_dynamics", 0.69, params=2),
              cand("motor_gain", 0.47)]
@@ -319,7 +319,7 @@ def test_choose_needs_a_p_value_strictly_below_the_significance_level():
 
 
 def test_a_rival_within_its_healthy_band_sets_a_small_gain_aside_only_within_the_healthy_residual():
-    # offset 0.015 mA on `mixed` (bench_explain_loop_power, seed 100000, measured): with the
+    # offset 0.015 mA on `mixed` (explain_loop_power, seed 100000, measured): with the
     # structure in, the offset takes 44.9 % off (p 5e-32, past its gate), a sensor bias of
     # 1.6 µm 43.9 %, within its healthy band. Within what healthy actuators leave, that rival
     # says a healthy-size change does as well; beyond it (the record at 1.88x noise, the

@@ -8,7 +8,7 @@ widened (a fault the stand-ins bias is inside its interval or its interval is wi
 
 The same check on the cubic spring and the spool overlap (5-6 min of the suite's 2 cores:
 the final check's global swap search far from the noise) runs in
-benchmarks/bench_explain_outside.py, which fails when any of its records does.
+validation/explain_outside.py, which fails when any of its records does.
 """
 
 import json

@@ -128,7 +128,7 @@ class Null:
         """Per effect, the shift from off that its fit exceeds the threshold with probability
         ``power``, assuming the fit scatters about a real effect as about a healthy one: the
         threshold plus the ``power`` quantile of the healthy spread. An estimate of the
-        loop's minimum detectable effect on this command; ``benchmarks/bench_explain_power.py``
+        loop's minimum detectable effect on this command; ``validation/explain_power.py``
         measures it."""
         z = NormalDist().inv_cdf(power)
         m = max(len(self.statistics), 1)

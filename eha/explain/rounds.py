@@ -114,7 +114,7 @@ class Rounds:
         steps with the dry friction: from 1e-12 least squares stops at 7e-13 and 45 µm,
         the GA refit finds 4.4e-12 and 8 µm). The null runs no global refit; what this
         adds to the false-positive rate on healthy records is measured by
-        ``benchmarks/bench_explain_fp.py``.
+        ``validation/explain_fp.py``.
 
         Further starts: the effects' :attr:`~eha.explain.effects.Effect.other_starts` (the
         supply pressure's other law), and every start again with the structure in the model at

@@ -19,7 +19,7 @@ and a record. Its estimate is wrong for three reasons, and the interval accounts
    a residual far above it a wide one — and the fit is *flagged*.
 3. **Structural bias of the model** that stays hidden in the residual (the plain LF model's
    linear pressure law makes the fit read FDJ about 4 % high at an RMSE equal to the noise).
-   It is measured on HF records with known truth (``benchmarks/bench_intervals.py
+   It is measured on HF records with known truth (``validation/intervals.py
    --calibrate``) and enters as a relative and an absolute floor per parameter
    (:data:`MODEL_FORM`), added in quadrature.
 
@@ -96,7 +96,7 @@ def _model_form() -> dict[str, dict[str, ModelForm]]:
 #: Measured model-form terms per LF base ("plain" = the thesis' LF, "calibrated" = the LF with
 #: the effects eha explain found on a healthy-actuator load test) and parameter, declared with
 #: each fault (:attr:`eha.models.faults.Fault.model_form`, where their sources are). Source:
-#: ``python benchmarks/bench_intervals.py --calibrate`` on calibration records (seeds apart
+#: ``python validation/intervals.py --calibrate`` on calibration records (seeds apart
 #: from the benchmark's); see docs/health.md. Parameters absent here get ModelForm().
 MODEL_FORM: Mapping[str, dict[str, ModelForm]] = Derived(_model_form, "MODEL_FORM")
 
@@ -106,7 +106,7 @@ MODEL_FORM: Mapping[str, dict[str, ModelForm]] = Derived(_model_form, "MODEL_FOR
 #: each added effect's). The LF with the right effects is still not the HF: at the best fit of
 #: the right model its estimates are biased by a few tenths of a percent to a few percent,
 #: more than the HAC term allows at a residual near the noise. Source: ``python
-#: benchmarks/bench_explain_coverage.py --calibrate`` (docs/explain.md).
+#: validation/explain_coverage.py --calibrate`` (docs/explain.md).
 LOOP_MODEL_FORM = ModelForm(rel=0.0075)
 
 
@@ -131,7 +131,7 @@ def inflation(excess: float) -> float:
 def total_std(hac: float, value: float, term: ModelForm, widen: float = 1.0) -> float:
     """Standard uncertainty of one estimate: the HAC part scaled, the model-form floors in
     quadrature, all widened by :func:`inflation` (the one definition, used by the intervals
-    and by their calibration in benchmarks/bench_intervals.py)."""
+    and by their calibration in validation/intervals.py)."""
     if not math.isfinite(hac):
         return math.inf
     return widen * math.sqrt((term.scale * hac) ** 2 + (term.rel * value) ** 2 + term.abs ** 2)

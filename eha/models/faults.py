@@ -248,7 +248,7 @@ def detection_levels(names=None) -> dict[str, list[float]]:
 # -- the seven health faults of the thesis' LF model (docs/health.md). Model-form floors:
 # the plain LF reads FDJ 3.8-4.8 % high on chirp records at an RMSE near the noise (dense scan,
 # docs/fdi.md) and BKL up to 2 %: floors that cover that bias at 90 %. The calibrated LF's
-# floors: `python benchmarks/bench_intervals.py --calibrate` (60 calibration records, chirp_1cm
+# floors: `python validation/intervals.py --calibrate` (60 calibration records, chirp_1cm
 # and mixed): the floors of smallest median width that bring the coverage to 90 % (GM and Ofs
 # need none; no floor helps Clk, whose leakage the chirp record cannot tell from friction).
 register(Fault("BKL", "jack-surface backlash", +1, (0.0, 1.25e-3), role="core",

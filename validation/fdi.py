@@ -5,9 +5,9 @@ median and spread of the thesis mean error (ours against the thesis'), the media
 evaluations, then the goals of issue 4: every case at least as accurate as the thesis,
 median time per case <= 5 s, whole table <= 2 min (on this 2-core machine).
 
-    python benchmarks/bench_fdi.py                    # default method, 5 seeds
-    python benchmarks/bench_fdi.py --method ga        # the thesis' GA
-    python benchmarks/bench_fdi.py --json             # machine-readable figures
+    python validation/fdi.py                    # default method, 5 seeds
+    python validation/fdi.py --method ga        # the thesis' GA
+    python validation/fdi.py --json             # machine-readable figures
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import write_result  # noqa: E402
 
@@ -44,7 +45,7 @@ def main() -> None:
                     help="LF parameter held fixed, NAME=VALUE (e.g. orifice_law=1); repeatable")
     ap.add_argument("--json", action="store_true",
                     help="print figures as JSON only and write them to the result file, "
-                         "benchmarks/results/bench_fdi.json (replacing it)")
+                         "validation/results/fdi.json (replacing it)")
     args = ap.parse_args()
 
     from eha.models.params import parse_assignments, resolve
@@ -100,7 +101,7 @@ def main() -> None:
                "per_case": per_case}
     if args.json:
         print(json.dumps(summary, indent=2))
-        write_result("bench_fdi", {"settings": {"argv": sys.argv[1:]}, "summary": summary})
+        write_result("fdi", {"settings": {"argv": sys.argv[1:]}, "summary": summary})
         return
     print(f"method {args.method}, objective {args.objective}, seeds 0..{args.seeds - 1}, "
           f"LF base {summary['base'] or 'nominal'}")

@@ -9,7 +9,7 @@ the HF. This bench measures that bias where the truth is known and calibrates on
 added in quadrature to every parameter of a model the loop built
 (:data:`eha.identification.intervals.LOOP_MODEL_FORM`).
 
-``--calibrate``: on the records of :mod:`bench_explain_multi` drawn with *other* seed blocks
+``--calibrate``: on the records of :mod:`explain_multi` drawn with *other* seed blocks
 (``--seeds``, default 1,2; the bench's own records are block 0), the right model -- the HF's
 structure (orifice law, flapper dynamics) and the injected effects -- is fitted to the whole
 record by least squares (``eha.identification.fdi.identify(method="lm")``) from the truth (the
@@ -19,14 +19,14 @@ are taken (:func:`eha.identification.fdi.intervals_at`, no floor), and the small
 parameter) pairs. What it measures is the model-form bias, not the loop's search (which the final
 least-squares estimates make small on explained records).
 
-``--evaluate PATH``: re-scores a :mod:`bench_explain_multi` JSON (the loop's own runs): the
+``--evaluate PATH``: re-scores a :mod:`explain_multi` JSON (the loop's own runs): the
 coverage of the injected truth by the intervals every record's final model reports (floor
 included), all records and explained ones alone; where the JSON keeps every fitted value
 (``params_after``) also recomputed at those estimates without and with the floor now in
 :data:`eha.identification.intervals.LOOP_MODEL_FORM`.
 
-    python benchmarks/bench_explain_coverage.py --calibrate --seeds 1,2 --json cal.json
-    python benchmarks/bench_explain_coverage.py --evaluate benchmarks/results/bench_explain_multi.json --json
+    python validation/explain_coverage.py --calibrate --seeds 1,2 --json cal.json
+    python validation/explain_coverage.py --evaluate validation/results/explain_multi.json --json
 
 One calibration record takes 1-5 s (one core): 24 records about 1-2 min.
 """
@@ -43,11 +43,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import result_path, write_result  # noqa: E402
 
-from bench_explain_fp import P12_NOISE, clean, p12_column, provenance  # noqa: E402
-from bench_explain_multi import (FAULTS, RECORDS, STRUCTURAL, T_END, injected,  # noqa: E402
+from explain_fp import P12_NOISE, clean, p12_column, provenance  # noqa: E402
+from explain_multi import (FAULTS, RECORDS, STRUCTURAL, T_END, injected,  # noqa: E402
                                  make_command)
 
 LEVEL = 0.9
@@ -56,7 +57,7 @@ FLOOR_GRID = np.round(np.arange(0.0, 0.2001, 0.0025), 4)
 
 
 def build(i: int, block: int, tmp: Path):
-    """Record ``i`` of bench_explain_multi drawn with seed block ``block``: (data, truth)."""
+    """Record ``i`` of explain_multi drawn with seed block ``block``: (data, truth)."""
     from eha.identification.measured import load, synthetic_record
 
     name, combo, command = RECORDS[i]
@@ -201,22 +202,22 @@ def main() -> None:
     ap.add_argument("--calibrate", action="store_true", help="measure the floor")
     ap.add_argument("--seeds", default="1,2", help="seed blocks of the calibration records")
     ap.add_argument("--evaluate", default=None, metavar="PATH",
-                    help="re-score a bench_explain_multi JSON with and without the floor")
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_coverage")),
+                    help="re-score a explain_multi JSON with and without the floor")
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_coverage")),
                     default=None, metavar="PATH",
                     help="write the figures (default: the result file; a part not run now is "
                          "kept from it)")
     args = ap.parse_args()
     if not args.calibrate and not args.evaluate:
         ap.error("give --calibrate and/or --evaluate PATH")
-    out = {"benchmark": "bench_explain_coverage", "provenance": provenance(sys.argv)}
+    out = {"benchmark": "explain_coverage", "provenance": provenance(sys.argv)}
     if args.calibrate:
         out["calibration"] = calibrate(args)
     if args.evaluate:
         out["evaluation"] = evaluate(args)
     if args.json:
         old = Path(args.json)
-        if old.is_file() and old.resolve() == result_path("bench_explain_coverage").resolve():
+        if old.is_file() and old.resolve() == result_path("explain_coverage").resolve():
             kept = json.loads(old.read_text())
             for part in ("calibration", "evaluation"):
                 if part not in out and part in kept:

@@ -2,9 +2,9 @@
 verified by simulation against library commands, and the separating designs for the foreign
 set's five ambiguities.
 
-    python benchmarks/bench_design.py --json                 # design, verify, ambiguities
-    python benchmarks/bench_design.py --design DIR --json    # reuse DIR/design.{json,csv}
-    python benchmarks/bench_design.py --loop 2 --json        # + the loop on HF records
+    python validation/design.py --json                 # design, verify, ambiguities
+    python validation/design.py --design DIR --json    # reuse DIR/design.{json,csv}
+    python validation/design.py --loop 2 --json        # + the loop on HF records
 
 Parts:
 
@@ -33,9 +33,10 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 from _results import ROOT, write_result  # noqa: E402
 
-#: The foreign set's five ambiguities (docs/explain.md, benchmarks/results/explain_foreign.json):
+#: The foreign set's five ambiguities (docs/explain.md, validation/results/explain_foreign.json):
 #: the effect found, its rival, and their fitted deviations from off on the record.
 AMBIGUITIES = {
     "load-offset (f01, f02)": (("external_load", 800.0), ("offset", -0.009)),
@@ -180,11 +181,11 @@ def main() -> None:
     if args.json:
         from _results import result_path
 
-        if args.merge and result_path("bench_design").exists():
-            old = json.loads(result_path("bench_design").read_text())
+        if args.merge and result_path("design").exists():
+            old = json.loads(result_path("design").read_text())
             old.pop("provenance", None)
             doc = {**old, **doc}
-        write_result("bench_design", _finite(doc), load_start=load)
+        write_result("design", _finite(doc), load_start=load)
 
 
 def _finite(value):

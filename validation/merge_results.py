@@ -1,4 +1,4 @@
-"""Merge JSON results of bench_explain_multi.py or bench_explain_fp.py and recompute the summary.
+"""Merge JSON results of explain_multi.py or explain_fp.py and recompute the summary.
 
 Parts are read in order; a record of a later part replaces the record of an earlier part with
 the same key (multi: record name and seed; fp: command and seed). That serves two uses:
@@ -10,10 +10,10 @@ the same key (multi: record name and seed; fp: command and seed). That serves tw
   one seed, so when the JSON shows that no refit the change acts on occurred in the record's
   run, the old record *is* the new code's result. The provenance of every part is kept.
 
-    python benchmarks/merge_results.py multi benchmarks/results/bench_explain_multi.json \
+    python validation/merge_results.py multi validation/results/explain_multi.json \
         part0.json part1.json part2.json
-    python benchmarks/merge_results.py fp benchmarks/results/bench_explain_fp.json \
-        benchmarks/results/bench_explain_fp.json rerun.json
+    python validation/merge_results.py fp validation/results/explain_fp.json \
+        validation/results/explain_fp.json rerun.json
 
 The merged file's provenance says where each part comes from (``parts``) and, on top, the
 commit(s), the latest date, the machine(s), cores and load of the parts.
@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import write_result  # noqa: E402
 
@@ -65,10 +66,10 @@ def main() -> None:
             rows[k] = row
     merged = list(rows.values())
     if args.kind == "multi":
-        import bench_explain_multi as bench
+        import explain_multi as bench
         summary = bench.summarise(merged)
     else:
-        import bench_explain_fp as bench
+        import explain_fp as bench
         summary = bench.summarise(merged, list(dict.fromkeys(r["command"] for r in merged)))
     summary["wall_s"] = sum(d["summary"].get("wall_s", 0.0) for d in docs)
     parts = []
@@ -78,7 +79,7 @@ def main() -> None:
             prov = prov["parts"]
         for p in prov if isinstance(prov, list) else [prov]:
             parts.append({"part": Path(part).name, **p})
-    out = {"benchmark": f"bench_explain_{args.kind}", "settings": docs[-1]["settings"],
+    out = {"benchmark": f"explain_{args.kind}", "settings": docs[-1]["settings"],
            "provenance": merged_provenance(parts), "replaced": replaced, "summary": summary,
            "records": merged}
     write_result(Path(args.out), out)

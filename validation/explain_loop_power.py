@@ -1,11 +1,11 @@
 """The residual loop's own detection power, end to end, at the gate's measured detectable size.
 
-``bench_explain_power.py`` measures the *gate* (the local test of one effect past its healthy
+``explain_power.py`` measures the *gate* (the local test of one effect past its healthy
 threshold): necessary for the loop to add an effect, not sufficient (the loop also ranks the
 candidates, asks for a significant and specific gain, and its final check may set the effect
 aside for a rival). This benchmark runs the whole of :func:`eha.explain.explain`, with its
 defaults (alpha 0.05, fit BKL and FDJ), on the *same* records as the gate's result file
-(``benchmarks/results/bench_explain_power.json``): per command and effect, ``--records``
+(``validation/results/explain_power.json``): per command and effect, ``--records``
 records with the effect at the size where the gate reached 90 % (its ``measured_detectable``;
 cells the gate never reached are skipped and listed), seeds ``100000 + 1000 * command index +
 k`` (the gate bench's, so the comparison is paired).
@@ -15,11 +15,11 @@ non-structural effect added), the verdict and the wall time. Per cell: the loop'
 the gate's size (the fraction found) and, where it falls short of 90 %, the same records at
 ``--escalate`` times that size.
 
-    python benchmarks/bench_explain_loop_power.py --commands mixed           # 12 cells
-    python benchmarks/bench_explain_loop_power.py --commands mixed --effects offset --records 2
-    python benchmarks/bench_explain_loop_power.py --commands mixed --json    # the result file
+    python validation/explain_loop_power.py --commands mixed           # 12 cells
+    python validation/explain_loop_power.py --commands mixed --effects offset --records 2
+    python validation/explain_loop_power.py --commands mixed --json    # the result file
 
-``--json`` writes ``benchmarks/results/bench_explain_loop_power.json`` (one current file, with
+``--json`` writes ``validation/results/explain_loop_power.json`` (one current file, with
 provenance; each row names the commit it was measured at). ``--merge EARLIER.json`` keeps the
 earlier file's cells that this run does not redo (a rerun of the cells a change can touch). A record takes 0.5-2 min on one core; a command's 12 cells of 5 records about
 25 min on 2 cores.
@@ -39,9 +39,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import provenance, result_path, write_result  # noqa: E402
-from bench_explain_power import COMMANDS, injected_value, template  # noqa: E402
+from explain_power import COMMANDS, injected_value, template  # noqa: E402
 
 
 #: the verdict's kind (the start of :attr:`eha.explain.results.ExplainResult.verdict`)
@@ -78,9 +79,9 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--escalate", default="2",
                     help="multiples of the gate's size tried where the loop falls short of 90 %%")
-    ap.add_argument("--gate", default=str(result_path("bench_explain_power")),
-                    help="the gate's result file (bench_explain_power.py --json)")
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_loop_power")))
+    ap.add_argument("--gate", default=str(result_path("explain_power")),
+                    help="the gate's result file (explain_power.py --json)")
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_loop_power")))
     ap.add_argument("--merge", default=None,
                     help="an earlier result file whose cells not rerun here are kept "
                          "(each row says its commit)")

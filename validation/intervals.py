@@ -13,10 +13,10 @@ record is assessed three ways, side by side:
 Prints per method and parameter the coverage of the nominal intervals, the median width
 (relative for FDJ >= 400 N, µm for BKL) and the time per record.
 
-    python benchmarks/bench_intervals.py                 # 120 records
-    python benchmarks/bench_intervals.py --records 30 --methods health
-    python benchmarks/bench_intervals.py --json          # benchmarks/results/bench_intervals.json
-    python benchmarks/bench_intervals.py --calibrate     # model-form floors (other seeds)
+    python validation/intervals.py                 # 120 records
+    python validation/intervals.py --records 30 --methods health
+    python validation/intervals.py --json          # validation/results/intervals.json
+    python validation/intervals.py --calibrate     # model-form floors (other seeds)
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import provenance, result_path, write_result  # noqa: E402
 
@@ -266,7 +267,7 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--json", action="store_true",
                     help="write the figures and every record to the result file, "
-                         "benchmarks/results/bench_intervals.json (replacing it)")
+                         "validation/results/intervals.json (replacing it)")
     ap.add_argument("--rows", default=None, help="also write every record's result (JSONL, "
                     "as the run goes)")
     ap.add_argument("--calibrate", action="store_true",
@@ -296,9 +297,9 @@ def main() -> None:
                     "methods": summarise(rows)}
         print(json.dumps(rescored, indent=2))
         if args.json:
-            doc = json.loads(result_path("bench_intervals").read_text())
+            doc = json.loads(result_path("intervals").read_text())
             doc["rescored"] = {**rescored, "provenance": provenance()}
-            write_result("bench_intervals", doc)
+            write_result("intervals", doc)
         return
     if args.from_rows:
         rows = read_rows(args.from_rows)
@@ -328,7 +329,7 @@ def main() -> None:
     out = {"records": len(rows), "wall_s": wall, "level": 0.9, "noise_m": 1e-6,
            "commands": list(COMMANDS), "methods": summarise(rows)}
     if args.json:
-        write_result("bench_intervals", {**out, "rows": rows})
+        write_result("intervals", {**out, "rows": rows})
     print(f"{len(rows)} records ({', '.join(COMMANDS)}, a third with one more fault), "
           f"1 µm noise, nominal level 90 %, {wall:.0f} s")
     print(f"{'method':<11} {'param':<7} {'coverage':>8} {'no extra':>8} {'extra':>7} "

@@ -3,12 +3,12 @@
 The 34 records, their truth and their scorer (``score.py``) are not in this repository: they
 come from another implementation of the thesis' HF model. This script runs the scorer (which
 calls ``eha explain`` on each record whose JSON is not yet in ``--out``, ``--jobs`` at a time,
-default 2), reads its table and writes ``benchmarks/results/explain_foreign.json`` with its
+default 2), reads its table and writes ``validation/results/explain_foreign.json`` with its
 provenance. The speed goal (per record on 2 cores) is timed with ``--jobs 1``.
 
-    python benchmarks/bench_explain_foreign.py --scorer PATH/TO/foreign/score.py --out DIR
-    python benchmarks/bench_explain_foreign.py --scorer ... --out DIR --jobs 1
-    python benchmarks/bench_explain_foreign.py --scorer ... --out DIR --note "4 rerun at ..."
+    python validation/explain_foreign.py --scorer PATH/TO/foreign/score.py --out DIR
+    python validation/explain_foreign.py --scorer ... --out DIR --jobs 1
+    python validation/explain_foreign.py --scorer ... --out DIR --note "4 rerun at ..."
 
 Records already scored in ``--out`` are kept (the scorer skips them): say in ``--note`` which
 records come from which commit. ``--json`` prints the result file.
@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 from _results import provenance, write_result  # noqa: E402
 
 #: the result file (named for the data set, not the script: docs quote it as such)

@@ -1,10 +1,17 @@
-"""One current result file per benchmark: ``benchmarks/results/<name>.json``, with provenance.
+"""One current result file per script, with provenance: the speed benchmarks write
+``benchmarks/results/<name>.json``, the validation studies ``validation/results/<name>.json``.
 
-Every benchmark script writes its figures through :func:`write_result`, which adds
-:func:`provenance` (commit, date, machine, cores, load) and *replaces* the file: the history
-of a figure lives in git (``git log -p benchmarks/results/<name>.json``), not in file names.
-A benchmark run in parts (seed blocks, ``--json PART``) writes its parts elsewhere and
-``merge_results.py`` merges them into the result file.
+Every script of ``benchmarks/`` and ``validation/`` writes its figures through
+:func:`write_result`, which adds :func:`provenance` (commit, date, machine, cores, load) and
+*replaces* the file: the history of a figure lives in git
+(``git log -p --follow validation/results/<name>.json``), not in file names. A study run in parts
+(seed blocks, ``--json PART``) writes its parts elsewhere and ``validation/merge_results.py``
+merges them into the result file.
+
+A script imports this module after putting ``tools/`` on its path::
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from _results import result_path, write_result
 """
 
 from __future__ import annotations
@@ -19,12 +26,17 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
+#: The folders of scripts that write result files, each into its own ``results/``.
+FOLDERS = (ROOT / "benchmarks", ROOT / "validation")
 
 
 def result_path(name: str) -> Path:
-    """The current result file of benchmark ``name`` (e.g. ``"bench_explain_fp"``)."""
-    return RESULTS / f"{name}.json"
+    """The current result file of script ``name`` (e.g. ``"explain_fp"``):
+    ``results/<name>.json`` in the folder of ``<name>.py`` (:data:`FOLDERS`)."""
+    for folder in FOLDERS:
+        if (folder / f"{name}.py").is_file():
+            return folder / "results" / f"{name}.json"
+    raise ValueError(f"no script {name}.py in {', '.join(f.name + '/' for f in FOLDERS)}")
 
 
 def _git(*args: str) -> str:
@@ -54,7 +66,8 @@ def provenance(argv: list[str] | None = None, load_start: Any = None) -> dict[st
 def write_result(name: str | Path, doc: dict[str, Any], argv: list[str] | None = None,
                  load_start: Any = None) -> Path:
     """Write ``doc`` (``benchmark`` and ``provenance`` added when missing) to the result file
-    of ``name`` (or to a path: a part for ``merge_results.py``), replacing it atomically."""
+    of script ``name`` (or to a path: a part for ``merge_results.py``), replacing it
+    atomically. ``benchmark`` names the script (the file's stem)."""
     path = Path(name) if isinstance(name, Path) or str(name).endswith(".json") \
         else result_path(str(name))
     doc = {"benchmark": path.stem, **doc}

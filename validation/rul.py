@@ -7,12 +7,12 @@ against the goals and the wall times.
 
 Usage::
 
-    python benchmarks/bench_rul.py                         # the demo fleet, 2 workers
-    python benchmarks/bench_rul.py --actuators 6 --out /tmp/bench-rul   # a smaller run
-    python benchmarks/bench_rul.py --json --plots results/bench_rul   # the result file
-    python benchmarks/bench_rul.py --fleet examples/fleet-validation.toml --json
+    python validation/rul.py                         # the demo fleet, 2 workers
+    python validation/rul.py --actuators 6 --out /tmp/bench-rul   # a smaller run
+    python validation/rul.py --json --plots results/rul   # the result file
+    python validation/rul.py --fleet examples/fleet-validation.toml --json
 
-``--json`` writes the fleet's figures into ``benchmarks/results/bench_rul.json`` (one entry per
+``--json`` writes the fleet's figures into ``validation/results/rul.json`` (one entry per
 fleet, each with its provenance; a run replaces its fleet's entry), ``--json PATH`` elsewhere.
 
 Re-running with the same ``--out`` reuses the records and assessments (resume); pass
@@ -31,6 +31,7 @@ import tomllib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import provenance, result_path, write_result  # noqa: E402
 
@@ -45,10 +46,10 @@ def main(argv=None) -> int:
     ap.add_argument("--fleet", type=Path, default=ROOT / "examples" / "fleet-demo.toml")
     ap.add_argument("--actuators", type=int, default=None, help="Override the fleet size.")
     ap.add_argument("--seed", type=int, default=None, help="Override the fleet seed.")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench_rul")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "rul")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--fresh", action="store_true", help="Delete --out first.")
-    ap.add_argument("--json", type=Path, nargs="?", const=result_path("bench_rul"),
+    ap.add_argument("--json", type=Path, nargs="?", const=result_path("rul"),
                     default=None, help="Write the figures as JSON (default: the result file, "
                     "this fleet's entry).")
     ap.add_argument("--plots", type=Path, default=None, help="Also write the plots here.")
@@ -142,7 +143,7 @@ def main(argv=None) -> int:
         doc = json.loads(args.json.read_text()) if args.json.is_file() else {}
         fleets = doc.get("fleets", {})
         fleets[figures["fleet"]] = {**figures, "provenance": provenance(load_start=load_start)}
-        write_result(args.json, {"benchmark": "bench_rul", "fleets": fleets},
+        write_result(args.json, {"benchmark": "rul", "fleets": fleets},
                      load_start=load_start)
     return 0
 

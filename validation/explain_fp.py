@@ -23,7 +23,7 @@ last round (effect, gain, score = gain - penalty*params; "runner-up" when that r
 an effect and the loop then stopped at the noise level) and the wall time; then the FP rate
 overall and per command, and how many records the loop stopped at the noise level.
 
-``--json`` writes the current result file, ``benchmarks/results/bench_explain_fp.json``
+``--json`` writes the current result file, ``validation/results/explain_fp.json``
 (replacing it; ``--json PATH`` a part that ``merge_results.py fp`` merges into it), with every record (truth, result, steps, and every refitted candidate of
 every round with gain, score, RMSE on the fitted / held-out part and its parameters: what a
 stopping rule can be calibrated on offline) and the summary.
@@ -34,16 +34,16 @@ Seeds: record ``k`` of command ``c`` (index in :data:`COMMANDS`) has seed
 the HF simulation (:func:`eha.identification.measured.synthetic_record`). The loop's GA seed is
 ``--explain-seed`` (default 0, like ``eha explain``).
 
-    python benchmarks/bench_explain_fp.py                         # 8 commands x 4 records
-    python benchmarks/bench_explain_fp.py --limit 3               # smoke run
-    python benchmarks/bench_explain_fp.py --commands mixed,steps_5mm --per-command 2
-    python benchmarks/bench_explain_fp.py --json                  # benchmarks/results/bench_explain_fp.json
-    python benchmarks/bench_explain_fp.py --seed 6 --json part6.json   # a part, for merge_results.py
+    python validation/explain_fp.py                         # 8 commands x 4 records
+    python validation/explain_fp.py --limit 3               # smoke run
+    python validation/explain_fp.py --commands mixed,steps_5mm --per-command 2
+    python validation/explain_fp.py --json                  # validation/results/explain_fp.json
+    python validation/explain_fp.py --seed 6 --json part6.json   # a part, for merge_results.py
 
 One record takes 5-60 s (one core); 32 records about 15 min. Run one at a time on a shared
 machine (``nice -n 10``). To measure another copy of the package (e.g. the loop as committed
 while ``eha/explain/`` is being rewritten) put it first on the path:
-``PYTHONPATH=/tmp/eha_before python benchmarks/bench_explain_fp.py ...``; the JSON records
+``PYTHONPATH=/tmp/eha_before python validation/explain_fp.py ...``; the JSON records
 which loop ran (the package's path, the sha256 of its ``eha/explain/*.py``, whether they are
 the committed ones).
 """
@@ -64,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import provenance as common_provenance, result_path, write_result  # noqa: E402
 
@@ -298,7 +299,7 @@ def result_json(data, result, seconds: float) -> dict:
                          for p in s.params},
         "faults_before": dict(result.faults_before), "faults_after": dict(result.faults_after),
         # every parameter of the final model (the flow-gain spread GQ fitted with the faults
-        # too): bench_explain_coverage recomputes its intervals from them
+        # too): explain_coverage recomputes its intervals from them
         "params_after": result.after.params.as_dict(),
         "rmse_before": result.rmse_before, "rmse_after": result.rmse_after,
         "rmse_fit_after": result.after.rmse_fit, "rmse_hold_after": result.after.rmse_hold,
@@ -383,8 +384,8 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=0, help="only the first N records (smoke run)")
     ap.add_argument("--seeds", default=None,
                     help="only the records of these seeds, comma-separated (a rerun of those a "
-                         "change can touch; benchmarks/merge_results.py puts them in place)")
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_fp")), default=None,
+                         "change can touch; validation/merge_results.py puts them in place)")
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_fp")), default=None,
                     metavar="PATH", help="write every record + summary (default: the result file)")
     add_p12_arguments(ap)
     add_fit_argument(ap)
@@ -443,7 +444,7 @@ def main() -> None:
     summary["wall_s"] = wall
     print_summary(summary)
     if args.json:
-        out = {"benchmark": "bench_explain_fp", "settings": {
+        out = {"benchmark": "explain_fp", "settings": {
                    "commands": commands, "per_command": args.per_command, "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight,

@@ -4,7 +4,7 @@ Prints, per command and injected effect: the steps added (parameters as estimate
 model), RMSE before -> after and the wall time. The table "Without a prior" in docs/explain.md
 comes from this script (population 20, seed 0, 1 µm noise).
 
-    python benchmarks/explain_no_prior.py [--commands mixed,test] [--cases load,bias]
+    python validation/explain_no_prior.py [--commands mixed,test] [--cases load,bias]
 """
 
 import argparse

@@ -22,13 +22,13 @@ sequence of held steps of +-0.5 to 2 mm), on 1-s records at 1 kHz with 1 µm noi
 
 The gate is necessary for the loop to add an effect; the full loop also asks for a
 significant, specific gain, so the loop's own power can only be lower at a given size
-(``bench_explain_loop_power.py`` runs the whole loop on these records at the gate's size).
+(``explain_loop_power.py`` runs the whole loop on these records at the gate's size).
 
-    python benchmarks/bench_explain_power.py                       # 4 commands, 12 effects
-    python benchmarks/bench_explain_power.py --commands mixed --records 3
-    python benchmarks/bench_explain_power.py --json --plot docs/img/explain_power.png
+    python validation/explain_power.py                       # 4 commands, 12 effects
+    python validation/explain_power.py --commands mixed --records 3
+    python validation/explain_power.py --json --plot docs/img/explain_power.png
 
-``--json`` writes ``benchmarks/results/bench_explain_power.json`` (one current file, with its
+``--json`` writes ``validation/results/explain_power.json`` (one current file, with its
 provenance: commit, date, machine, cores, load).
 """
 
@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import result_path, write_result  # noqa: E402
 
@@ -180,7 +181,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--escalate", default="2,4,8",
                     help="multiples of the predicted size tried where it falls short of 90 %%")
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_power")))
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_power")))
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
     from eha.explain.decide import past_any
@@ -271,7 +272,7 @@ def main(argv=None) -> int:
           f"{summary['multiples']}); {summary['seconds']:.0f} s")
     # the result file first: its provenance checks the tree before the plot changes it
     if a.json:
-        out = {"benchmark": "bench_explain_power",
+        out = {"benchmark": "explain_power",
                "settings": {"alpha": a.alpha, "actuators": a.actuators, "records": a.records,
                             "escalate": a.escalate,
                             "noise_m": NOISE, "commands": commands},

@@ -5,7 +5,7 @@ effects of the library (:data:`eha.explain.effects.EFFECTS`; the HF parameter ha
 name) in combinations a PHM engineer meets (:data:`COMBOS`: a loaded actuator with worn seals,
 a motor offset with an aerodynamic hinge moment, ...), each on two of the commands mixed,
 test (0.6 s), chirp_1cm and a random step sequence held between 1 kHz samples (``steps``:
-4-8 steps within +-5 mm, bench_explain_fp.step_sequence). 1 µm white noise on xu and 0.2 bar on P12 (``--p12-noise``; -1: no P12 column); the record is
+4-8 steps within +-5 mm, explain_fp.step_sequence). 1 µm white noise on xu and 0.2 bar on P12 (``--p12-noise``; -1: no P12 column); the record is
 written to CSV, read back with :func:`eha.identification.measured.load` and given to
 :func:`eha.explain.explain` with its defaults (fit BKL,FDJ).
 
@@ -30,11 +30,11 @@ Seeds: record ``i`` (index in :data:`RECORDS`) has seed ``1000*--seed + i``: noi
 dither of :func:`eha.identification.measured.synthetic_record` and, on ``steps``, the step sequence
 (``default_rng([seed, 2])``). The loop's GA seed is ``--explain-seed`` (default 0).
 
-    python benchmarks/bench_explain_multi.py                      # 24 records
-    python benchmarks/bench_explain_multi.py --limit 3            # smoke run
-    python benchmarks/bench_explain_multi.py --records load+leak@mixed,5
-    python benchmarks/bench_explain_multi.py --commands test,steps --json out.json
-    python benchmarks/bench_explain_multi.py --json   # benchmarks/results/bench_explain_multi.json
+    python validation/explain_multi.py                      # 24 records
+    python validation/explain_multi.py --limit 3            # smoke run
+    python validation/explain_multi.py --records load+leak@mixed,5
+    python validation/explain_multi.py --commands test,steps --json out.json
+    python validation/explain_multi.py --json   # validation/results/explain_multi.json
 
 A record takes 0.5-3 min (one core); all 24 about 30-50 min. Run one at a time on a shared
 machine (``nice -n 10``). ``PYTHONPATH=/other/copy python ...`` measures another copy of the
@@ -53,10 +53,11 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
 
 from _results import result_path, write_result  # noqa: E402
 
-from bench_explain_fp import (STRUCTURAL, add_fit_argument, add_p12_arguments,  # noqa: E402
+from explain_fp import (STRUCTURAL, add_fit_argument, add_p12_arguments,  # noqa: E402
                               clean, fmt_effects, p12_column, provenance, result_json,
                               run_explain, step_sequence, warm_up)
 
@@ -206,7 +207,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=1e-6, help="noise std on xu [m]")
     ap.add_argument("--limit", type=int, default=0, help="only the first N records (smoke run)")
     ap.add_argument("--list", action="store_true", help="list the records and stop")
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_multi")),
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_multi")),
                     default=None, metavar="PATH",
                     help="write every record + summary (default: the result file)")
     add_p12_arguments(ap)
@@ -260,7 +261,7 @@ def main() -> None:
     summary["wall_s"] = time.perf_counter() - started
     print_summary(summary)
     if args.json:
-        out = {"benchmark": "bench_explain_multi", "settings": {
+        out = {"benchmark": "explain_multi", "settings": {
                    "records": [r["name"] for r in rows], "seed": args.seed,
                    "explain_seed": args.explain_seed, "pop": args.pop, "noise": args.noise,
                    "p12_noise": args.p12_noise, "p12_weight": args.p12_weight, "fit": args.fit,

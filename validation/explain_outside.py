@@ -9,7 +9,7 @@ the asymmetric gain). The cubic spring and the spool overlap take 1-6 min each o
 checked here. Prints each record's verdict, residual, effects, problems and wall time;
 exits 1 when any record fails its check.
 
-    python benchmarks/bench_explain_outside.py [--json]   # benchmarks/results/bench_explain_outside.json
+    python validation/explain_outside.py [--json]   # validation/results/explain_outside.json
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "tools"))   # _results: the shared helper
 sys.path.insert(0, str(HERE.parent / "tests"))   # the foreign physics: a test-only kernel
 
 from _results import result_path, write_result  # noqa: E402
@@ -50,7 +51,7 @@ def check(effect: str) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--json", nargs="?", const=str(result_path("bench_explain_outside")),
+    ap.add_argument("--json", nargs="?", const=str(result_path("explain_outside")),
                     default=None, metavar="PATH", help="write the figures (default: the result file)")
     ap.add_argument("--effects", default=",".join(sorted(OUTSIDE_MAGNITUDES)),
                     help="comma-separated foreign effects (default: all three)")
