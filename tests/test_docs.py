@@ -42,6 +42,38 @@ def test_docs_refer_to_nothing_outside_the_repository():
 
 
 
+#: What a lab notebook leaves in a user page: a commit hash (7-40 hex digits with a digit and a
+#: letter), a seed block, "the run before". History lives in docs/decisions.md and CHANGELOG.md;
+#: a figure's commit and date in its result file's provenance.
+NOTEBOOK = re.compile(r"\b(?=[0-9a-f]*[0-9])(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b|seed blocks?\b"
+                      r"|the run before", re.I)
+#: Pages that keep history (the generated docs/cli.md is a user page: it is checked).
+HISTORY = {"decisions.md", "CHANGELOG.md"}
+
+
+def _user_pages() -> list[Path]:
+    return [p for p in sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+            if p.name not in HISTORY]
+
+
+def test_user_docs_are_in_the_present_tense():
+    """No commit hash, seed block or "the run before" in README.md and docs/*.md (issue 40):
+    a page states the current figures and links the result file that records where they come
+    from."""
+    found = [f"{p.relative_to(ROOT)}:{i}: {m.group(0)!r} in {line.strip()[:100]}"
+             for p in _user_pages()
+             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+             for m in NOTEBOOK.finditer(line)]
+    assert not found, "history in a user page (move it to docs/decisions.md):\n" + "\n".join(found)
+
+
+def test_the_notebook_pattern_catches_what_it_should():
+    for text in ("at commit 316c94d", "the loop of c23899f", "seed block 13", "seed blocks 0 and 1",
+                 "the run before the change", "6babbf6cffc03725dd3b8f9f6367cef9e2624b1"):
+        assert NOTEBOOK.search(text), text
+    for text in ("deadbeef", "1234567", "a 1.1e-12 leak", "9.66e-14", "blocks 6 and 7",
+                 "a feedback loop", "`eha.explain.P12_NOISE_FLOOR`", "run before 5 s"):
+        assert not NOTEBOOK.search(text), text
 
 # ---- the README's snippets run as written --------------------------------------------------
 
