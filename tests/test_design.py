@@ -226,3 +226,21 @@ def test_the_design_is_never_worse_than_a_library_command_within_the_limits():
     if result.settings["chosen"] != "searched":
         assert result.settings["chosen"].startswith("library command ")
         assert outside_limits(result.com, limits) is None
+
+
+def test_a_pair_member_not_asked_for_counts_only_through_the_pair():
+    """A separating test is judged by its separation: detecting the pair's members worse
+    than the library costs nothing unless they were asked for in their own right."""
+    from types import SimpleNamespace
+
+    from eha.design.search import PAIR_WEIGHT, score
+
+    pair = ("external_load", "offset")
+    targets = resolve_targets([], (), [pair])
+    reference = {t.name: ("chirp_1cm", 1e-9) for t in targets}
+    pred = SimpleNamespace(mds={t.name: 1e-6 for t in targets},
+                           separable={"external_load": {"offset": 2.0},
+                                      "offset": {"external_load": 2.0}})
+    alone = score(pred, targets, reference, [pair], detect=set())
+    assert alone == pytest.approx(PAIR_WEIGHT * math.log(2.0))
+    assert score(pred, targets, reference, [pair]) > alone + 1.0

@@ -22,6 +22,7 @@ from eha.design.family import (COMMAND_DT, DesignError, Limits, command_samples,
 from eha.design.predict import FOLLOW_RATIO, Prediction, predict
 from eha.design.search import LIBRARY, best_library, library_predictions, score, search
 from eha.design.targets import SIGNALS, Target, resolve_targets, with_probes
+from eha.models.faults import FAULTS
 from eha.models.commands import array_command, make_command, write_command_file
 
 #: A test load the "what would make it visible" line tries [N] (an eighth of the jack's
@@ -243,13 +244,16 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
     say(f"library commands: predicting {len(targets)} targets on {', '.join(LIBRARY)}")
     library = library_predictions(targets, limits.duration, **options)
     reference = best_library(targets, library)
+    # the targets asked for in their own right; a pair's other members count through it
+    detect = {t.name for t in targets if t.name in set(effects) | set(
+        FAULTS if faults is None else faults)}
     x, _, history = search(targets, limits, reference, pairs, seed=seed, pop=population,
                            generations=generations, on_progress=say,
-                           at_size=bool(around), **options)
+                           at_size=bool(around), detect=detect, **options)
     t, com = command_samples(x, limits)
     segments = decode(x, limits)
     incumbent = _better_library_command(t, com, targets, limits, reference, pairs,
-                                        bool(around), library, options)
+                                        bool(around), library, options, detect)
     if incumbent is not None:   # the search found nothing better: the library's command is
         name, com = incumbent   # the design (never worse than what the user already has)
         segments = [{"shape": f"library command {name}", "start": 0.0,
@@ -278,7 +282,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
 
 
 def _better_library_command(t, com, targets, limits, reference, pairs, at_size, library,
-                            options) -> tuple[str, np.ndarray] | None:
+                            options, detect=None) -> tuple[str, np.ndarray] | None:
     """The library command within ``limits`` (:func:`eha.design.family.outside_limits`) that
     the LF model follows and that scores better than the searched command by the search's own
     objective (:func:`eha.design.search.score`), with its samples; None when the searched
@@ -287,13 +291,13 @@ def _better_library_command(t, com, targets, limits, reference, pairs, at_size, 
     all_pairs = [q for f, g in pairs for q in ((f, g), (g, f))]
     searched = predict(array_command(t, com, "design"), targets, limits.duration,
                        pairs=all_pairs, **options)
-    best = score(searched, targets, reference, pairs, at_size)
+    best = score(searched, targets, reference, pairs, at_size, detect)
     chosen = None
     for name, pred in library.items():
         samples = make_command(name).sample(t)
         if not pred.followed or outside_limits(samples, limits) is not None:
             continue
-        value = score(pred, targets, reference, pairs, at_size)
+        value = score(pred, targets, reference, pairs, at_size, detect)
         if value < best - 1e-9:
             best, chosen = value, (name, samples)
     return chosen

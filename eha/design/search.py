@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -60,16 +60,24 @@ def best_library(targets: Sequence[Target], library: Mapping[str, Prediction]
 
 
 def score(pred: Prediction, targets: Sequence[Target], reference: Mapping[str, tuple[str, float]],
-          pairs: Sequence[tuple[str, str]] = (), at_size: bool = False) -> float:
+          pairs: Sequence[tuple[str, str]] = (), at_size: bool = False,
+          detect: Collection[str] | None = None) -> float:
     """The search's objective (lower is better): the mean log ratio of the predicted
     detectable sizes to the best library command's, each ratio above 1 counted again
-    :data:`WORSE_WEIGHT` times; a requested pair adds the log of its separable size."""
+    :data:`WORSE_WEIGHT` times; a requested pair adds the log of its separable size.
+
+    ``detect`` names the targets whose detection counts (default all): a pair's members that
+    were not asked for in their own right count only through the pair (a separating test is
+    judged by how well it separates; a separable size already includes being seen)."""
     logs = []
     for t in targets:
+        if detect is not None and t.name not in detect:
+            continue
         size = min(pred.mds[t.name], 10.0 * t.limit)
         logs.append(math.log(size / reference[t.name][1]))
     # better than the library on average, and worse on none (each excess weighs double)
-    value = float(np.mean(logs)) + WORSE_WEIGHT * sum(max(0.0, v) for v in logs)
+    value = (float(np.mean(logs)) + WORSE_WEIGHT * sum(max(0.0, v) for v in logs)
+             if logs else 0.0)
     probe = {t.name: abs(t.probe) for t in targets}
     for f, g in pairs:
         if at_size:   # told apart at the record's own sizes: separable size over that size
@@ -83,8 +91,10 @@ def score(pred: Prediction, targets: Sequence[Target], reference: Mapping[str, t
 def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tuple[str, float]],
            pairs: Sequence[tuple[str, str]] = (), seed: int = 0, pop: int = 24,
            generations: int = 12, on_progress: Callable[[str], None] | None = None,
-           at_size: bool = False, **options) -> tuple[np.ndarray, float, list[float]]:
-    """The best gene vector found, its score and the best score of each generation."""
+           at_size: bool = False, detect: Collection[str] | None = None,
+           **options) -> tuple[np.ndarray, float, list[float]]:
+    """The best gene vector found, its score and the best score of each generation
+    (``detect``: :func:`score`'s)."""
     from pymoo.algorithms.soo.nonconvex.ga import GA
     from pymoo.core.problem import Problem
     from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -100,7 +110,7 @@ def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tu
         pred = predict(array_command(t, com, "candidate"), targets, limits.duration,
                        pairs=all_pairs, **options)
         penalty = 0.0 if pred.followed else 5.0 + math.log(pred.model_form / FOLLOW_RATIO)
-        return score(pred, targets, reference, pairs, at_size) + penalty
+        return score(pred, targets, reference, pairs, at_size, detect) + penalty
 
     class _Family(Problem):
         def __init__(self):
