@@ -155,7 +155,8 @@ def explain_report(data: str | Path, fit: str | None = None, effects: str | None
     from eha.explain.record import augmented_base
     from eha.explain.settings import ExplainError
     from eha.identification.measured import load
-    from eha.campaigns.store import StoreError, save_explain
+    from eha.campaigns.store import StoreError
+    from eha.explain.tables import save_explain
 
     from eha.models.params import ParameterError, parse_assignments, resolve
 

@@ -27,6 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job
+from eha.prognostics import tables  # noqa: F401  (declares health_checks, rul_predictions)
 from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
 from eha.prognostics.rul import histories_from_checks, predict_history
