@@ -6,11 +6,13 @@ imported (:func:`register_job`, :func:`register_section`; its result tables with
 entry points of ``pyproject.toml``::
 
     [project.entry-points."eha.jobs"]             # job kind -> module that registers it
-    simulate = "eha.models.batch"
+    simulate = "eha.simulations.batch"
     [project.entry-points."eha.campaign_sections"]  # [section] of a campaign file -> module
     fdi = "eha.identification.cases"
+    [project.entry-points."eha.campaign_keys"]    # kind of a file's top-level keys -> module
+    simulate = "eha.simulations.expand"
     [project.entry-points."eha.worker_warm_up"]   # run once in every worker as it starts
-    simulate = "eha.models.batch:warm_up"
+    simulate = "eha.simulations.batch:warm_up"
     [project.entry-points."eha.tables"]           # result table -> module that declares it
     fdi_results = "eha.identification.cases"
 
@@ -40,6 +42,7 @@ JOB_GROUP = "eha.jobs"
 SECTION_GROUP = "eha.campaign_sections"
 WARM_UP_GROUP = "eha.worker_warm_up"
 TABLE_GROUP = "eha.tables"
+KEYS_GROUP = "eha.campaign_keys"
 
 
 class UnknownJobKind(EhaError, KeyError):
@@ -74,7 +77,7 @@ class JobKind:
         so that a resume writes the same files. Without it, one run per task.
     run_chunk : callable, optional
         ``run_chunk(task) -> dict``, in the worker: runs a chunk task (see
-        :func:`eha.models.batch.run_chunk` for its fields and result).
+        :func:`eha.simulations.batch.run_chunk` for its fields and result).
     chunk_fields : callable, optional
         ``chunk_fields(jobs) -> dict``: extra fields of a chunk task.
     estimate_s : callable, optional
@@ -122,9 +125,20 @@ class Table:
     per_run: bool = False
 
 
+@dataclass(frozen=True)
+class FileKeys:
+    """A job kind whose part of a campaign file is top-level keys, not a ``[section]`` (the
+    ``simulate`` kind: ``models``, ``commands``, ...; :func:`register_keys`)."""
+
+    kind: str
+    keys: tuple[str, ...]
+    expand: Callable[..., list]
+
+
 _KINDS: dict[str, JobKind] = {}
 _SECTIONS: dict[str, Callable[..., list]] = {}
 _TABLES: dict[str, Table] = {}
+_KEYS: dict[str, FileKeys] = {}
 
 
 def register_job(kind: str, run: Callable[..., dict[str, Any]], **hooks: Any) -> JobKind:
@@ -140,6 +154,17 @@ def register_section(name: str, expand: Callable[..., list]) -> None:
     ``expand(section, campaign_table, problems) -> list[JobDraft]`` validates the section
     (one line per problem appended to ``problems``) and returns the drafts of its jobs."""
     _SECTIONS[name] = expand
+
+
+def register_keys(kind: str, keys: Sequence[str], expand: Callable[..., list]) -> FileKeys:
+    """Register a kind's top-level keys of a campaign file and their expander:
+    ``expand(table, name, problems, chosen) -> list[JobDraft]`` reads the whole file
+    (``chosen``: the file's ``kind`` is this one), validates its keys (one line per problem
+    appended to ``problems``) and returns the drafts of its jobs (none when the file does not
+    use them)."""
+    entry = FileKeys(kind, tuple(keys), expand)
+    _KEYS[kind] = entry
+    return entry
 
 
 def register_table(name: str, ddl: str, added: Sequence[tuple[str, str]] = (),
@@ -227,6 +252,14 @@ def tables() -> dict[str, Table]:
     return dict(_TABLES)
 
 
+def file_keys() -> dict[str, FileKeys]:
+    """The kinds whose part of a campaign file is top-level keys (entry points
+    ``eha.campaign_keys``, each module imported: a file's keys are validated against them)."""
+    for name in _entry_points(KEYS_GROUP):
+        _load(KEYS_GROUP, name, _KEYS)
+    return dict(_KEYS)
+
+
 def section_names() -> tuple[str, ...]:
     """Names of the campaign-file sections (``[fdi]``, ...), without importing their
     modules: those of the entry points, then any registered at run time."""
@@ -296,6 +329,7 @@ def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
     return execute_job(task)
 
 
-__all__ = ["TASK_SECONDS", "JobKind", "Table", "UnknownJobKind", "register_job",
-           "register_section", "register_table", "job_kind", "find_job_kind", "table", "tables",
-           "section_names", "section", "warm_ups", "execute_job", "execute_task"]
+__all__ = ["TASK_SECONDS", "JobKind", "Table", "FileKeys", "UnknownJobKind", "register_job",
+           "register_section", "register_keys", "register_table", "job_kind", "find_job_kind",
+           "table", "tables", "file_keys", "section_names", "section", "warm_ups",
+           "execute_job", "execute_task"]

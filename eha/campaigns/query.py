@@ -12,12 +12,12 @@ from eha.campaigns.schema import TRACES
 from eha.campaigns.store import DatabaseDamaged, StoreError, StoreWriteError, connect
 from eha.errors import BAD_INPUT, FAILURE
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
-from eha.models import OUTPUTS
+from eha.trace import OUTPUTS
 
 
 def _create_traces_view(con, results: Path) -> None:
     """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``, and
-    every signal of :data:`eha.models.OUTPUTS` (NULL where a campaign did not store it)."""
+    every signal of :data:`eha.trace.OUTPUTS` (NULL where a campaign did not store it)."""
     if next((results / TRACES).glob("*/*.parquet"), None) is not None:
         pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
         con.execute(f"""

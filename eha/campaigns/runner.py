@@ -117,7 +117,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     eha.campaigns.store.StoreError
         The database is locked by another process.
     """
-    from eha.campaigns.files import Campaign, _model_version, load_campaign
+    from eha.campaigns.files import Campaign, load_campaign
     from eha.campaigns.store import ResultStore
     from eha.campaigns.traces import clean_temp_files
 
@@ -143,7 +143,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
         now = _now()
         db.register_campaign({
             "name": camp.name, "description": camp.description, "source": camp.source,
-            "spec_hash": camp.spec_hash, "model_version": _model_version(),
+            "spec_hash": camp.spec_hash, "model_version": camp.model_version,
             "n_runs": len(camp.jobs), "definition": camp.definition,
             "created_at": old["created_at"] if old else now, "updated_at": now})
         trace_dir = db.results / "traces" / camp.name

@@ -22,7 +22,7 @@ from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METH
                                         METHOD_DEFAULTS, OBJECTIVES, FDIError, FitResult,
                                         check_bounds)
 from eha.models.params import LFParams, ParameterError, resolve
-from eha.models.simulate import Trace, simulate
+from eha.models.simulate import MODEL_VERSION, Trace, simulate
 
 @dataclass(frozen=True)
 class FDICase:
@@ -375,7 +375,7 @@ def expand_fdi_section(section: Mapping[str, Any], table: Mapping[str, Any],
     from eha.campaigns.files import JobDraft
 
     try:
-        return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
+        return [JobDraft(**job, version=MODEL_VERSION) for job in fdi_jobs(table, source="fdi")]
     except FDIError as exc:
         problems.extend(_all_fdi_problems(table, str(exc)))
         return []

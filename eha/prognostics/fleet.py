@@ -397,7 +397,7 @@ def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
                     "label": f"{aid} cycle {chk['cycle']:g}"}
             jobs.append(Job(fleet.name, "fleet_record", key, spec, cols))
     return Campaign(fleet.name, fleet.description, fleet.source, fleet.definition,
-                    tuple(jobs))
+                    tuple(jobs), MODEL_VERSION)
 
 
 def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,

@@ -144,7 +144,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
                     {"manifest": str(manifest.source), "fit": fit, "seed": seed,
                      "method": method, "base_model": base_model,
                      **_record_format(RecordFile(manifest.source, columns, units))},
-                    tuple(jobs))
+                    tuple(jobs), MODEL_VERSION)
 
 
 def _record_format(record) -> dict[str, Any]:

@@ -46,7 +46,7 @@ SIM_COST = {"hf": 5e-3, "lf": 3e-3}
 
 def estimated_run_s(spec: Mapping[str, Any]) -> float:
     """Estimated simulation time [s] of one ``simulate`` job (spec of
-    :mod:`eha.campaigns.simulations`)."""
+    :mod:`eha.simulations.expand`)."""
     dt = spec["params"].get("DT", 1e-5)
     return SIM_COST[spec["model"]] * spec["t_end"] * (1e-5 / dt)
 
