@@ -70,3 +70,18 @@ def test_every_declared_table_is_found_through_its_entry_point():
         assert jobs.table(name).name == name
     assert jobs.table("metrics").per_run and not jobs.table("rul_predictions").per_run
     assert "models" in jobs.file_keys()["simulate"].keys
+
+
+def test_a_declared_table_not_yet_written_is_named_with_its_module(tmp_path):
+    import duckdb
+
+    from eha.campaigns.schema import DB_NAME, SCHEMA
+    from eha.campaigns.store import StoreError
+
+    con = duckdb.connect(str(tmp_path / DB_NAME))  # a folder only a simulation campaign wrote
+    for ddl in SCHEMA.values():
+        con.execute(ddl)
+    con.close()
+    with pytest.raises(StoreError, match="fdi_results is created when "
+                                         "eha.identification.cases first writes"):
+        query(tmp_path, "SELECT * FROM fdi_results")

@@ -67,7 +67,7 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 from eha.errors import InputError
 from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _dumps, _hash, _hash_text
 
@@ -233,7 +233,15 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
                         "(split it into several campaigns)")
     if problems:
         raise CampaignError(_unique(problems))
+    return make_campaign(name, drafts, description, source, dict(table))
 
+
+def make_campaign(name: str, drafts: Sequence[JobDraft], description: str = "",
+                  source: str = "<code>", definition: Mapping[str, Any] | None = None
+                  ) -> Campaign:
+    """A campaign of the jobs ``drafts`` (what a kind's expander returns, or what a program
+    builds: a fleet's records): the run keys, the de-duplication and the recorded version of
+    a campaign file's jobs (:func:`build_campaign`, which ends here)."""
     jobs: list[Job] = []
     seen: dict[str, Job] = {}
     shared: dict[int, str] = {}
@@ -248,7 +256,7 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         seen[key] = job
         jobs.append(job)
     versions = sorted({d.version for d in drafts if d.version})
-    return Campaign(name, description, source, dict(table), tuple(jobs),
+    return Campaign(name, description, source, dict(definition or {}), tuple(jobs),
                     ",".join(versions) or None)
 
 
@@ -316,4 +324,4 @@ def _done_keys(results: str | Path | None, keys: set[str]) -> set[str]:
 
 
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",
-           "plan", "campaigns_dir", "MAX_JOBS"]
+           "make_campaign", "plan", "campaigns_dir", "MAX_JOBS"]
