@@ -62,7 +62,7 @@ def campaign_table(n: int, t_end: float) -> dict:
 def ideal_seconds(camp, ex) -> float:
     """Bare-simulate time of the campaign on the executor's workers: the simulate seconds
     measured in the workers, summed, over the number of workers."""
-    from eha.models.batch import bare_simulate, plan_chunks
+    from eha.simulations.batch import bare_simulate, plan_chunks
 
     chunks = [[j.spec for j in c] for c in plan_chunks(camp.jobs)]
     return sum(ex.map_unordered(bare_simulate, chunks)) / ex.workers
@@ -148,7 +148,7 @@ class NoopExecutor:
     def map_unordered(self, fn, tasks):
         import pyarrow as pa
 
-        from eha.models.batch import _runs_schema, _table
+        from eha.simulations.batch import _runs_schema, _table
         from eha.models.run_metrics import RUN_METRICS
 
         now = datetime.now(timezone.utc).replace(tzinfo=None)

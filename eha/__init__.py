@@ -2,11 +2,12 @@
 
 One package per concern; data flows one way (``tests/test_layering.py`` checks the imports):
 
-- :mod:`eha.models`: parameters, commands, the numba kernels, ``simulate``; the ``simulate``
-  job kind and the run metrics.
 - :mod:`eha.campaigns`: the infrastructure below the domain: campaign files, job registry,
-  runner, executors, traces, the result store and queries. It imports only :mod:`eha.models`
-  (trace columns; parameters and commands to validate a file's simulations).
+  runner, executors, traces, the result store and queries. It imports nothing of the domain;
+  every layer may use it.
+- :mod:`eha.models`: parameters, commands, the numba kernels, ``simulate``, the run metrics.
+- :mod:`eha.simulations`: the ``simulate`` job kind (its part of a campaign file, chunks,
+  worker, ``metrics`` table, HF-vs-LF pairs).
 - :mod:`eha.identification`: fit LF parameters to a record with intervals; measured records;
   the healthy reference; the thesis' identification cases.
 - :mod:`eha.explain`: the residual loop (which physics the LF model lacks).
@@ -15,7 +16,9 @@ One package per concern; data flows one way (``tests/test_layering.py`` checks t
 - :mod:`eha.reports`: the thesis report, simulation figures, the HTML report.
 - :mod:`eha.cli`: the command line (``eha``), above everything.
 
-Flat modules that stay flat: :mod:`eha.figures` (matplotlib without a display and saving a
+Flat modules that stay flat: :mod:`eha.trace` (the recorded columns and a run's
+:class:`~eha.trace.Trace`: the models and the campaign infrastructure share them),
+:mod:`eha.figures` (matplotlib without a display and saving a
 PNG: the one helper every layer's figures use, so it sits below them all) and
 :mod:`eha.docgen` (writes ``docs/cli.md`` from the command line; tooling of :mod:`eha.cli`).
 Importing ``eha`` or one of its packages imports nothing else: a job kind's worker loads only

@@ -1,7 +1,7 @@
 """A results folder with something for every section of the HTML report, in milliseconds.
 
 A real DuckDB file written through the store's writers (:func:`eha.campaigns.store.replace_rows`,
-:func:`eha.campaigns.store.save_explain`) with rows shaped as the commands write them: a 3-actuator
+:func:`eha.explain.tables.save_explain`) with rows shaped as the commands write them: a 3-actuator
 ``eha rul`` run (with a ``truth.json`` beside its records), two health checks and a detection
 campaign, the thesis' FDI campaign (its real definition, three seeds per case, and its
 augmented twin), one residual-loop run and a simulation campaign with HF-vs-LF errors. The
@@ -20,7 +20,8 @@ import numpy as np
 
 from eha.campaigns.files import campaigns_dir
 from eha.health.assessment import FAULTS
-from eha.campaigns.store import replace_rows, save_explain
+from eha.campaigns.store import replace_rows
+from eha.explain.tables import save_explain
 
 NOW = datetime(2026, 11, 1, 12, 0, 0)
 ACTUATORS = {"A1": 1300.0, "A2": 2100.0, "A3": None}        # true end of life (None: never)

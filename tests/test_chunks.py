@@ -62,8 +62,9 @@ def copy(chunky, tmp_path):
 
 def test_run_keys_are_those_of_the_full_identity_hash():
     """Hashing the shared identity text once gives the keys of hashing every job whole."""
-    from eha.campaigns.files import _hash, _model_version, load_campaign
-    from eha.campaigns.simulations import _expand_simulations
+    from eha.campaigns.files import _hash, load_campaign
+    from eha.simulations.expand import _model_version
+    from eha.simulations.expand import _expand_simulations
     import tomllib
 
     from eha.campaigns.files import campaigns_dir

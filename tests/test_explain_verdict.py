@@ -140,7 +140,7 @@ def test_the_report_names_the_absent_sections_and_the_error_sign(tmp_path):
     from eha.reports.html import sections
 
     r = result(1.1e-6, unexplained=False, beyond=False)
-    from eha.campaigns.store import save_explain
+    from eha.explain.tables import save_explain
 
     save_explain(tmp_path, r.run_row("id", "x.csv", "2026-11-26 07:00:00"), [])
     out = html.build_report(tmp_path, tmp_path / "r.html")

@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.models.batch import worker_info
+from eha.simulations.batch import worker_info
 from eha.campaigns.executors import LocalPoolExecutor
 from eha.campaigns.jobs import execute_job
 from eha.campaigns.runner import run_campaign

@@ -1,6 +1,6 @@
 """What a job kind's expander returns (:class:`JobDraft`) and the hashing of run keys: shared by
-the campaign files (:mod:`eha.campaigns.files`) and the simulate kind's expander
-(:mod:`eha.campaigns.simulations`), so that neither imports the other."""
+the campaign files (:mod:`eha.campaigns.files`) and the kinds' expanders (e.g. the simulate
+kind's, :mod:`eha.simulations.expand`)."""
 
 from __future__ import annotations
 
@@ -28,12 +28,17 @@ class JobDraft:
     columns : dict
         Values of the descriptive ``runs`` columns (model, command, faults, seed, t_end, label,
         case_key).
+    version : str
+        Version of the code that computes the job (the models':
+        :data:`eha.models.simulate.MODEL_VERSION`), hashed into its run key: a new version
+        runs the job again. Recorded as the campaign's ``model_version``.
     """
 
     kind: str
     spec: dict
     identity: dict = field(default_factory=dict)
     columns: dict = field(default_factory=dict)
+    version: str = ""
 
 
 def _dumps(obj: Any) -> str:

@@ -4,7 +4,8 @@ A campaign is a named batch of simulations: models × commands × fault sets × 
 for ``t_end`` seconds. Everything is validated before anything runs; every problem found is
 reported on its own line (:class:`CampaignError`), through the same validators the models use
 (:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
-:func:`eha.models.commands.make_command`).
+:func:`eha.models.commands.make_command`; the ``simulate`` kind's keys:
+:mod:`eha.simulations.expand`).
 
 File format
 -----------
@@ -38,22 +39,25 @@ Run keys
 Each job's ``run_key`` is the first 16 hex digits of the SHA-256 of its *resolved* spec: the
 campaign name, job kind, model, the full parameter set after :func:`eha.models.params.resolve` (so a
 change of a nominal value changes the key), the resolved command, seed, ``t_end``, stored
-signals, and :data:`eha.models.simulate.MODEL_VERSION`. A campaign's ``spec_hash`` is the hash of
+signals, and the version of the code that computes it (:attr:`JobDraft.version`: a simulation's
+is :data:`eha.models.simulate.MODEL_VERSION`). A campaign's ``spec_hash`` is the hash of
 its sorted run keys: a campaign file edited under the same name (or a model-version bump) gives
 a different ``spec_hash``, which the runner detects.
 
-Other job kinds
----------------
-A job has a ``kind``; simulations are ``"simulate"`` (their part of the file:
-:mod:`eha.campaigns.simulations`). Another kind (e.g. fault identification) plugs in through a
-top-level TOML table (``[fdi]``) whose expander its module registers
-(:func:`eha.campaigns.jobs.register_section`, found through the ``eha.campaign_sections``
-entry points): ``expand(section, campaign_table, problems) -> list[JobDraft]`` validates its
-section (appending one line per problem to ``problems``) and returns the job specs. A file
-with ``kind = "fdi"`` (and no ``models``/``commands``) has only the jobs of its ``[fdi]``
-section; a simulation file may also carry such a section (both kinds in one campaign). The
-kind's module registers its worker function too (:func:`eha.campaigns.jobs.register_job`), and
-the store has the kind's result table in its one schema (:data:`eha.campaigns.schema.SCHEMA`).
+Job kinds
+---------
+A job has a ``kind``. Each kind's part of a file is its module's: the ``simulate`` kind's is
+the top-level keys above (:mod:`eha.simulations.expand`, registered with
+:func:`eha.campaigns.jobs.register_keys` and found through the ``eha.campaign_keys`` entry
+points); another kind (e.g. fault identification) plugs in through a top-level TOML table
+(``[fdi]``) whose expander its module registers (:func:`eha.campaigns.jobs.register_section`,
+found through the ``eha.campaign_sections`` entry points): ``expand(section, campaign_table,
+problems) -> list[JobDraft]`` validates its section (appending one line per problem to
+``problems``) and returns the job specs. A file with ``kind = "fdi"`` (and no
+``models``/``commands``) has only the jobs of its ``[fdi]`` section; a simulation file may also
+carry such a section (both kinds in one campaign). The kind's module registers its worker
+function (:func:`eha.campaigns.jobs.register_job`) and its result tables
+(:func:`eha.campaigns.jobs.register_table`) too.
 """
 
 from __future__ import annotations
@@ -63,14 +67,15 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 from eha.errors import InputError
 from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _dumps, _hash, _hash_text
 
-#: Top-level keys of a campaign file, its simulation part included
-#: (:mod:`eha.campaigns.simulations`); job kinds add their own sections.
-TOP_KEYS = ("name", "description", "kind", "models", "commands", "seeds", "t_end", "signals",
-            "params", "faults")
+#: Top-level keys of every campaign file; job kinds add their own keys
+#: (:func:`eha.campaigns.jobs.register_keys`) and sections.
+TOP_KEYS = ("name", "description", "kind")
+#: The kind of a file that names none: a simulation campaign (:mod:`eha.simulations.expand`).
+DEFAULT_KIND = "simulate"
 # The name is also a folder under traces/: it starts with a letter or digit, so "." and ".."
 # (which would put traces outside that folder) and hidden names are refused.
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
@@ -120,6 +125,8 @@ class Campaign:
     source: str
     definition: dict
     jobs: tuple[Job, ...]
+    #: Version of the code that computes its jobs (:attr:`JobDraft.version`), recorded.
+    model_version: str | None = None
 
     @property
     def spec_hash(self) -> str:
@@ -144,12 +151,6 @@ def _run_key(name: str, draft: "JobDraft", version: str, identity_text: str | No
     return _hash_text('{"campaign":' + _dumps(name) + ',"identity":' + identity_text +
                       ',"kind":' + _dumps(draft.kind) + ',"model_version":' + _dumps(version) +
                       ',"spec":' + _dumps(draft.spec) + "}")
-
-
-def _model_version() -> str:
-    from eha.models.simulate import MODEL_VERSION
-
-    return MODEL_VERSION
 
 
 # --------------------------------------------------------------------------- loading
@@ -187,9 +188,10 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
     """Validate and expand a campaign given as a mapping (the parsed TOML)."""
     from eha.campaigns import jobs as registry
 
+    owners = registry.file_keys()
     sections = registry.section_names()
     problems: list[str] = []
-    allowed = TOP_KEYS + sections
+    allowed = TOP_KEYS + tuple(k for o in owners.values() for k in o.keys) + sections
     for key in table:
         if key not in allowed:
             problems.append(f"{key}: unknown key{_did_you_mean(key, allowed)}; allowed: "
@@ -209,16 +211,14 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         problems.append("description: must be a string")
         description = ""
 
-    kind = table.get("kind", "simulate")
-    if kind != "simulate" and kind not in sections:
+    kind = table.get("kind", DEFAULT_KIND)
+    if kind not in owners and kind not in sections:
         problems.append(f"kind: {kind!r} is not a campaign kind here; allowed: "
-                        f"{', '.join(['simulate', *sections])}")
+                        f"{', '.join([*owners, *sections])}")
     drafts: list[JobDraft] = []
     others = [k for k in sections if k in table]
-    if kind == "simulate" or "models" in table or "commands" in table:
-        from eha.campaigns.simulations import _expand_simulations
-
-        drafts += _expand_simulations(table, name, problems)
+    for owner in owners.values():
+        drafts += owner.expand(table, name, problems, kind == owner.kind)
     for key in others:
         section = table[key]
         if not isinstance(section, Mapping):
@@ -233,8 +233,15 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
                         "(split it into several campaigns)")
     if problems:
         raise CampaignError(_unique(problems))
+    return make_campaign(name, drafts, description, source, dict(table))
 
-    version = _model_version()
+
+def make_campaign(name: str, drafts: Sequence[JobDraft], description: str = "",
+                  source: str = "<code>", definition: Mapping[str, Any] | None = None
+                  ) -> Campaign:
+    """A campaign of the jobs ``drafts`` (what a kind's expander returns, or what a program
+    builds: a fleet's records): the run keys, the de-duplication and the recorded version of
+    a campaign file's jobs (:func:`build_campaign`, which ends here)."""
     jobs: list[Job] = []
     seen: dict[str, Job] = {}
     shared: dict[int, str] = {}
@@ -242,13 +249,15 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
         ident = id(d.identity)
         if ident not in shared:  # drafts of one model, fault set and command share it
             shared[ident] = _dumps(d.identity)
-        key = _run_key(name, d, version, shared[ident])
+        key = _run_key(name, d, d.version, shared[ident])
         job = Job(name, d.kind, key, d.spec, dict(d.columns))
         if key in seen:
             continue  # the same run reached twice (e.g. a point equal to a grid point)
         seen[key] = job
         jobs.append(job)
-    return Campaign(name, description, source, dict(table), tuple(jobs))
+    versions = sorted({d.version for d in drafts if d.version})
+    return Campaign(name, description, source, dict(definition or {}), tuple(jobs),
+                    ",".join(versions) or None)
 
 
 def _unique(items: list[str]) -> list[str]:
@@ -262,7 +271,7 @@ def plan(campaign: Campaign, workers: int = 2,
 
     The estimate uses measured per-run costs on this project's reference machine: a job kind's
     own estimate where it registers one (simulations: HF about 5 ms and LF about 3 ms per
-    simulated second at DT = 1e-5 s, :data:`eha.models.batch.SIM_COST`, plus about 0.5 ms per run
+    simulated second at DT = 1e-5 s, :data:`eha.simulations.batch.SIM_COST`, plus about 0.5 ms per run
     for metrics, its share of a chunk file and the commit), else the job's ``estimated_s`` column,
     and about 2 s to start the worker pool; it is a guide, not a promise. With ``results``, the
     runs its database already holds as done (``done``) are not run again and count for
@@ -315,4 +324,4 @@ def _done_keys(results: str | Path | None, keys: set[str]) -> set[str]:
 
 
 __all__ = ["Campaign", "CampaignError", "Job", "JobDraft", "load_campaign", "build_campaign",
-           "plan", "campaigns_dir", "MAX_JOBS"]
+           "make_campaign", "plan", "campaigns_dir", "MAX_JOBS"]

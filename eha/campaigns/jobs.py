@@ -1,15 +1,20 @@
 """The job registry: each job kind registers its worker function; the worker's dispatch.
 
 The runner knows job kinds by name only. A domain module registers its kinds when it is
-imported (:func:`register_job`, :func:`register_section`), and the package metadata says which
-module provides which kind: the entry points of ``pyproject.toml``::
+imported (:func:`register_job`, :func:`register_section`; its result tables with
+:func:`register_table`), and the package metadata says which module provides which kind: the
+entry points of ``pyproject.toml``::
 
     [project.entry-points."eha.jobs"]             # job kind -> module that registers it
-    simulate = "eha.models.batch"
+    simulate = "eha.simulations.batch"
     [project.entry-points."eha.campaign_sections"]  # [section] of a campaign file -> module
     fdi = "eha.identification.cases"
+    [project.entry-points."eha.campaign_keys"]    # kind of a file's top-level keys -> module
+    simulate = "eha.simulations.expand"
     [project.entry-points."eha.worker_warm_up"]   # run once in every worker as it starts
-    simulate = "eha.models.batch:warm_up"
+    simulate = "eha.simulations.batch:warm_up"
+    [project.entry-points."eha.tables"]           # result table -> module that declares it
+    fdi_results = "eha.identification.cases"
 
 :func:`job_kind` imports the module of a kind the first time it meets the kind, in the parent
 and in every worker process (spawned pool, Dask), so a worker loads only the domain it runs.
@@ -32,10 +37,12 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 from eha.errors import EhaError
 
-#: Entry-point groups: job kinds, campaign-file sections, worker warm-ups.
+#: Entry-point groups: job kinds, campaign-file sections, worker warm-ups, result tables.
 JOB_GROUP = "eha.jobs"
 SECTION_GROUP = "eha.campaign_sections"
 WARM_UP_GROUP = "eha.worker_warm_up"
+TABLE_GROUP = "eha.tables"
+KEYS_GROUP = "eha.campaign_keys"
 
 
 class UnknownJobKind(EhaError, KeyError):
@@ -62,15 +69,15 @@ class JobKind:
         The kind (``runs.kind``).
     run : callable
         ``run(spec, run_key, campaign, trace_file, **extra) -> dict``, in the worker: returns
-        ``{"rows": {table: row}, ...runs columns...}`` (every table in
-        :data:`eha.campaigns.schema.RESULT_TABLES`); ``extra`` may hold ``want_signals``.
+        ``{"rows": {table: row}, ...runs columns...}`` (every table one of its own, declared
+        with :func:`register_table` and ``per_run``); ``extra`` may hold ``want_signals``.
     plan_chunks : callable, optional
         ``plan_chunks(jobs) -> list[list[Job]]``: the kind's jobs of a campaign grouped into
         tasks of several runs each (one chunk file per task), planned on the whole campaign
         so that a resume writes the same files. Without it, one run per task.
     run_chunk : callable, optional
         ``run_chunk(task) -> dict``, in the worker: runs a chunk task (see
-        :func:`eha.models.batch.run_chunk` for its fields and result).
+        :func:`eha.simulations.batch.run_chunk` for its fields and result).
     chunk_fields : callable, optional
         ``chunk_fields(jobs) -> dict``: extra fields of a chunk task.
     estimate_s : callable, optional
@@ -95,8 +102,43 @@ class JobKind:
     finish: Callable[[Any, str], int] | None = None
 
 
+@dataclass(frozen=True)
+class Table:
+    """A result table that a job kind (or another writer) declares in its own module.
+
+    Attributes
+    ----------
+    name : str
+    ddl : str
+        Its ``CREATE TABLE IF NOT EXISTS`` statement (SI units, one comment per column).
+    added : tuple of (column, type)
+        Columns added after its first release: a database written by an older version gets
+        them when it is opened for writing (its rows keep NULL there).
+    per_run : bool
+        Its rows belong to runs (primary key ``run_key``): workers return rows for it
+        (:meth:`eha.campaigns.store.ResultStore.record`) and a discarded run loses them.
+    """
+
+    name: str
+    ddl: str
+    added: tuple[tuple[str, str], ...] = ()
+    per_run: bool = False
+
+
+@dataclass(frozen=True)
+class FileKeys:
+    """A job kind whose part of a campaign file is top-level keys, not a ``[section]`` (the
+    ``simulate`` kind: ``models``, ``commands``, ...; :func:`register_keys`)."""
+
+    kind: str
+    keys: tuple[str, ...]
+    expand: Callable[..., list]
+
+
 _KINDS: dict[str, JobKind] = {}
 _SECTIONS: dict[str, Callable[..., list]] = {}
+_TABLES: dict[str, Table] = {}
+_KEYS: dict[str, FileKeys] = {}
 
 
 def register_job(kind: str, run: Callable[..., dict[str, Any]], **hooks: Any) -> JobKind:
@@ -112,6 +154,29 @@ def register_section(name: str, expand: Callable[..., list]) -> None:
     ``expand(section, campaign_table, problems) -> list[JobDraft]`` validates the section
     (one line per problem appended to ``problems``) and returns the drafts of its jobs."""
     _SECTIONS[name] = expand
+
+
+def register_keys(kind: str, keys: Sequence[str], expand: Callable[..., list]) -> FileKeys:
+    """Register a kind's top-level keys of a campaign file and their expander:
+    ``expand(table, name, problems, chosen) -> list[JobDraft]`` reads the whole file
+    (``chosen``: the file's ``kind`` is this one), validates its keys (one line per problem
+    appended to ``problems``) and returns the drafts of its jobs (none when the file does not
+    use them)."""
+    entry = FileKeys(kind, tuple(keys), expand)
+    _KEYS[kind] = entry
+    return entry
+
+
+def register_table(name: str, ddl: str, added: Sequence[tuple[str, str]] = (),
+                   per_run: bool = False) -> Table:
+    """Declare a result table (see :class:`Table`); returns it. The store creates it, and adds
+    its ``added`` columns, on every writable connection opened after this call and before it
+    writes rows there; a module declares its tables next to its :func:`register_job`, and the
+    entry points ``eha.tables`` name the module of each table (so that a writer that names a
+    table finds it, :func:`table`)."""
+    entry = Table(name, ddl, tuple((c, t) for c, t in added), per_run)
+    _TABLES[name] = entry
+    return entry
 
 
 @lru_cache(maxsize=None)
@@ -168,6 +233,31 @@ def find_job_kind(kind: str) -> JobKind | None:
         return job_kind(kind)
     except UnknownJobKind:
         return None
+
+
+def table(name: str) -> Table:
+    """The declaration of result table ``name``, the module that registers it (entry points
+    ``eha.tables``) imported on first use.
+
+    Raises
+    ------
+    UnknownJobKind
+        No module declares it.
+    """
+    return _load(TABLE_GROUP, name, _TABLES)
+
+
+def tables() -> dict[str, Table]:
+    """The result tables registered in this process so far (``name -> Table``)."""
+    return dict(_TABLES)
+
+
+def file_keys() -> dict[str, FileKeys]:
+    """The kinds whose part of a campaign file is top-level keys (entry points
+    ``eha.campaign_keys``, each module imported: a file's keys are validated against them)."""
+    for name in _entry_points(KEYS_GROUP):
+        _load(KEYS_GROUP, name, _KEYS)
+    return dict(_KEYS)
 
 
 def section_names() -> tuple[str, ...]:
@@ -239,6 +329,7 @@ def execute_task(task: Mapping[str, Any]) -> dict[str, Any]:
     return execute_job(task)
 
 
-__all__ = ["TASK_SECONDS", "JobKind", "UnknownJobKind", "register_job", "register_section", "job_kind",
-           "find_job_kind", "section_names", "section", "warm_ups", "execute_job",
-           "execute_task"]
+__all__ = ["TASK_SECONDS", "JobKind", "Table", "FileKeys", "UnknownJobKind", "register_job",
+           "register_section", "register_keys", "register_table", "job_kind", "find_job_kind",
+           "table", "tables", "file_keys", "section_names", "section", "warm_ups",
+           "execute_job", "execute_task"]

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -12,12 +13,12 @@ from eha.campaigns.schema import TRACES
 from eha.campaigns.store import DatabaseDamaged, StoreError, StoreWriteError, connect
 from eha.errors import BAD_INPUT, FAILURE
 from eha.campaigns.traces import COPY_FLAG, COPY_OF, FILE_MODE, TEMP_SUFFIX
-from eha.models import OUTPUTS
+from eha.trace import OUTPUTS
 
 
 def _create_traces_view(con, results: Path) -> None:
     """Temporary view ``traces``: every stored trace with its ``campaign`` and ``run_key``, and
-    every signal of :data:`eha.models.OUTPUTS` (NULL where a campaign did not store it)."""
+    every signal of :data:`eha.trace.OUTPUTS` (NULL where a campaign did not store it)."""
     if next((results / TRACES).glob("*/*.parquet"), None) is not None:
         pattern = str(results / TRACES / "*" / "*.parquet").replace("'", "''")
         con.execute(f"""
@@ -74,8 +75,6 @@ def check_traces(con, results: Path, what: str) -> None:
 
 
 def _reads_traces(sql: str) -> bool:
-    import re
-
     return re.search(r"\btraces\b|_traces_raw", sql, flags=re.IGNORECASE) is not None
 
 
@@ -98,8 +97,6 @@ def check_read_only(con, sql: str) -> None:
     QueryRefused
         A statement that is not a read; StoreError: SQL that does not parse.
     """
-    import re
-
     import duckdb
 
     try:
@@ -186,7 +183,7 @@ def query(results: str | Path, sql: str,
         elif "Corrupt" in first or "checksum" in first:
             raise DatabaseDamaged(f"query: {first}; the database file is damaged: move it "
                                   "away and run the campaigns again") from None
-        raise StoreError(f"query: {first}") from None
+        raise StoreError(f"query: {first}{_not_written(first)}") from None
     finally:
         con.close()
 
@@ -229,7 +226,6 @@ def _io_reason(text: str) -> str:
     ``IO Error: ... {"exception_type":"IO","exception_message":"Could not write file
     \"x\": File too large",...}``."""
     import json
-    import re
 
     found = re.search(r"\{.*\}", text)
     if found:
@@ -238,6 +234,18 @@ def _io_reason(text: str) -> str:
         except ValueError:
             pass
     return text.splitlines()[0].rsplit(": ", 1)[-1]
+
+
+def _not_written(message: str) -> str:
+    """For DuckDB's "Table with name X does not exist" of a table a job kind declares (entry
+    points ``eha.tables``): what it means here; else nothing."""
+    from eha.campaigns.jobs import TABLE_GROUP, _entry_points
+
+    found = re.search(r"Table with name (\w+) does not exist", message)
+    if found is None or found.group(1) not in _entry_points(TABLE_GROUP):
+        return ""
+    return (f" ({found.group(1)} is created when {_entry_points(TABLE_GROUP)[found.group(1)].value}"
+            " first writes to this results folder; nothing has yet)")
 
 
 def tables(results: str | Path) -> list[str]:
@@ -261,7 +269,8 @@ def export_csv(results: str | Path, table: str, path: str | Path) -> int:
 
     allowed = tables(results)
     if table not in allowed:
-        raise StoreError(f"export: unknown table {table!r}; allowed: {', '.join(allowed)}")
+        raise StoreError(f"export: unknown table {table!r}; allowed: {', '.join(allowed)}"
+                         f"{_not_written(f'Table with name {table} does not exist')}")
     results = Path(results).resolve()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -20,10 +20,10 @@ Job kinds
 ---------
 The runner knows job kinds by name only: each kind registers its worker function and hooks
 with :func:`eha.campaigns.jobs.register_job` (found through the ``eha.jobs`` entry points).
-A worker's result rows go to tables of :data:`eha.campaigns.schema.RESULT_TABLES`. To add a
-kind (as FDI was): an expander of its campaign-file section
-(:func:`eha.campaigns.jobs.register_section`), its worker function, its result table in the
-schema, and its module in the entry points of ``pyproject.toml``.
+A worker's result rows go to the kind's own tables (:func:`eha.campaigns.jobs.register_table`,
+rows per run). To add a kind (as FDI was): in its module, an expander of its campaign-file
+section (:func:`eha.campaigns.jobs.register_section`), its worker function and its result
+tables; in ``pyproject.toml``, its module in the entry points.
 
 This module imports no domain module: the runner and its workers import the module of a job
 kind when they first meet the kind.
@@ -39,6 +39,7 @@ from typing import Any
 
 from eha.campaigns.executors import Executor, make_executor
 from eha.campaigns.jobs import TASK_SECONDS, JobKind, execute_task, find_job_kind
+from eha.campaigns.schema import DESCRIPTIVE_COLUMNS
 from eha.errors import InputError
 
 #: Results are committed at least this often [s] (and every :data:`BATCH_ROWS` runs): a
@@ -116,13 +117,14 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     eha.campaigns.store.StoreError
         The database is locked by another process.
     """
-    from eha.campaigns.files import Campaign, _model_version, load_campaign
+    from eha.campaigns.files import Campaign, load_campaign
     from eha.campaigns.store import ResultStore
     from eha.campaigns.traces import clean_temp_files
 
     t_start = time.perf_counter()
     camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     summary = RunSummary(camp.name, len(camp.jobs))
+    kinds = _kinds(camp)  # their modules imported: the store creates their result tables
     with ResultStore(results) as db:
         summary.results = str(db.results)
         old = db.campaign(camp.name)
@@ -141,7 +143,7 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
         now = _now()
         db.register_campaign({
             "name": camp.name, "description": camp.description, "source": camp.source,
-            "spec_hash": camp.spec_hash, "model_version": _model_version(),
+            "spec_hash": camp.spec_hash, "model_version": camp.model_version,
             "n_runs": len(camp.jobs), "definition": camp.definition,
             "created_at": old["created_at"] if old else now, "updated_at": now})
         trace_dir = db.results / "traces" / camp.name
@@ -153,9 +155,8 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
         summary.skipped = len(camp.jobs) - len(todo)
         db.add_pending([{"run_key": j.run_key, "campaign": j.campaign, "kind": j.kind,
                          "status": "pending", "spec": j.spec, "queued_at": now,
-                         **{k: v for k, v in j.columns.items() if k in _RUN_COLUMNS}}
+                         **{k: v for k, v in j.columns.items() if k in DESCRIPTIVE_COLUMNS}}
                         for j in todo])
-        kinds = _kinds(camp)
         payloads = _tasks(camp, todo, db.results, kinds)
         if payloads:
             _execute(payloads, db, summary, workers, scheduler, progress, executor, kinds)
@@ -219,9 +220,6 @@ def verify_results(results: str | Path, repair: bool = False, workers: int | Non
             summary = run_campaign(camp, results, workers=workers, progress=progress)
             out.repaired[name] = summary.done
     return out
-
-
-_RUN_COLUMNS = {"model", "command", "faults", "fault_label", "seed", "t_end", "case_key", "label"}
 
 
 def _kinds(camp) -> list[JobKind]:

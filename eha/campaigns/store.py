@@ -3,9 +3,12 @@
 Campaign results live in ``DIR/eha.duckdb`` (DuckDB). The campaign's parent process is its only
 writer (:class:`ResultStore`); queries go through a read-only connection
 (:func:`eha.campaigns.query.query`) that also sees every Parquet trace as the view ``traces``.
-The SQL schema is declared once, in :data:`eha.campaigns.schema.SCHEMA`; :func:`connect`
-creates it on a writable connection. Other writers (a check, a calibration, a residual-loop run)
-replace their rows in one transaction (:func:`replace_rows`, :func:`save_explain`).
+The store keeps campaigns, runs and chunk files (:data:`eha.campaigns.schema.SCHEMA`) and the
+transactions; each job kind (or other writer) declares its own result tables
+(:func:`eha.campaigns.jobs.register_table`), which :func:`connect` creates, with their added
+columns, on a writable connection once they are registered. Writers outside a campaign (a
+check, a calibration, a residual-loop run) replace their rows in one transaction
+(:func:`replace_rows`, :func:`replace_parts`).
 
 Layout of a results directory::
 
@@ -25,7 +28,8 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
-from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, RESULT_TABLES, SCHEMA
+from eha.campaigns.jobs import Table, UnknownJobKind, table as declared_table, tables
+from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, SCHEMA
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
@@ -144,11 +148,31 @@ def connect(results: str | Path, read_only: bool = False):
                 con.execute(ddl)
             for table, column, sql_type in ADDED_COLUMNS:
                 con.execute(f"ALTER TABLE {table} ADD COLUMN IF NOT EXISTS {column} {sql_type}")
+            for entry in tables().values():
+                _create(con, entry)
         except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
             con.close()
             raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
                              "move it away and run the campaign again") from None
     return con
+
+
+def _create(con, entry: Table) -> None:
+    """Create a registered result table and add the columns it gained since its first release
+    (a database written by an older version gets them; its rows keep NULL there)."""
+    con.execute(entry.ddl)
+    for column, sql_type in entry.added:
+        con.execute(f"ALTER TABLE {entry.name} ADD COLUMN IF NOT EXISTS {column} {sql_type}")
+
+
+def _run_tables(con) -> list[str]:
+    """The tables of the database whose rows belong to runs (a ``run_key`` column), ``runs``
+    left out: every kind's, registered in this process or not."""
+    return [t for t, in con.execute(
+        "SELECT DISTINCT c.table_name FROM information_schema.columns c JOIN "
+        "information_schema.tables t USING (table_schema, table_name) WHERE c.column_name = "
+        "'run_key' AND t.table_type = 'BASE TABLE' AND c.table_name <> 'runs' "
+        "ORDER BY c.table_name").fetchall()]
 
 
 def _arrow(rows: Sequence[Mapping[str, Any]]):
@@ -200,6 +224,7 @@ class ResultStore:
     def __init__(self, results: str | Path):
         self.results = Path(results).resolve()
         self.con = connect(self.results)
+        self._made = set(tables())  # the result tables created on this connection
 
     def __enter__(self) -> "ResultStore":
         return self
@@ -267,7 +292,7 @@ class ResultStore:
             self.con.register("_reset", _frame([{"run_key": k} for k in reset or ["-"]]))
             try:
                 with _transaction(self.con):
-                    for table in RESULT_TABLES + ("runs",):
+                    for table in _run_tables(self.con) + ["runs"]:
                         self.con.execute(f"DELETE FROM {table} WHERE run_key IN "
                                          "(SELECT run_key FROM _gone)")
                     self.con.execute("UPDATE runs SET status = 'pending', trace_path = NULL "
@@ -366,10 +391,8 @@ class ResultStore:
                 same.setdefault((t, tuple(v.column_names)), []).append(v)
         parts += [(t, v) for (t, _), vs in same.items() for v in _concat(vs)]
         parts += [(t, _frame(rows)) for t, rows in (extra or {}).items() if rows]
-        for table, _ in parts:
-            if table not in RESULT_TABLES:
-                raise StoreError(f"result table {table!r} is not in the schema "
-                                 f"({', '.join(RESULT_TABLES)})")
+        for table in dict.fromkeys(t for t, _ in parts):
+            self._ensure(table)
         with _transaction(self.con):
             for obj in runs:
                 self.con.register("_u", obj)
@@ -383,11 +406,29 @@ class ResultStore:
 
     def upsert(self, table: str, rows: Sequence[Mapping[str, Any]]) -> None:
         """Insert or replace rows of a result table (by ``run_key``); columns by name."""
-        if table not in RESULT_TABLES:
-            raise StoreError(f"{table!r} is not a result table ({', '.join(RESULT_TABLES)})")
+        self._ensure(table)
         if rows:
             with _signals_held():
                 self._upsert(table, _frame(rows))
+
+    def _ensure(self, table: str) -> None:
+        """Create result table ``table`` on this connection if it was registered after the
+        connection opened.
+
+        Raises
+        ------
+        StoreError
+            No module declares it with rows per run.
+        """
+        entry = tables().get(table)
+        if entry is None or not entry.per_run:
+            per_run = [t.name for t in tables().values() if t.per_run]
+            raise StoreError(f"result table {table!r} is not in the schema "
+                             f"({', '.join(per_run) or 'none registered'})")
+        if table not in self._made:
+            with _signals_held():
+                _create(self.con, entry)
+            self._made.add(table)
 
     def _upsert(self, table: str, obj) -> None:
         """Upsert a pandas frame or Arrow table (one bulk statement)."""
@@ -400,34 +441,10 @@ class ResultStore:
         finally:
             self.con.unregister("_r")
 
-    def hf_lf_pairs(self, campaign: str) -> list[tuple[str, str, str, str]]:
-        """``(hf_key, hf_trace, lf_key, lf_trace)`` of done HF/LF runs of the same case whose
-        HF-vs-LF metrics are still missing (trace paths relative to the results folder)."""
-        return self.con.execute("""
-            SELECT h.run_key, h.trace_path, l.run_key, l.trace_path
-            FROM runs h JOIN runs l ON h.case_key = l.case_key AND h.campaign = l.campaign
-            JOIN metrics mh ON mh.run_key = h.run_key
-            JOIN metrics ml ON ml.run_key = l.run_key
-            WHERE h.campaign = ? AND h.kind = 'simulate' AND l.kind = 'simulate'
-              AND h.model = 'hf' AND l.model = 'lf'
-              AND h.status = 'done' AND l.status = 'done'
-              AND (mh.rmse_xu_hf_lf IS NULL OR ml.rmse_xu_hf_lf IS NULL)
-            ORDER BY h.run_key""", [campaign]).fetchall()
-
     def status_counts(self, campaign: str) -> dict[str, int]:
         return dict(self.con.execute("SELECT status, count(*) FROM runs WHERE campaign = ? "
                                      "GROUP BY status", [campaign]).fetchall())
 
-
-
-def save_explain(results: str | Path, run: Mapping[str, Any],
-                 steps: Sequence[Mapping[str, Any]]) -> Path:
-    """Store one residual-loop run (``explain_runs``) and its steps (``explain_steps``).
-
-    One transaction; a run with the same ``run_id`` is replaced. Returns the database path.
-    """
-    return _replace(results, [("explain_runs", [run], {"run_id": run["run_id"]}),
-                              ("explain_steps", steps, {"run_id": run["run_id"]})])
 
 
 def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, Any]],
@@ -441,17 +458,28 @@ def replace_rows(results: str | Path, table: str, rows: Sequence[Mapping[str, An
     StoreError
         Unknown table, or the database is locked or cannot be written.
     """
-    return _replace(results, [(table, rows, key)])
+    return replace_parts(results, [(table, rows, key)])
 
 
-def _replace(results: str | Path,
-             parts: Sequence[tuple[str, Sequence[Mapping[str, Any]], Mapping[str, Any]]]
-             ) -> Path:
-    """In ONE transaction, for each ``(table, rows, key)``: delete the rows matching ``key``,
-    insert ``rows``."""
+def replace_parts(results: str | Path,
+                  parts: Sequence[tuple[str, Sequence[Mapping[str, Any]], Mapping[str, Any]]]
+                  ) -> Path:
+    """In ONE transaction, for each ``(table, rows, key)``: delete the rows of ``table``
+    matching ``key`` (column -> value), insert ``rows`` (e.g. a residual-loop run and its
+    steps, :func:`eha.explain.tables.save_explain`). Returns the database path.
+
+    Raises
+    ------
+    StoreError
+        A table neither core nor declared (:func:`eha.campaigns.jobs.register_table`), or the
+        database is locked or cannot be written.
+    """
     for table, _, _ in parts:
         if table not in SCHEMA:
-            raise StoreError(f"{table!r} is not a table of the schema")
+            try:
+                declared_table(table)  # its module imported: the connection creates it
+            except UnknownJobKind:
+                raise StoreError(f"{table!r} is not a table of the schema") from None
     con = connect(results)
     try:
         with _transaction(con):

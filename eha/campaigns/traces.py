@@ -23,8 +23,8 @@ runner records for each run the file, its size and the run's own row count; a fi
 when its size is the recorded one and its footer holds the sum of its runs' rows
 (:func:`trace_intact`).
 
-This module imports only numpy and pyarrow (no simulation code): the store and the CLI's query
-path use it without loading numba.
+This module imports only numpy, pyarrow and the trace's columns (:mod:`eha.trace`; no simulation
+code): the store and the CLI's query path use it without loading numba.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.schema import TRACES
-from eha.models import OUTPUT_UNITS, OUTPUTS
+from eha.trace import OUTPUT_UNITS, OUTPUTS, Trace
 
 #: Suffix of temporary files (removed by :func:`clean_temp_files`).
 TEMP_SUFFIX = ".tmp"
@@ -102,7 +102,7 @@ def chunk_table(runs: Sequence[tuple[str, np.ndarray, Mapping[str, Any]]],
     Parameters
     ----------
     runs : sequence of (run_key, data, meta)
-        ``data``: float64 array (n, 9), columns :data:`eha.models.OUTPUTS` (SI, cor in mA);
+        ``data``: float64 array (n, 9), columns :data:`eha.trace.OUTPUTS` (SI, cor in mA);
         ``meta``: JSON-serialisable metadata of the run.
     signals : sequence of str, optional
         Signals to store (subset of OUTPUTS, stored in OUTPUTS order); default all.
@@ -197,7 +197,7 @@ def write_chunk(runs: Sequence[tuple[str, np.ndarray, Mapping[str, Any]]], path:
 def read_run(path: str | Path, run_key: str | None = None) -> tuple[np.ndarray, dict]:
     """``(data, meta)`` of one run of a trace file (a chunk or a one-run file).
 
-    ``data`` has the nine columns of :data:`eha.models.OUTPUTS` (NaN where not stored).
+    ``data`` has the nine columns of :data:`eha.trace.OUTPUTS` (NaN where not stored).
 
     Raises
     ------
@@ -245,7 +245,7 @@ def write_trace(trace, path: str | Path, columns: Sequence[str] | None = None) -
     path : path
         Destination; written under a temporary name in the same folder, then renamed.
     columns : sequence of str, optional
-        Signals to keep (subset of :data:`eha.models.OUTPUTS`); default all.
+        Signals to keep (subset of :data:`eha.trace.OUTPUTS`); default all.
     """
     import pyarrow.parquet as pq
 
@@ -267,11 +267,9 @@ def write_trace(trace, path: str | Path, columns: Sequence[str] | None = None) -
 
 
 def read_trace(path: str | Path, run_key: str | None = None):
-    """Read one run's :class:`~eha.models.simulate.Trace` from a file of :func:`write_trace` or a
+    """Read one run's :class:`~eha.trace.Trace` from a file of :func:`write_trace` or a
     chunk file (``run_key`` needed when it holds several runs); signals not stored come back
     as NaN."""
-    from eha.models.simulate import Trace
-
     data, meta = read_run(path, run_key)
     return Trace(data, meta)
 

@@ -146,7 +146,7 @@ def store_result(result, results: str | Path = "results") -> Path:
     """
     import datetime
 
-    from eha.campaigns.store import save_explain
+    from eha.explain.tables import save_explain
 
     key = result.key
     return save_explain(results, result.run_row(key, str(result.source), datetime.datetime.now()),

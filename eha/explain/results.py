@@ -411,8 +411,8 @@ class ExplainResult:
                 "signals": [r.signals for r in self.rounds], "seconds": self.seconds}
 
     def run_row(self, run_id: str, source: str, created_at: Any) -> dict[str, Any]:
-        """The run's row of ``explain_runs`` (:func:`eha.campaigns.store.save_explain`); ``source`` is
-        the record's path as given."""
+        """The run's row of ``explain_runs`` (:func:`eha.explain.tables.save_explain`);
+        ``source`` is the record's path as given."""
         return {"run_id": run_id, "source": source, "created_at": created_at,
                 "fit": {k: list(v) for k, v in self.fit_bounds.items()},
                 "holdout": self.holdout, "settings": self.settings,
@@ -427,7 +427,7 @@ class ExplainResult:
                 "leads": self.leads.to_json() if self.leads is not None else None}
 
     def step_rows(self, run_id: str) -> list[dict[str, Any]]:
-        """The steps' rows of ``explain_steps`` (:func:`eha.campaigns.store.save_explain`)."""
+        """The steps' rows of ``explain_steps`` (:func:`eha.explain.tables.save_explain`)."""
         return [{"run_id": run_id, "step": i + 1, "effect": s.effect,
                  "params": self.final_params(s),
                  "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,

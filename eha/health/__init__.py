@@ -9,6 +9,8 @@ Modules, by concern:
   calibration files, a check's verdicts, ROC and isolation performance.
 - :mod:`~eha.health.monitoring`: the workflows behind ``eha health`` (calibrate, check,
   report) through the campaign runner and the store.
+- :mod:`~eha.health.tables`: their result tables (assessments, verdicts, thresholds), declared
+  for the store.
 - :mod:`~eha.health.plots`: their figures (ROC, confusion matrices, a check's estimates).
 
 Above :mod:`eha.identification` and :mod:`eha.explain` (the assessment starts the LF model

@@ -35,9 +35,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
+from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
 from eha.health.assessment import FAULTS
 from eha.models.faults import core_faults, detection_levels
+from eha.models.simulate import MODEL_VERSION
 
 #: Smallest posterior weight of a one-more-fault hypothesis for its fault to be isolated.
 ISOLATION_WEIGHT = 0.5
@@ -233,7 +235,7 @@ def expand_health_section(section: Mapping[str, Any], table: Mapping[str, Any],
     (:func:`health_jobs`), as :class:`eha.campaigns.files.JobDraft`."""
     from eha.campaigns.files import JobDraft
 
-    return [JobDraft(**job) for job in health_jobs(section, problems)]
+    return [JobDraft(**job, version=MODEL_VERSION) for job in health_jobs(section, problems)]
 
 
 register_job("health_assessment", run_health_assessment_job)
@@ -293,8 +295,6 @@ class Calibration:
 
 def load_calibration(path: str | Path) -> Calibration:
     """Read a calibration file; one-line :class:`DetectionError` on any problem."""
-    from eha.models.simulate import MODEL_VERSION
-
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))

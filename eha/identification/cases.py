@@ -15,14 +15,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from eha.campaigns.jobs import register_job, register_section
+from eha.campaigns.jobs import register_job, register_section, register_table
 from eha.models.commands import as_command
 from eha.identification.fdi import hf_reference, identify, mean_error_pct, percent_errors
 from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHODS,
                                         METHOD_DEFAULTS, OBJECTIVES, FDIError, FitResult,
                                         check_bounds)
 from eha.models.params import LFParams, ParameterError, resolve
-from eha.models.simulate import Trace, simulate
+from eha.models.simulate import MODEL_VERSION, Trace, simulate
 
 @dataclass(frozen=True)
 class FDICase:
@@ -219,7 +219,7 @@ class FDIRow:
                    flagged=bool(res.flagged), noise_rmse=res.noise_rmse)
 
     def to_record(self) -> dict[str, Any]:
-        """The ``fdi_results`` columns (eha.campaigns.schema.SCHEMA)."""
+        """The ``fdi_results`` columns (:data:`FDI_RESULTS`)."""
         est, truth, err = self.estimates, self.truth, self.errors_pct
         return {"case_id": int(self.case), "command": self.command, "seed": int(self.seed),
                 "method": self.method, "objective_name": self.objective_name,
@@ -375,7 +375,7 @@ def expand_fdi_section(section: Mapping[str, Any], table: Mapping[str, Any],
     from eha.campaigns.files import JobDraft
 
     try:
-        return [JobDraft(**job) for job in fdi_jobs(table, source="fdi")]
+        return [JobDraft(**job, version=MODEL_VERSION) for job in fdi_jobs(table, source="fdi")]
     except FDIError as exc:
         problems.extend(_all_fdi_problems(table, str(exc)))
         return []
@@ -421,5 +421,35 @@ def _all_fdi_problems(table: Mapping[str, Any], first: str, most: int = 50) -> l
     return found
 
 
+#: The ``fdi`` kind's result table: one row per run.
+FDI_RESULTS = """
+        CREATE TABLE IF NOT EXISTS fdi_results (
+            run_key        VARCHAR PRIMARY KEY,
+            case_id        INTEGER,   -- case number (thesis Figure 6.17 numbering)
+            command        VARCHAR,
+            seed           BIGINT,    -- HF dither and optimizer seed
+            method         VARCHAR,   -- eha.identification.problem.METHODS ('ga': thesis)
+            objective_name VARCHAR,   -- 'rmse' or 'objfcn' (thesis' mean absolute error)
+            fit            JSON,      -- fitted LF parameters, e.g. ["BKL", "FDJ"]
+            truth          JSON,      -- injected values (SI)
+            estimates      JSON,      -- identified values (SI)
+            errors_pct     JSON,      -- (input - output)/input*100, 0 when input is 0
+            bounds         JSON,      -- search bounds {name: [lo, hi]}
+            bkl_true DOUBLE, bkl_est DOUBLE, err_bkl_pct DOUBLE,  -- m, m, %
+            fdj_true DOUBLE, fdj_est DOUBLE, err_fdj_pct DOUBLE,  -- N, N, %
+            mean_err_pct   DOUBLE,    -- mean of the absolute percent errors
+            objective      DOUBLE,    -- m, at the estimate
+            evaluations    INTEGER,   -- LF simulations
+            seconds        DOUBLE,    -- s, identification wall time in the worker
+            pop            INTEGER,   -- GA population
+            history        JSON,      -- best objective per generation/poll [m]
+            level          DOUBLE,    -- nominal coverage of the intervals (0.9)
+            intervals      JSON,      -- {name: [lo, hi]} at level (SI)
+            flagged        BOOLEAN,   -- residual well above the noise: not a confident fit
+            noise_rmse     DOUBLE)    -- m, sensor noise estimated from the reference"""
+
 register_job("fdi", run_fdi_job)
 register_section("fdi", expand_fdi_section)
+register_table("fdi_results", FDI_RESULTS, per_run=True,
+               added=(("level", "DOUBLE"), ("intervals", "JSON"), ("flagged", "BOOLEAN"),
+                      ("noise_rmse", "DOUBLE")))

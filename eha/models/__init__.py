@@ -53,11 +53,9 @@ def _numba_cache_fallback() -> str | None:
 
 _numba_cache_fallback()
 
-#: Recorded outputs of every model, in the column order of the kernels' output array (docs/model.md §8).
-OUTPUTS = ("t", "com", "xu", "xj", "dxj", "xs", "xf", "p12", "cor")
-#: Units of :data:`OUTPUTS`.
-OUTPUT_UNITS = {"t": "s", "com": "m", "xu": "m", "xj": "m", "dxj": "m/s", "xs": "m", "xf": "m",
-                "p12": "Pa", "cor": "mA"}
+#: Recorded outputs of every model (:data:`eha.trace.OUTPUTS`) and their units: the kernels'
+#: output array has these columns, in this order.
+from eha.trace import OUTPUT_UNITS, OUTPUTS  # noqa: E402  (imports nothing of eha)
 O_T, O_COM, O_XU, O_XJ, O_DXJ, O_XS, O_XF, O_P12, O_COR = range(len(OUTPUTS))
 
 # eha.models.friction.record writes the columns in this order.

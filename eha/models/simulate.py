@@ -3,14 +3,13 @@
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from eha.models.commands import Command, as_command
-from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUT_UNITS, OUTPUTS
+from eha.models import O_COM, O_P12, O_T, O_XU, OUTPUTS
+from eha.trace import Trace
 from eha.models.hf import dither_samples, run_hf, run_hf_batch
 from eha.models.lf import run_lf, run_lf_batch
 from eha.models.params import ModelParams, ParameterError, resolve
@@ -19,57 +18,6 @@ from eha.models.params import ModelParams, ParameterError, resolve
 OUTPUT_DT = 1e-3
 #: Bumped whenever a kernel's equations change; part of every campaign run key.
 MODEL_VERSION = "2"   # 2: XSSK, the supply-pressure law
-
-
-@dataclass(frozen=True)
-class Trace:
-    """Recorded outputs of one simulation.
-
-    Attributes
-    ----------
-    data : float64 array, shape (n, 9)
-        Columns :data:`eha.models.OUTPUTS` (t [s], com [m], xu [m], xj [m], dxj [m/s],
-        xs [m], xf [m], p12 [Pa], cor [mA]).
-    meta : dict
-        Model, command, parameters that differ from nominal, seed, t_end.
-    """
-
-    data: np.ndarray
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self):
-        if self.data.ndim != 2 or self.data.shape[1] != len(OUTPUTS):
-            raise ValueError(f"Trace.data must have shape (n, {len(OUTPUTS)}), got "
-                             f"{self.data.shape}")
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.data[:, OUTPUTS.index(name)]
-
-    def __len__(self) -> int:
-        return self.data.shape[0]
-
-    @property
-    def t(self) -> np.ndarray:
-        return self["t"]
-
-    @property
-    def xu(self) -> np.ndarray:
-        return self["xu"]
-
-    def to_pandas(self):
-        import pandas as pd
-
-        return pd.DataFrame(self.data, columns=list(OUTPUTS))
-
-    def to_arrow(self):
-        import pyarrow as pa
-
-        schema = pa.schema(
-            [pa.field(n, pa.float64(), metadata={"unit": OUTPUT_UNITS[n]}) for n in OUTPUTS],
-            metadata={"eha": json.dumps(self.meta, default=float)},
-        )
-        return pa.Table.from_arrays([pa.array(self.data[:, i]) for i in range(len(OUTPUTS))],
-                                    schema=schema)
 
 
 def check_grid(params: ModelParams, t_end: float) -> tuple[int, int, int]:

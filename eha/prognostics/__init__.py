@@ -7,7 +7,8 @@ Modules, by concern:
 - :mod:`~eha.prognostics.rul`: fault histories from health checks, and at every check the RUL
   distribution from the checks up to it.
 - :mod:`~eha.prognostics.jobs`: ``eha rul``: the ``health`` job kind (one assessment per
-  record of a manifest, through the campaign runner), predictions, evaluation, the tables.
+  record of a manifest, through the campaign runner), predictions, evaluation, the tables;
+  :mod:`~eha.prognostics.tables`: its result tables, declared for the store.
 - :mod:`~eha.prognostics.metrics`: prognostic metrics against known ends of life (α-λ,
   relative accuracy, coverage) and their fleet summary.
 - :mod:`~eha.prognostics.limits`: ``eha limits``: the fault value at which a requirement on

@@ -376,28 +376,25 @@ def record_seed(seed: int, actuator: str, k: int) -> int:
 
 # =========================================================================== runner jobs
 def fleet_campaign(fleet: Fleet, out: Path, truth: Mapping[str, Any]):
-    """The records as a campaign of ``fleet_record`` jobs (one per check)."""
-    from eha.campaigns.files import Campaign, Job
+    """The records as a campaign of ``fleet_record`` jobs (one per check), made as a campaign
+    file's jobs are (:func:`eha.campaigns.files.make_campaign`)."""
+    from eha.campaigns.files import JobDraft, make_campaign
     from eha.models.simulate import MODEL_VERSION
 
-    jobs = []
+    drafts = []
     for aid, act in truth["actuators"].items():
         for chk in act["checks"]:
             params = {**act["dispersion"], **chk["true"]}
             spec = {"record": str((out / chk["record"]).resolve()), "command": fleet.command,
                     "params": params, "t_end": fleet.t_end, "noise": fleet.noise,
                     "seed": chk["seed"], "format": fleet.format}
-            key = hashlib.sha256(json.dumps({"campaign": fleet.name, "kind": "fleet_record",
-                                             "spec": spec, "model_version": MODEL_VERSION},
-                                            sort_keys=True, default=float).encode()
-                                 ).hexdigest()[:16]
             cols = {"model": "hf", "command": fleet.command["name"], "faults": chk["true"],
                     "seed": chk["seed"], "t_end": fleet.t_end,
                     "fault_label": ",".join(f"{k}={v:g}" for k, v in chk["true"].items()),
                     "label": f"{aid} cycle {chk['cycle']:g}"}
-            jobs.append(Job(fleet.name, "fleet_record", key, spec, cols))
-    return Campaign(fleet.name, fleet.description, fleet.source, fleet.definition,
-                    tuple(jobs))
+            drafts.append(JobDraft("fleet_record", spec, columns=cols, version=MODEL_VERSION))
+    return make_campaign(fleet.name, drafts, fleet.description, fleet.source,
+                         fleet.definition)
 
 
 def run_record_job(spec: Mapping[str, Any], run_key: str, campaign: str,

@@ -26,6 +26,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.campaigns.jobs import register_job
+from eha.prognostics import tables  # noqa: F401  (declares health_checks, rul_predictions)
 from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
 from eha.prognostics.result import RulResult
@@ -143,7 +144,7 @@ def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: i
                     {"manifest": str(manifest.source), "fit": fit, "seed": seed,
                      "method": method, "base_model": base_model,
                      **_record_format(RecordFile(manifest.source, columns, units))},
-                    tuple(jobs))
+                    tuple(jobs), MODEL_VERSION)
 
 
 def _record_format(record) -> dict[str, Any]:

@@ -320,11 +320,13 @@ def fdi_results(results: str | Path = "results", campaign: str = FDI_CAMPAIGN):
     from eha.campaigns.query import query
     from eha.campaigns.store import StoreError
 
+    definition = query(results, "SELECT definition FROM campaigns WHERE name = ?", [campaign])
+    # the fdi kind's table exists once an fdi campaign has written to the database
     frame = query(results, """
         SELECT f.* FROM fdi_results f JOIN runs r USING (run_key)
-        WHERE r.campaign = ? AND r.status = 'done' ORDER BY f.case_id, f.seed""", [campaign])
-    definition = query(results, "SELECT definition FROM campaigns WHERE name = ?", [campaign])
-    if frame.empty or definition.empty:
+        WHERE r.campaign = ? AND r.status = 'done' ORDER BY f.case_id, f.seed""",
+                  [campaign]) if not definition.empty else None
+    if frame is None or frame.empty:
         raise StoreError(f"{Path(results) / 'eha.duckdb'}: no FDI results of campaign "
                          f"{campaign!r}; run `eha campaign run campaigns/{campaign}.toml` "
                          "(or `eha reproduce`) first")

@@ -1,12 +1,15 @@
-"""The simulation part of a campaign file: models × commands × fault sets × seeds.
+"""The ``simulate`` kind's part of a campaign file: models × commands × fault sets × seeds.
 
-:func:`_expand_simulations` validates the top-level keys ``models``, ``commands``, ``seeds``,
-``t_end``, ``signals``, ``params`` and ``faults`` of a campaign file (the format:
-:mod:`eha.campaigns.files`) through the same validators the models use
+:func:`_expand_simulations` validates the top-level keys (:data:`KEYS`) ``models``,
+``commands``, ``seeds``, ``t_end``, ``signals``, ``params`` and ``faults`` of a campaign file
+(the format: :mod:`eha.campaigns.files`) through the same validators the models use
 (:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
 :func:`eha.models.commands.make_command`, :func:`eha.models.simulate.check_grid`) and returns the
 drafts of its ``simulate`` jobs, one per model, fault set, command and seed. Every problem is
-appended to ``problems``, one line each.
+appended to ``problems``, one line each. The module registers the keys and their expander
+(:func:`eha.campaigns.jobs.register_keys`, entry point ``eha.campaign_keys``); each draft
+carries the models' version (:data:`eha.models.simulate.MODEL_VERSION`), hashed into its run
+key.
 """
 
 from __future__ import annotations
@@ -16,11 +19,14 @@ import json
 from typing import Any, Callable, Mapping
 
 from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _hash
+from eha.campaigns.jobs import register_keys
+from eha.models import OUTPUTS
+from eha.models import simulate as models_simulate
 from eha.models.commands import Command, CommandError, make_command, pin_command
 from eha.models.params import MODELS, ParameterError, check_value, resolve
 
-#: Columns a trace can store (docs/model.md §8); see :data:`eha.models.OUTPUTS`.
-from eha.models import OUTPUTS  # noqa: E402  (constant tuple; the package imports no kernels)
+#: Top-level keys of a campaign file that are the ``simulate`` kind's.
+KEYS = ("models", "commands", "seeds", "t_end", "signals", "params", "faults")
 
 #: Signals every stored trace must keep (metrics, pairing and plots read them).
 REQUIRED_SIGNALS = ("t", "com", "xu")
@@ -28,6 +34,20 @@ REQUIRED_SIGNALS = ("t", "com", "xu")
 #: (16 bytes each), so 4e8 steps (t_end = 3600 s at the nominal DT = 1e-5 s) need about 6.4 GB.
 MAX_STEPS = 400_000_000
 FAULT_KEYS = ("nominal", "grid", "single", "points")
+
+
+def _model_version() -> str:
+    """The models' version, read when a file is expanded (a test may patch it)."""
+    return models_simulate.MODEL_VERSION
+
+
+def expand(table: Mapping[str, Any], name: str, problems: list[str],
+           chosen: bool) -> list[JobDraft]:
+    """The ``simulate`` jobs of a campaign file: those of :func:`_expand_simulations` when the
+    file's kind is ``simulate`` (``chosen``) or it names models or commands, else none."""
+    if not (chosen or "models" in table or "commands" in table):
+        return []
+    return _expand_simulations(table, name, problems)
 
 
 def _expand_simulations(table: Mapping[str, Any], name: str,
@@ -64,6 +84,7 @@ def _expand_simulations(table: Mapping[str, Any], name: str,
         return []
 
     drafts = []
+    version = _model_version()
     for i, (label, faults) in enumerate(fault_sets):
         for cmd_name, cmd_set, cmd in commands:
             identities = {m: {"params": resolved[m, i], "command": cmd.describe()}
@@ -82,7 +103,7 @@ def _expand_simulations(table: Mapping[str, Any], name: str,
                                "faults": faults, "fault_label": label, "seed": seed,
                                "t_end": t_end, "case_key": case_key,
                                "label": f"{model.upper()} {cmd_name} {label} seed={seed}"}
-                    drafts.append(JobDraft("simulate", spec, identity, columns))
+                    drafts.append(JobDraft("simulate", spec, identity, columns, version))
     return drafts
 
 
@@ -164,8 +185,6 @@ def _t_end(value: Any, models: list[str], problems: list[str],
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         problems.append(f"t_end: {value!r} is not a number of seconds")
         return 1.0
-    from eha.models.simulate import check_grid
-
     fixed = fixed or {}
     for model in models or ["hf"]:
         try:  # the campaign's own parameters (its DT), not the nominal ones
@@ -173,7 +192,7 @@ def _t_end(value: Any, models: list[str], problems: list[str],
         except ParameterError:
             continue  # reported by the fault-set check with its context
         try:  # the simulator's own range check, without allocating the step grid
-            n_steps = check_grid(params, float(value))[2]
+            n_steps = models_simulate.check_grid(params, float(value))[2]
         except ParameterError as exc:
             problems.append(str(exc))
             break
@@ -356,4 +375,6 @@ def _describe_faults(faults: Mapping[str, float]) -> str:
     return ",".join(f"{k}={v:g}" for k, v in faults.items()) or "nominal"
 
 
-__all__ = ["REQUIRED_SIGNALS", "MAX_STEPS", "FAULT_KEYS"]
+register_keys("simulate", KEYS, expand)
+
+__all__ = ["KEYS", "REQUIRED_SIGNALS", "MAX_STEPS", "FAULT_KEYS", "expand"]

@@ -31,7 +31,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from eha.campaigns.jobs import TASK_SECONDS, register_job
+from eha.campaigns.jobs import TASK_SECONDS, register_job, register_table
 
 #: A campaign of N simulations is split into at least min(N, MIN_CHUNKS) chunks, so that up
 #: to 16 workers get 4 each whatever their number (the chunks never depend on the workers; on
@@ -46,7 +46,7 @@ SIM_COST = {"hf": 5e-3, "lf": 3e-3}
 
 def estimated_run_s(spec: Mapping[str, Any]) -> float:
     """Estimated simulation time [s] of one ``simulate`` job (spec of
-    :mod:`eha.campaigns.simulations`)."""
+    :mod:`eha.simulations.expand`)."""
     dt = spec["params"].get("DT", 1e-5)
     return SIM_COST[spec["model"]] * spec["t_end"] * (1e-5 / dt)
 
@@ -364,7 +364,7 @@ def finish_pairs(db, campaign: str) -> int:
     from eha.models.run_metrics import pair_metrics
 
     rows = []
-    for hf_key, hf_path, lf_key, lf_path in db.hf_lf_pairs(campaign):
+    for hf_key, hf_path, lf_key, lf_path in hf_lf_pairs(db.con, campaign):
         try:
             hf = read_trace(db.results / hf_path, hf_key)
             lf = read_trace(db.results / lf_path, lf_key)
@@ -379,6 +379,22 @@ def finish_pairs(db, campaign: str) -> int:
     return len(rows) // 2
 
 
+def hf_lf_pairs(con, campaign: str) -> list[tuple[str, str, str, str]]:
+    """``(hf_key, hf_trace, lf_key, lf_trace)`` of done HF/LF runs of the same case whose
+    HF-vs-LF metrics are still missing (trace paths relative to the results folder); ``con``:
+    a connection to the result database."""
+    return con.execute("""
+        SELECT h.run_key, h.trace_path, l.run_key, l.trace_path
+        FROM runs h JOIN runs l ON h.case_key = l.case_key AND h.campaign = l.campaign
+        JOIN metrics mh ON mh.run_key = h.run_key
+        JOIN metrics ml ON ml.run_key = l.run_key
+        WHERE h.campaign = ? AND h.kind = 'simulate' AND l.kind = 'simulate'
+          AND h.model = 'hf' AND l.model = 'lf'
+          AND h.status = 'done' AND l.status = 'done'
+          AND (mh.rmse_xu_hf_lf IS NULL OR ml.rmse_xu_hf_lf IS NULL)
+        ORDER BY h.run_key""", [campaign]).fetchall()
+
+
 def _chunk_fields(runs: Sequence[Any]) -> dict[str, Any]:
     return {"signals": runs[0].spec["signals"]}
 
@@ -388,9 +404,30 @@ def _estimate_s(spec: Mapping[str, Any]) -> float:
     return estimated_run_s(spec) + 5e-4
 
 
+#: The ``simulate`` kind's result table: one row of metrics per run.
+METRICS = """
+        CREATE TABLE IF NOT EXISTS metrics (
+            run_key          VARCHAR PRIMARY KEY,
+            rmse_xu_com      DOUBLE,  -- m, RMS of xu - com
+            max_err_xu_com   DOUBLE,  -- m, max |xu - com|
+            final_err_xu_com DOUBLE,  -- m, xu - com at t_end
+            settling_time    DOUBLE,  -- s, from which |xu - com| stays within 2 % of max|com|
+            lag              DOUBLE,  -- s, shift of xu best matching com (0 to 0.2 s)
+            xu_min           DOUBLE,  -- m
+            xu_max           DOUBLE,  -- m
+            xs_abs_max       DOUBLE,  -- m, spool peak
+            p12_min          DOUBLE,  -- Pa
+            p12_max          DOUBLE,  -- Pa
+            p12_abs_max      DOUBLE,  -- Pa
+            cor_abs_max      DOUBLE,  -- mA
+            rmse_xu_hf_lf    DOUBLE,  -- m, HF vs LF of the same case (both runs get it)
+            max_err_xu_hf_lf DOUBLE,  -- m
+            rmse_p12_hf_lf   DOUBLE)  -- Pa"""
+
 SIMULATE = register_job("simulate", run_simulation_job, plan_chunks=plan_chunks,
                         run_chunk=run_chunk, chunk_fields=_chunk_fields, estimate_s=_estimate_s,
                         collect=Pairs, finish=finish_pairs)
+register_table("metrics", METRICS, per_run=True)
 
 
 __all__ = ["plan_chunks", "chunk_size", "run_chunk", "estimated_run_s", "TASK_SECONDS",
