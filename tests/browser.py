@@ -97,3 +97,46 @@ def check_page(path: Path, shots: Path, click_row: tuple[str, str] | None = None
         finally:
             browser.close()
     return {"plots": len(plots), "selected": selected, "console": console}
+
+
+def cells_out_of_view(path: Path, table: str, keys: list[str],
+                      width: int = 1400) -> dict[str, dict]:
+    """Open ``path`` in a ``width`` px wide window and scroll the table whose ``data-name``
+    starts with ``table`` into view, vertically only (as a reader scrolls down to it). Returns
+    the cells of ``keys`` (``td[data-k=KEY]`` of its first row) that are not wholly visible
+    without a horizontal scroll: beyond the window's right edge or outside a scrolling
+    container's visible part, with their boxes; empty when every one is in view."""
+    from playwright.sync_api import sync_playwright
+
+    script = """([table, keys]) => {
+        const t = document.querySelector(`table.data[data-name^="${table}"]`);
+        if (!t) return {missing: {table}};
+        t.scrollIntoView({block: "start", inline: "nearest"});
+        window.scrollTo(0, window.scrollY);
+        let view = {left: 0, right: window.innerWidth};
+        for (let e = t.parentElement; e; e = e.parentElement) {
+            const s = getComputedStyle(e);
+            if (["auto", "scroll", "hidden"].includes(s.overflowX)) {
+                const r = e.getBoundingClientRect();
+                view = {left: Math.max(view.left, r.left), right: Math.min(view.right, r.right)};
+            }
+        }
+        const out = {};
+        for (const k of keys) {
+            const c = t.querySelector(`tbody tr td[data-k="${k}"]`);
+            if (!c) { out[k] = {missing: true}; continue; }
+            const r = c.getBoundingClientRect();
+            if (r.left < view.left - 0.5 || r.right > view.right + 0.5)
+                out[k] = {left: r.left, right: r.right, view};
+        }
+        return out;
+    }"""
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium(), args=FLAGS)
+        try:
+            page = browser.new_page(viewport={"width": width, "height": 900})
+            page.goto(Path(path).resolve().as_uri())
+            page.wait_for_selector("body[data-ready=true]", state="attached", timeout=60_000)
+            return page.evaluate(script, [table, keys])
+        finally:
+            browser.close()

@@ -356,3 +356,46 @@ def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tm
             assert rival["effect"] == "viscous_friction" and rival["param"] == "CJ"
             assert rival["shift"] > rival["detectable"] > rival["threshold"]
             assert abs(rival["value"] - 3000.0) < 600.0, rival
+
+
+def test_every_command_preset_ships_a_current_null():
+    """The first record of a preset (1 s at 1 kHz, 1 µm noise, default settings) finds its
+    null shipped with eha (issue 42, item 6): one file per preset, of the current null format
+    and model version (a stale file fails here: regenerate with python -m
+    eha.explain.library_nulls), and no file beside them."""
+    from eha.explain.library_nulls import library_key
+    from eha.explain.null import SHIPPED_DIR, shipped_null
+    from eha.models.commands import PRESETS
+
+    keys = {name: library_key(name) for name in PRESETS}
+    for name, key in keys.items():
+        null = shipped_null(key)
+        assert null is not None, f"{name}: no current shipped null {key}"
+        assert null.settings["library_command"] == name and null.key == key
+        assert null.records == 12 and null.settings["seed"] == 0
+    assert sorted(p.stem for p in SHIPPED_DIR.glob("*.json")) == sorted(keys.values())
+
+
+def test_a_preset_record_takes_the_shipped_null_and_another_noise_calibrates(monkeypatch,
+                                                                               tmp_path):
+    """With an empty cache, the null of a preset's record is the shipped file, not a
+    calibration; the same command at 3 µm noise (another noise class) has another key, which
+    nothing ships."""
+    from eha.explain import null as null_module
+    from eha.explain.api import healthy_null
+    from eha.explain.library_nulls import library_record
+    from eha.explain.settings import LoopSettings
+    from eha.identification.measured import from_arrays
+
+    monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(null_module, "ProcessPoolExecutor", None)    # no calibration
+    monkeypatch.setattr(null_module, "_fleet_member", None)
+    data = library_record("mixed")
+    null = healthy_null(data, None, None, None, LoopSettings(), (), "simulate")
+    assert (null_module.SHIPPED_DIR / f"{null.key}.json").exists()
+    assert null.source.endswith("preset mixed and shipped with eha")      # the verdict says so
+    assert not list(tmp_path.rglob("*.json"))                         # nothing calibrated
+    noisy = from_arrays(data.t, data.com, data.xu + np.random.default_rng(0).normal(
+        0.0, 3e-6, len(data.xu)), command_hold=data.info["command_hold"])
+    with pytest.raises(TypeError):             # it would calibrate: the patched pool is None
+        healthy_null(noisy, None, None, None, LoopSettings(), (), "simulate")

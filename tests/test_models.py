@@ -193,6 +193,57 @@ def test_lf_kernel_equals_its_py_func(switches):
     np.testing.assert_allclose(out, out_py, rtol=RTOL, atol=ATOL)
 
 
+def _mixed_batch(n=13, t_end=0.2):
+    """``n`` LF parameter rows with every structural switch setting and dithered hysteresis."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for j in range(n):
+        p = resolve("lf", {"BKL": rng.uniform(0, 4e-4), "FDJ": rng.uniform(100, 3000),
+                           "orifice_law": float(j % 2), "SNF": 2513.0 if j % 3 else 0.0,
+                           "His": 0.05 if j % 4 == 0 else 0.0, "FRC": rng.uniform(0, 2000),
+                           "Clk": 1e-13 * (j % 5)})
+        rows.append(p.to_array())
+    spo, n_out, ts = grid(p, t_end)
+    return np.array(rows), command_on_grid("mixed", ts), spo, n_out
+
+
+def test_lf_batch_equals_one_run_at_a_time():
+    # the batch integrates its rows interleaved in groups (eha.models.lf._lf_group); each
+    # row is the one-run kernel's, to rounding (fastmath may contract the two differently:
+    # measured 3.5e-18 m on xu, 1e-15 relative), whatever the switches of the other rows
+    from eha.models.lf import run_lf_batch
+
+    rows, com, spo, n_out = _mixed_batch()
+    out = np.empty((len(rows), n_out, len(OUTPUTS)))
+    run_lf_batch(rows, com, spo, out)
+    for j, row in enumerate(rows):
+        one = np.empty((n_out, len(OUTPUTS)))
+        run_lf(row, com, spo, one)
+        np.testing.assert_allclose(out[j], one, rtol=RTOL, atol=ATOL)
+
+
+def test_lf_batch_row_does_not_depend_on_its_group_or_the_threads():
+    # bit for bit: a fit's objective values must not depend on the batch size or the cores
+    import numba
+
+    from eha.models.lf import batch_groups, run_lf_batch
+
+    rows, com, spo, n_out = _mixed_batch()
+    ref = np.empty((len(rows), n_out, len(OUTPUTS)))
+    run_lf_batch(rows, com, spo, ref)
+    assert len(batch_groups(rows, 2, 8)[1]) > 2          # several groups of several rows
+    threads = numba.get_num_threads()
+    try:
+        for t in sorted({1, threads}):
+            numba.set_num_threads(t)
+            for sub in (slice(0, 1), slice(4, 5), slice(0, 5), slice(3, 13)):
+                out = np.empty((len(rows[sub]), n_out, len(OUTPUTS)))
+                run_lf_batch(np.ascontiguousarray(rows[sub]), com, spo, out)
+                assert np.array_equal(out, ref[sub])
+    finally:
+        numba.set_num_threads(threads)
+
+
 def test_kernels_equal_a_fully_interpreted_run(tmp_path):
     # NUMBA_DISABLE_JIT runs every helper (friction, play) as plain Python too.
     code = (

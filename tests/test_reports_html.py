@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 import report_data
-from browser import check_page
+from browser import cells_out_of_view, check_page
 from helpers import SMALL_FLEET, error_line, invoke_eha
 from eha.reports.html import ReportError, build_report
 from eha.campaigns.query import query
@@ -260,6 +260,17 @@ def test_the_report_in_headless_chromium(canned, tmp_path):
     assert out["plots"] == res.figures >= 10
     assert out["selected"] == "A2"
     assert (tmp_path / "page.png").stat().st_size > 50_000
+
+
+@pytest.mark.slow
+def test_the_thesis_comparison_is_in_view_at_1400_px(canned):
+    """Issue 42, item 5: at 1400 px the thesis table's comparison columns (our error, the
+    thesis' error, "<= thesis", the augmented LF's error) are in view in a real browser, no
+    horizontal scroll needed."""
+    _, res, _ = canned
+    keys = ["case", "mean_err_pct", "thesis_mean_err_pct", "at_least_as_accurate",
+            "aug_mean_err_pct"]
+    assert cells_out_of_view(res.path, "fdi thesis-fdi", keys, width=1400) == {}
 
 
 @pytest.mark.slow

@@ -30,7 +30,8 @@ never fits above a few hundred). The null is
 Simulated nulls are cached on disk (:func:`cache_dir`), keyed by the command's samples, the
 sampling, the noise, the declared faults, the loop's fit settings and the model version
 (:data:`eha.models.simulate.MODEL_VERSION`); the statistics are stored, so any ``alpha`` reuses
-them. The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
+them. Those of the command presets, logged as eha logs them, are shipped with eha
+(:func:`shipped_null`, :mod:`eha.explain.library_nulls`). The null's constants (:data:`DECLARED_DRAW`, ...) are in :mod:`eha.explain.settings`.
 """
 
 from __future__ import annotations
@@ -182,6 +183,20 @@ class Null:
         return path
 
 
+#: Nulls calibrated in advance for the command presets (:mod:`eha.explain.library_nulls`).
+SHIPPED_DIR = Path(__file__).resolve().parent / "nulls"
+
+
+def shipped_null(key: str) -> Null | None:
+    """The null of cache key ``key`` shipped with eha (:mod:`eha.explain.library_nulls`), or
+    None (none shipped, or stale: :func:`load_null` checks its format and model version)."""
+    null = load_null(SHIPPED_DIR / f"{key}.json") if key else None
+    if null is not None:
+        null.source += (f", calibrated in advance for the preset "
+                        f"{null.settings.get('library_command', '?')} and shipped with eha")
+    return null
+
+
 def load_null(path: str | Path) -> Null | None:
     """A cached null, or None when the file is missing, damaged or of another format."""
     from eha.models.simulate import MODEL_VERSION
@@ -306,7 +321,7 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
     key = null_key(data, fit, names, settings, actuators, seed, base, fixed, fdi_options)
     path = cache_dir() / f"{key}.json"
     if use_cache:
-        cached = load_null(path)
+        cached = load_null(path) or shipped_null(key)
         if cached is not None:
             return cached
     t0 = time.perf_counter()
@@ -458,4 +473,4 @@ def records_null(folder: str | Path, fit: Mapping[str, tuple[float, float]],
 
 
 __all__ = ["Null", "NullError", "simulated_null", "records_null", "statistic_keys",
-           "load_null", "cache_dir", "null_key", "covered_effects", "NULL_FORMAT"]
+           "load_null", "shipped_null", "cache_dir", "null_key", "covered_effects", "NULL_FORMAT"]
