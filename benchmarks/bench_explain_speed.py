@@ -143,6 +143,9 @@ def foreign(records: list[Path], out: Path, jobs: int = 1, run: bool = True) -> 
         if js.exists():
             doc = json.loads(js.read_text())
             seconds, load = doc.get("_seconds"), doc.get("_load_before")
+            if seconds is None:         # written, but its run did not end (not timed)
+                return {"record": path.stem, "seconds": None,
+                        "verdict_kind": doc.get("verdict_kind")}
         elif run:
             seconds, doc = _explain(path, out, dict(os.environ))
             doc.update(_load_before=load, _load_after=_load(), _jobs=jobs,
