@@ -190,7 +190,7 @@ def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
     res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FAST)
     assert res.to_json()["p12_in_fit"]
     # the noise (2e4 Pa) or the floor, a fraction of P12's spread, whichever is larger
-    assert res.settings["p12_noise_pa"] == pytest.approx(
+    assert res.facts.p12_noise_pa == pytest.approx(
         max(2e4, P12_NOISE_FLOOR * frame["p12"].std()), rel=0.1)
     assert res.effects[0] == "leakage", res.stop_reason
     assert res.steps[0].params["Clk"] == pytest.approx(5e-12, rel=0.10)
@@ -351,8 +351,8 @@ def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
         explain(data, fixed=["XJ0"], **FAST)
     # FRC held at 0 (its off value): external_load must still not be a candidate
     res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
-    assert "external_load" not in res.settings["effects"]
-    assert "offset" in res.settings["effects"]
+    assert "external_load" not in res.facts.candidates
+    assert "offset" in res.facts.candidates
 
 
 @pytest.mark.slow
@@ -765,7 +765,7 @@ def test_flow_gain_at_the_edge_of_its_spread_is_read_as_a_flow_loss():
     from eha.explain.decide import flow_gain_at_edge
 
     def result(gq, fitted=True, bounds=(0.18, 0.22)):
-        return SimpleNamespace(settings={"flow_gain_fitted": fitted},
+        return SimpleNamespace(facts=SimpleNamespace(flow_gain_fitted=fitted),
                                fit_bounds={"BKL": (0, 2e-3), "GQ": bounds},
                                faults_after={"BKL": 1e-4, "GQ": gq})
 
@@ -792,9 +792,9 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
     data = load(_record(tmp_path, "weak_motor", "mixed", 0.6, {"GM": 0.008}, model="lf"))
     res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
                   **FAST_LF)
-    assert res.settings["flow_gain_released"] == \
+    assert res.facts.flow_gain_released == \
         "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
-    assert res.to_json()["flow_gain_released"] == res.settings["flow_gain_released"]
+    assert res.to_json()["flow_gain_released"] == res.facts.flow_gain_released
     assert "GQ" not in res.faults_after and res.after.params.GQ == LFParams().GQ
     assert res.effects == ["motor_gain"]
     assert res.after.params.GM == pytest.approx(0.008, rel=0.01)
@@ -812,7 +812,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
     monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
     again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST_LF)
     assert spreads == [0.1, 0.0]
-    assert again.settings["flow_gain_released"] == "GQ forced to its edge"
+    assert again.facts.flow_gain_released == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1
 
 

@@ -99,14 +99,22 @@ def ambiguities(args) -> dict:
     out = {}
     for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
         start = time.perf_counter()
-        result = design(faults=[], separate=[(a, b)], around={a: va, b: vb},
-                        limits=Limits(2.0, 0.01, 0.1), seed=args.seed,
-                        generations=args.generations)
-        folder = Path(args.out) / "ambiguities" / label.split(" ")[0]
-        result.save(folder)
-        entry = {"pair": [a, b], "at": {a: va, b: vb}, "seconds": time.perf_counter() - start,
-                 "separable_size": result.pairs()[0], "segments": result.segments,
-                 "command": str(folder / "design.csv")}
+        # one folder per pair, named by both members (two pairs share the motor gain)
+        folder = Path(args.out) / "ambiguities" / f"{a}-{b}"
+        if args.reuse_designs and (folder / "design.json").exists():
+            saved = json.loads((folder / "design.json").read_text())
+            pair, segments = saved["pairs"][0], saved["segments"]
+            seconds, reused = saved.get("seconds"), True
+        else:
+            result = design(faults=[], separate=[(a, b)], around={a: va, b: vb},
+                            limits=Limits(2.0, 0.01, 0.1), seed=args.seed,
+                            generations=args.generations)
+            result.save(folder)
+            pair, segments = result.pairs()[0], result.segments
+            seconds, reused = time.perf_counter() - start, False
+        entry = {"pair": [a, b], "at": {a: va, b: vb}, "seconds": seconds,
+                 "separable_size": pair, "segments": segments,
+                 "command": str(folder / "design.csv"), "design_reused": reused}
         if args.loop:
             entry["loop"] = loop_verdicts(folder / "design.csv", (a, va), (b, vb), args)
         out[label] = entry
@@ -128,7 +136,7 @@ def loop_verdicts(command: Path, first, second, args) -> dict:
             value = EFFECTS[name].off[param] + dev
             df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0, param: value},
                                       t_end=2.0, noise=1e-6, seed=5000 + k)
-            path = Path(args.out) / "loop" / f"{name}-{k}.csv"
+            path = command.parent / "loop" / f"{name}-{k}.csv"   # the pair's own folder
             path.parent.mkdir(parents=True, exist_ok=True)
             df.to_csv(path, index=False)
             res = eha.explain(eha.load(path), fit="BKL,FDJ", seed=k)
@@ -157,6 +165,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--generations", type=int, default=20, help="of each ambiguity's design")
     ap.add_argument("--loop", type=int, default=0, help="HF records per truth and pair")
+    ap.add_argument("--reuse-designs", action="store_true",
+                    help="take each ambiguity's design from its folder when it has one "
+                         "(OUT/ambiguities/A-B/design.json) instead of searching again")
     ap.add_argument("--skip", default="", help="parts to skip: verify, ambiguities")
     ap.add_argument("--json", action="store_true", help="write the result file")
     ap.add_argument("--merge", action="store_true",

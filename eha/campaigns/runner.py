@@ -251,17 +251,17 @@ def _tasks(camp, todo: list, results: Path, kinds: list[JobKind]) -> list[dict]:
             tasks.append({"kind": "chunk", "job_kind": kind.name, "campaign": camp.name,
                           "trace_file": str(path), "trace_path": str(path.relative_to(results)),
                           **(kind.chunk_fields(runs) if kind.chunk_fields else {}),
-                          "runs": [{"run_key": j.run_key, "spec": j.spec,
-                                    "case_key": j.columns.get("case_key"),
-                                    "model": j.columns.get("model")} for j in runs]})
+                          # a run's descriptive columns travel with it: a kind's worker
+                          # reads its own (the simulation pairs HF and LF by case_key)
+                          "runs": [{**j.columns, "run_key": j.run_key, "spec": j.spec}
+                                   for j in runs]})
     for j in todo:
         if j.kind in chunked:
             continue
         path = trace_path(results, camp.name, j.run_key)
-        tasks.append({"kind": j.kind, "spec": j.spec, "run_key": j.run_key,
+        tasks.append({**j.columns, "kind": j.kind, "spec": j.spec, "run_key": j.run_key,
                       "campaign": camp.name, "trace_file": str(path),
-                      "trace_path": str(path.relative_to(results)),
-                      "case_key": j.columns.get("case_key"), "model": j.columns.get("model")})
+                      "trace_path": str(path.relative_to(results))})
     return tasks
 
 

@@ -19,6 +19,10 @@ DB_NAME = "eha.duckdb"
 TRACES = "traces"
 
 #: The SQL schema, in one place: table name -> CREATE statement. Units are SI (cor in mA).
+#: ``runs`` holds what every kind's runs have: the run's state and timings, its trace file
+#: (the store's chunks), and the descriptive columns each kind's drafts fill (model, command,
+#: faults, seed, t_end, label: an actuator on a command with faults, whatever the kind);
+#: ``case_key`` is the simulate kind's pairing of HF and LF runs, NULL for the others.
 SCHEMA: dict[str, str] = {
     "campaigns": """
         CREATE TABLE IF NOT EXISTS campaigns (
@@ -43,7 +47,7 @@ SCHEMA: dict[str, str] = {
             fault_label VARCHAR,
             seed        BIGINT,
             t_end       DOUBLE,               -- s
-            case_key    VARCHAR,              -- same command/faults/seed/t_end across models
+            case_key    VARCHAR,              -- simulate: one case's HF and LF runs (else NULL)
             label       VARCHAR,
             trace_path  VARCHAR,              -- relative to the results directory
             error       VARCHAR,

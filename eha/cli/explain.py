@@ -177,7 +177,7 @@ def _render(res) -> None:
                   f"{1e6 * res.unexplained_rmse:.3g} µm. Stopped: {res.stop_reason}",
                   highlight=False)
     if res.intervals:
-        flow = "GQ" in res.intervals and res.settings.get("flow_gain_fitted")
+        flow = "GQ" in res.intervals and res.facts.flow_gain_fitted
         console.print(f"final model, {100 * res.level:g} % intervals: " + "; ".join(
             f"{k} {show(k, getattr(res.after.params, k))} {show_interval(k, lo, hi)}"
             + (" (valve flow gain, fitted within a healthy spread)" if k == "GQ" and flow
@@ -255,18 +255,18 @@ def _notes(res) -> list[str]:
                 len(res.rounds) else f"final check: {d.effect} removed")
         lines.append(f"{when}: with the rest of the model refitted without it, it reduces "
                      f"the RMSE by only {d.loss:.1%} (p = {d.p_value:.2g})")
-    settings = res.settings
-    if settings.get("passes", 1) > 1:
+    facts = res.facts
+    if facts.passes > 1:
         lines.append("the first pass left the record unexplained; a second pass ran from the "
                      "structure pinned at its physical values: " +
-                     ("its result is reported" if settings.get("structure_pinned")
+                     ("its result is reported" if facts.structure_pinned
                       else "not better by the loop's rule, the first pass is reported"))
-    if settings.get("flow_gain_released"):
-        lines.append(f"{settings['flow_gain_released']}: a flow loss beyond a healthy "
+    if facts.flow_gain_released:
+        lines.append(f"{facts.flow_gain_released}: a flow loss beyond a healthy "
                      f"actuator's spread; GQ was put back to its nominal value and no longer "
                      f"fitted")
-    if settings.get("p12_used"):
+    if facts.p12_used:
         lines.append(f"measured P12 used in every fit and score (noise taken as "
-                     f"{settings['p12_noise_pa'] / 1e5:.3g} bar; --p12-weight "
-                     f"{settings['p12_weight']:g})")
+                     f"{facts.p12_noise_pa / 1e5:.3g} bar; --p12-weight "
+                     f"{res.settings['p12_weight']:g})")
     return lines

@@ -59,7 +59,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
         0 = GQ held at the base's value). A GQ at the edge of that range goes back to the
         base's value: after the declared faults' fit (:meth:`ResidualLoop.baseline`), or, at
         the end (:func:`flow_gain_at_edge`), by running the loop again and reporting that
-        run; ``settings["flow_gain_released"]`` says why.
+        run; ``facts.flow_gain_released`` says why.
     fixed : names, optional
         LF parameters held at their values in ``base`` (known test conditions, ``eha explain
         --set``): not fitted, and no effect touching them is a candidate.
@@ -108,7 +108,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
                     replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options,
                     null)
     again.settings["flow_gain_spread"] = settings.flow_gain_spread
-    again.settings["flow_gain_released"] = edge
+    again.facts.flow_gain_released = edge
     again.seconds += result.seconds
     return again
 
@@ -162,5 +162,5 @@ def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
                           pin_structure=True, null=null, **fdi_options).run()
     chosen = better_pass(result, second, settings)
     chosen.seconds = result.seconds + second.seconds
-    chosen.settings["passes"] = 2
+    chosen.facts.passes = 2
     return chosen

@@ -314,7 +314,7 @@ def flow_gain_at_edge(result: ExplainResult) -> str | None:
     the flow gain within its healthy spread to the end (``flow_gain_spread``, GQ not a
     declared fault) and the final model has it at the spread's edge (:func:`edge_of_spread`);
     else None."""
-    if not result.settings.get("flow_gain_fitted") or "GQ" not in result.fit_bounds:
+    if not result.facts.flow_gain_fitted or "GQ" not in result.fit_bounds:
         return None
     return edge_of_spread(float(result.faults_after["GQ"]), result.fit_bounds["GQ"])
 

@@ -19,6 +19,7 @@ from eha.explain.leads import LeadReport, residual_leads
 from eha.explain.record import Record, initial_position, p12_objective_weight
 from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
+from eha.explain.facts import RunFacts
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
 from eha.identification.measured import MeasuredData, noise_level
 from eha.models.params import LFParams, ParameterError, resolve
@@ -318,21 +319,19 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                 c.__dict__.pop("_evaluation", None)
         bounds, notes, level, flagged = self.final_intervals()
         data, s = self.data, self.settings
-        settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, "n_fit": self.n_fit,
-                    "effects": [e.name for e in self.pool],
-                    "command_hold": data.info.get("command_hold", "linear"),
-                    "p12_used": bool(self.p12_weight), "p12_noise_pa": self.p12_noise,
-                    "p12_m_per_pa": self.p12_weight,
-                    "structure_pinned": [e.name for e in self.pinned], "passes": 1,
-                    "flow_gain_fitted": self.flow_gain_fitted,
-                    "flow_gain_released": self.flow_gain_released,
-                    **self.fdi_options}
+        settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, **self.fdi_options}
+        facts = RunFacts(
+            n_fit=self.n_fit, candidates=[e.name for e in self.pool],
+            command_hold=data.info.get("command_hold", "linear"),
+            p12_used=bool(self.p12_weight), p12_noise_pa=self.p12_noise,
+            p12_m_per_pa=self.p12_weight, structure_pinned=[e.name for e in self.pinned],
+            flow_gain_fitted=self.flow_gain_fitted, flow_gain_released=self.flow_gain_released)
         return ExplainResult(
             source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
             faults_after={k: getattr(self.current, k) for k in self.bounds}, before=before,
             after=self.cur, steps=self.steps, rounds=self.rounds, noise_rmse=self.noise,
             stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
-            measured=data.xu.copy(), settings=settings,
+            measured=data.xu.copy(), settings=settings, facts=facts,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
             unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
             beyond_healthy=flagged, not_excluded=self.rivals,

@@ -38,7 +38,7 @@ def plot_explain_residuals(result, path: str | Path | None = None):
                     label=f"±noise level ({noise:.2g} µm)")
     axes[1].set_ylabel("measured − LF [µm]")
     axes[1].set_xlabel("time [s]")
-    n_fit = result.settings.get("n_fit", len(t))
+    n_fit = len(t) if result.facts.n_fit is None else result.facts.n_fit
     for ax in axes:
         if n_fit < len(t):
             ax.axvspan(t[n_fit], t[-1], color="tab:orange", alpha=0.08, lw=0)

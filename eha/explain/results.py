@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from eha.explain.effects import EFFECTS
+from eha.explain.facts import RunFacts
 from eha.explain.leads import LeadReport
 from eha.models.params import LFParams
 from eha.models.units import number, show
@@ -162,8 +163,13 @@ class ExplainResult:
     holdout: str
     t: np.ndarray
     measured: np.ndarray
+    #: how the loop was told to run (:class:`eha.explain.settings.LoopSettings` and the fit's
+    #: options)
     settings: dict[str, Any]
     seconds: float
+    #: how this run went (:class:`eha.explain.facts.RunFacts`): samples fitted, candidates,
+    #: P12 in the fit, passes, the flow gain fitted or released
+    facts: RunFacts = field(default_factory=RunFacts)
     #: intervals of the final model's fitted parameters (faults and effect parameters)
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     level: float | None = None
@@ -339,9 +345,9 @@ class ExplainResult:
             "verdict": self.verdict, "noise_rmse": self.noise_rmse,
             "unexplained_rmse": self.unexplained_rmse,
             "leads": self.leads.to_json() if self.leads is not None else None,
-            "command_hold": self.settings.get("command_hold"),
-            "p12_in_fit": bool(self.settings.get("p12_used", False)),
-            "flow_gain_released": self.settings.get("flow_gain_released"),
+            "command_hold": self.facts.command_hold,
+            "p12_in_fit": self.facts.p12_used,
+            "flow_gain_released": self.facts.flow_gain_released,
             "steps": [{"effect": s.effect, "params": self.final_params(s),
                        "rmse_before": s.rmse_before, "rmse_after": s.rmse_after,
                        "tentative": self.unexplained,
@@ -408,6 +414,7 @@ class ExplainResult:
                 "noise_rmse": self.noise_rmse, "unexplained_rmse": self.unexplained_rmse,
                 "stop_reason": self.stop_reason, "holdout": self.holdout,
                 "steps_table": self.steps_table(), "settings": self.settings,
+                "facts": self.facts.to_json(),
                 "signals": [r.signals for r in self.rounds], "seconds": self.seconds}
 
     def run_row(self, run_id: str, source: str, created_at: Any) -> dict[str, Any]:
@@ -416,14 +423,14 @@ class ExplainResult:
         return {"run_id": run_id, "source": source, "created_at": created_at,
                 "fit": {k: list(v) for k, v in self.fit_bounds.items()},
                 "holdout": self.holdout, "settings": self.settings,
-                "rmse_before": self.rmse_before, "rmse_after": self.rmse_after,
+                "facts": self.facts.to_json(), "rmse_before": self.rmse_before, "rmse_after": self.rmse_after,
                 "noise_rmse": self.noise_rmse, "unexplained_rmse": self.unexplained_rmse,
                 "faults_before": self.faults_before, "faults_after": self.faults_after,
                 "effects": self.effects, "stop_reason": self.stop_reason,
                 "seconds": self.seconds, "unexplained": bool(self.unexplained),
                 "beyond_healthy": bool(self.beyond_healthy), "verdict": self.verdict,
                 **{k: v for k, v in self.verdict_facts.to_json().items() if k != "found"},
-                "command_hold": self.settings.get("command_hold"),
+                "command_hold": self.facts.command_hold,
                 "leads": self.leads.to_json() if self.leads is not None else None}
 
     def step_rows(self, run_id: str) -> list[dict[str, Any]]:

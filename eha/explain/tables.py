@@ -54,7 +54,9 @@ register_table("explain_runs", EXPLAIN_RUNS,
                       ("beyond_healthy", "BOOLEAN"),
                       # the verdict's kind and facts (issue 42)
                       ("verdict_kind", "VARCHAR"), ("at_noise", "BOOLEAN"),
-                      ("within_healthy_band", "BOOLEAN"), ("unique_explanation", "BOOLEAN")))
+                      ("within_healthy_band", "BOOLEAN"), ("unique_explanation", "BOOLEAN"),
+                      # how the run went, apart from its settings (issue 40)
+                      ("facts", "JSON")))
 register_table("explain_steps", EXPLAIN_STEPS)
 
 
