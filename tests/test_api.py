@@ -84,3 +84,27 @@ def test_api_doc_quick_examples_run(tmp_path):
 def test_api_doc_all_examples_run(tmp_path):
     out = _run("\n".join(c for _, c in _blocks()), tmp_path, 600)
     assert "RUL" in out
+
+
+def test_identification_and_assessment_go_to_pandas_with_units():
+    """The results of ``identify_source`` and ``assess_record`` are objects with a
+    ``.to_pandas()`` (issue 40, part 3): one row per fitted parameter or fault, its SI unit
+    from the parameter table, the estimate inside its interval."""
+    import eha
+
+    ident = eha.identify_source(command="chirp_1cm", faults={"BKL": 2e-4, "FDJ": 800.0},
+                                fit=("BKL", "FDJ"), method="lm", t_end=0.3)
+    df = ident.to_pandas()
+    assert list(df["parameter"]) == ["BKL", "FDJ"] and list(df["unit"]) == ["m", "N"]
+    assert (df["truth"] == [2e-4, 800.0]).all()
+    assert (df["lo"] <= df["estimate"]).all() and (df["estimate"] <= df["hi"]).all()
+    assert df.loc[df.parameter == "FDJ", "error_pct"].abs().iloc[0] < 10
+
+    trace = eha.simulate("hf", "chirp_1cm", {"BKL": 2e-4}, t_end=0.3)
+    health = eha.assess(trace.xu, "chirp_1cm", t_end=0.3, faults=(), pop=6)
+    hf = health.to_pandas()
+    assert {"BKL", "FDJ"} <= set(hf["fault"])
+    row = hf.set_index("fault").loc["BKL"]
+    assert row["unit"] == "m" and row["lo"] <= row["estimate"] <= row["hi"]
+    assert row["weight"] == 1.0          # a core fault: every hypothesis fits it
+    assert ((hf["weight"] >= 0) & (hf["weight"] <= 1)).all()

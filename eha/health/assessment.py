@@ -122,6 +122,24 @@ class Assessment:
     def weights(self) -> dict[str, float]:
         return {("none" if h.fault is None else h.fault): h.weight for h in self.hypotheses}
 
+    def to_pandas(self):
+        """One row per fault: its unit (SI, as ``eha params``), estimate, interval at
+        ``level``, posterior mean over the hypotheses and measurement std, and ``weight``: the
+        posterior probability of a hypothesis that fits it (1 for the core faults, which every
+        hypothesis fits; the weight of ``H_fault`` for the others)."""
+        import pandas as pd
+
+        from eha.models.params import SPECS
+
+        weights = {**self.weights(), **{k: 1.0 for k in core_faults()}}
+        return pd.DataFrame(
+            [{"fault": k, "unit": SPECS[k].unit if k in SPECS else "",
+              "estimate": v, "lo": self.intervals.get(k, (math.nan, math.nan))[0],
+              "hi": self.intervals.get(k, (math.nan, math.nan))[1],
+              "mean": self.means.get(k, math.nan), "std": self.spread.get(k, math.nan),
+              "weight": weights.get(k, math.nan)} for k, v in self.estimates.items()],
+            columns=["fault", "unit", "estimate", "lo", "hi", "mean", "std", "weight"])
+
     def to_dict(self) -> dict[str, Any]:
         return {"estimates": dict(self.estimates),
                 "intervals": {k: list(v) for k, v in self.intervals.items()},

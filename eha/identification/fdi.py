@@ -335,6 +335,22 @@ class Identification:
     #: how a measured record's command was rebuilt between samples (None for HF references)
     command_hold: str | None = None
 
+    def to_pandas(self):
+        """One row per fitted parameter: its unit (SI, as ``eha params``), estimate, interval
+        (NaN when none was computed), the truth and the error in % of it (HF references)."""
+        import pandas as pd
+
+        from eha.models.params import SPECS
+
+        r, nan = self.result, float("nan")
+        return pd.DataFrame(
+            [{"parameter": k, "unit": SPECS[k].unit if k in SPECS else "", "estimate": v,
+              "lo": r.intervals.get(k, (nan, nan))[0], "hi": r.intervals.get(k, (nan, nan))[1],
+              "truth": (self.truth or {}).get(k, nan),
+              "error_pct": (self.errors_pct or {}).get(k, nan)}
+             for k, v in r.estimates.items()],
+            columns=["parameter", "unit", "estimate", "lo", "hi", "truth", "error_pct"])
+
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, **self.result.to_dict(), "truth": self.truth,
                 "errors_pct": self.errors_pct, "mean_err_pct": self.mean_err_pct,
