@@ -97,10 +97,16 @@ def ambiguities(args) -> dict:
     from eha.design import Limits, design
 
     out = {}
-    for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
+    root = Path(args.out) / "ambiguities"
+    # one folder per pair, named by both members (two pairs share the motor gain); with
+    # --reuse-designs the pairs whose design is there run first
+    order = sorted(AMBIGUITIES.items(), key=lambda it: not (
+        args.reuse_designs and (root / f"{it[1][0][0]}-{it[1][1][0]}" / "design.json").exists()))
+    for label, ((a, va), (b, vb)) in order:
         start = time.perf_counter()
-        # one folder per pair, named by both members (two pairs share the motor gain)
-        folder = Path(args.out) / "ambiguities" / f"{a}-{b}"
+        folder = root / f"{a}-{b}"
+        if args.cached_only and not (folder / "design.json").exists():
+            continue
         if args.reuse_designs and (folder / "design.json").exists():
             saved = json.loads((folder / "design.json").read_text())
             pair, segments = saved["pairs"][0], saved["segments"]
@@ -123,7 +129,9 @@ def ambiguities(args) -> dict:
 
 
 def loop_verdicts(command: Path, first, second, args) -> dict:
-    """The residual loop on ``--loop`` HF records per truth on the designed command."""
+    """The residual loop on ``--loop`` HF records per truth on the designed command. Each
+    record's call is kept beside it (``NAME-K.json``) and reused by a later run, so a run cut
+    short loses one record; ``--cached-only`` summarises the calls kept, running none."""
     import eha
     from eha.explain.effects import EFFECTS
 
@@ -133,20 +141,31 @@ def loop_verdicts(command: Path, first, second, args) -> dict:
         param = EFFECTS[name].tested
         calls = []
         for k in range(args.loop):
+            path = command.parent / "loop" / f"{name}-{k}.csv"   # the pair's own folder
+            kept = path.with_suffix(".json")
+            if kept.exists():
+                calls.append(json.loads(kept.read_text()))
+                continue
+            if args.cached_only:
+                break
             value = EFFECTS[name].off[param] + dev
             df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0, param: value},
                                       t_end=2.0, noise=1e-6, seed=5000 + k)
-            path = command.parent / "loop" / f"{name}-{k}.csv"   # the pair's own folder
             path.parent.mkdir(parents=True, exist_ok=True)
             df.to_csv(path, index=False)
+            start = time.perf_counter()
             res = eha.explain(eha.load(path), fit="BKL,FDJ", seed=k)
             found = [e for e in res.effects if e not in ("orifice_law", "flapper_dynamics")]
             rivals = [e["effect"] for e in res.not_excluded]
-            calls.append({"found": found, "rivals": rivals,
-                          "decisive_and_right": found == [name] and not rivals,
-                          "confidently_wrong": bool(found) and name not in found and not rivals,
-                          "verdict": res.verdict})
-        out[name] = {"records": calls,
+            call = {"record": k, "seed": 5000 + k, "truth": {param: value},
+                    "found": found, "rivals": rivals,
+                    "decisive_and_right": found == [name] and not rivals,
+                    "confidently_wrong": bool(found) and name not in found and not rivals,
+                    "verdict": res.verdict, "seconds": time.perf_counter() - start}
+            kept.write_text(json.dumps(call, indent=1))
+            print(f"  {command.parent.name} truth {name} #{k}: {res.verdict[:100]}", flush=True)
+            calls.append(call)
+        out[name] = {"records": calls, "n": len(calls),
                      "decisive_and_right": sum(c["decisive_and_right"] for c in calls),
                      "confidently_wrong": sum(c["confidently_wrong"] for c in calls)}
     return out
@@ -165,6 +184,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--generations", type=int, default=20, help="of each ambiguity's design")
     ap.add_argument("--loop", type=int, default=0, help="HF records per truth and pair")
+    ap.add_argument("--cached-only", action="store_true",
+                    help="with --loop: summarise the records' calls kept in the pairs' "
+                         "folders, explain no new record")
     ap.add_argument("--reuse-designs", action="store_true",
                     help="take each ambiguity's design from its folder when it has one "
                          "(OUT/ambiguities/A-B/design.json) instead of searching again")
