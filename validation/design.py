@@ -107,6 +107,8 @@ def ambiguities(args) -> dict:
         folder = root / f"{a}-{b}"
         if args.cached_only and not (folder / "design.json").exists():
             continue
+        if args.pairs and folder.name not in args.pairs.split(","):
+            continue
         if args.reuse_designs and (folder / "design.json").exists():
             saved = json.loads((folder / "design.json").read_text())
             pair, segments = saved["pairs"][0], saved["segments"]
@@ -184,6 +186,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--generations", type=int, default=20, help="of each ambiguity's design")
     ap.add_argument("--loop", type=int, default=0, help="HF records per truth and pair")
+    ap.add_argument("--pairs", default="",
+                    help="only these ambiguities, by folder name (A-B, comma-separated)")
     ap.add_argument("--cached-only", action="store_true",
                     help="with --loop: summarise the records' calls kept in the pairs' "
                          "folders, explain no new record")
