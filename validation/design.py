@@ -221,6 +221,9 @@ def main() -> None:
         if args.merge and result_path("design").exists():
             old = json.loads(result_path("design").read_text())
             old.pop("provenance", None)
+            # an ambiguity not rerun (--pairs, --cached-only) keeps its entry
+            if "ambiguities" in doc:
+                doc["ambiguities"] = {**old.get("ambiguities", {}), **doc["ambiguities"]}
             doc = {**old, **doc}
         write_result("design", _finite(doc), load_start=load)
 
