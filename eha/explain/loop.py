@@ -12,6 +12,7 @@ from dataclasses import fields, replace
 from typing import Any, Callable, Iterable
 
 from eha.explain.effects import EFFECTS, Effect, get as get_effects, missing_requirements
+from eha.explain.facts import RunFacts
 from eha.explain.decide import edge_of_spread
 from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitting
@@ -19,7 +20,6 @@ from eha.explain.leads import LeadReport, residual_leads
 from eha.explain.record import Record, initial_position, p12_objective_weight
 from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
-from eha.explain.facts import RunFacts
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
 from eha.identification.measured import MeasuredData, noise_level
 from eha.models.params import LFParams, ParameterError, resolve

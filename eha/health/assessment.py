@@ -132,13 +132,15 @@ class Assessment:
         from eha.models.params import SPECS
 
         weights = {**self.weights(), **{k: 1.0 for k in core_faults()}}
-        return pd.DataFrame(
-            [{"fault": k, "unit": SPECS[k].unit if k in SPECS else "",
-              "estimate": v, "lo": self.intervals.get(k, (math.nan, math.nan))[0],
-              "hi": self.intervals.get(k, (math.nan, math.nan))[1],
-              "mean": self.means.get(k, math.nan), "std": self.spread.get(k, math.nan),
-              "weight": weights.get(k, math.nan)} for k, v in self.estimates.items()],
-            columns=["fault", "unit", "estimate", "lo", "hi", "mean", "std", "weight"])
+        rows = []
+        for k, v in self.estimates.items():
+            lo, hi = self.intervals.get(k, (math.nan, math.nan))
+            rows.append({"fault": k, "unit": SPECS[k].unit if k in SPECS else "",
+                         "estimate": v, "lo": lo, "hi": hi, "mean": self.means.get(k, math.nan),
+                         "std": self.spread.get(k, math.nan),
+                         "weight": weights.get(k, math.nan)})
+        return pd.DataFrame(rows, columns=["fault", "unit", "estimate", "lo", "hi", "mean",
+                                           "std", "weight"])
 
     def to_dict(self) -> dict[str, Any]:
         return {"estimates": dict(self.estimates),

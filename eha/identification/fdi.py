@@ -342,14 +342,16 @@ class Identification:
 
         from eha.models.params import SPECS
 
-        r, nan = self.result, float("nan")
-        return pd.DataFrame(
-            [{"parameter": k, "unit": SPECS[k].unit if k in SPECS else "", "estimate": v,
-              "lo": r.intervals.get(k, (nan, nan))[0], "hi": r.intervals.get(k, (nan, nan))[1],
-              "truth": (self.truth or {}).get(k, nan),
-              "error_pct": (self.errors_pct or {}).get(k, nan)}
-             for k, v in r.estimates.items()],
-            columns=["parameter", "unit", "estimate", "lo", "hi", "truth", "error_pct"])
+        nan = float("nan")
+        rows = []
+        for k, v in self.result.estimates.items():
+            lo, hi = self.result.intervals.get(k, (nan, nan))
+            rows.append({"parameter": k, "unit": SPECS[k].unit if k in SPECS else "",
+                         "estimate": v, "lo": lo, "hi": hi,
+                         "truth": (self.truth or {}).get(k, nan),
+                         "error_pct": (self.errors_pct or {}).get(k, nan)})
+        return pd.DataFrame(rows, columns=["parameter", "unit", "estimate", "lo", "hi", "truth",
+                                           "error_pct"])
 
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, **self.result.to_dict(), "truth": self.truth,
