@@ -52,14 +52,19 @@ def levels_around(mds: Mapping[str, float], names: Sequence[str] | None = None
 
 def verification_table(name: str, commands: Sequence[str], levels: Mapping[str, list[float]],
                        healthy: int, per_level: int, t_end: float, noise: float = 1e-6,
-                       seed: int = 0) -> dict[str, Any]:
-    """The campaign table (a ``[health]`` campaign) of a verification."""
+                       seed: int = 0, signals: Sequence[str] = ("xu",),
+                       noise_p12: float | None = None) -> dict[str, Any]:
+    """The campaign table (a ``[health]`` campaign) of a verification; with ``p12`` among
+    ``signals`` the checks fit the load pressure too (recorded with ``noise_p12`` [Pa])."""
+    health = {"commands": list(commands), "t_end": float(t_end),
+              "healthy_actuators": int(healthy), "actuators": int(per_level),
+              "seed": int(seed), "noise": float(noise), "base_model": "calibrated",
+              "level": 0.9, "faults": {k: list(v) for k, v in levels.items()}}
+    if "p12" in signals:
+        health |= {"signals": ["xu", "p12"], "noise_p12": float(noise_p12 or 5e4)}
     return {"name": name, "kind": "health",
             "description": "verification of a designed test command (eha design verify)",
-            "health": {"commands": list(commands), "t_end": float(t_end),
-                       "healthy_actuators": int(healthy), "actuators": int(per_level),
-                       "seed": int(seed), "noise": float(noise), "base_model": "calibrated",
-                       "level": 0.9, "faults": {k: list(v) for k, v in levels.items()}}}
+            "health": health}
 
 
 def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
@@ -200,11 +205,17 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
     if not commands:
         raise DesignError("library: no command to verify (give the design or a library "
                           "command)")
-    tag = hashlib.sha256(json.dumps([commands, healthy, per_level, seed]).encode()).hexdigest()
+    signals = tuple(settings.get("signals", ["xu"]))
+    noise = settings.get("noise", {})
+    # a position-only design keeps the campaign name it always had
+    tag = hashlib.sha256(json.dumps([commands, healthy, per_level, seed]
+                                    + ([list(signals)] if "p12" in signals else []))
+                         .encode()).hexdigest()
     name = f"verify-{command_label(command)}-{tag[:6]}"
     table = verification_table(name, commands, levels, healthy, per_level,
                                float(settings.get("duration", 1.0)),
-                               float(settings.get("noise", {}).get("xu", 1e-6)), seed)
+                               float(noise.get("xu", 1e-6)), seed, signals,
+                               noise.get("p12"))
     try:
         camp = build_campaign(table)
     except CampaignError as exc:
@@ -216,7 +227,8 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
                  "library": {n: targets[n].get("library") for n in faults}}
     return Verification(figures, predicted, {"healthy": healthy, "calibration": calibration,
                                              "per_level": per_level, "levels": levels,
-                                             "library": list(library), "seed": seed},
+                                             "library": list(library), "seed": seed,
+                                             "signals": list(signals)},
                         name, str(results))
 
 

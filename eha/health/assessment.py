@@ -47,6 +47,8 @@ FAULTS: dict[str, Fault] = FAULT_REGISTRY
 #: Search of each one-more-fault hypothesis: warm-started at H0's estimate with the fault
 #: healthy (it is never worse than H0).
 HYPOTHESIS_SEARCH: dict[str, Any] = {"warm_start": True, "max_gen": 12, "stall": 4}
+#: Signals an assessment can fit: the position always, the load pressure when recorded.
+ASSESSED_SIGNALS = ("xu", "p12")
 
 
 class HealthError(InputError):
@@ -227,7 +229,8 @@ def assess(reference_xu: np.ndarray, command: Command | str,
            faults: Sequence[str] | None = None, level: float = DEFAULT_LEVEL,
            seed: int = 0, noise: float | None = None, t_end: float | None = None,
            recorded_start: float | None = None, pop: int = 20,
-           on_progress: Callable[[str], None] | None = None) -> Assessment:
+           on_progress: Callable[[str], None] | None = None,
+           reference_p12: np.ndarray | None = None, p12_weight: float = 0.0) -> Assessment:
     """Assess a record: the hypothesis bank, mixture intervals, most probable faults.
 
     Parameters
@@ -248,6 +251,13 @@ def assess(reference_xu: np.ndarray, command: Command | str,
         Optimizer seed (the same seed gives the same assessment).
     noise : float, optional
         Sensor noise [m] (default: estimated from the record).
+    reference_p12 : float64 array, optional
+        Recorded load pressure P12 [Pa] on the grid of ``reference_xu``: with ``p12_weight``
+        > 0 every hypothesis fits it beside the position
+        (:func:`eha.identification.fdi.identify`).
+    p12_weight : float
+        Metres of position per pascal of P12 residual (0: the position alone), e.g.
+        ``noise_xu / noise_p12``.
     """
     extra = extra_faults()
     faults = extra if faults is None else tuple(faults)
@@ -264,7 +274,7 @@ def assess(reference_xu: np.ndarray, command: Command | str,
     say = on_progress or (lambda message: None)
     core = {n: FAULTS[n].bounds for n in core_faults()}
     common = dict(level=level, noise=noise, t_end=t_end, recorded_start=recorded_start,
-                  pop=pop, seed=seed)
+                  pop=pop, seed=seed, reference_p12=reference_p12, p12_weight=p12_weight)
     say(f"H0: {', '.join(core)}")
     fits: list[tuple[str | None, FitResult]] = [(None, identify(xu, command, core, base=base,
                                                                 **common))]
@@ -310,15 +320,33 @@ def assess(reference_xu: np.ndarray, command: Command | str,
 def assess_record(data, base: LFParams | Mapping[str, float] | None = None,
                   faults: Sequence[str] | None = None, level: float = DEFAULT_LEVEL,
                   seed: int = 0, pop: int = 20,
-                  on_progress: Callable[[str], None] | None = None) -> Assessment:
+                  on_progress: Callable[[str], None] | None = None,
+                  signals: Sequence[str] = ("xu",)) -> Assessment:
     """:func:`assess` a measured record (:class:`eha.identification.measured.MeasuredData`).
 
     The LF model starts where the record starts, as in ``eha explain``; the noise is estimated
-    on the record's raw samples (before any resampling).
+    on the record's raw samples (before any resampling). ``signals`` names what the fits
+    use: ``("xu",)``, the position alone, or ``("xu", "p12")``, the position and the load
+    pressure, each weighed by its own noise (as the residual loop weighs them,
+    :func:`eha.explain.record.p12_objective_weight`).
     """
-    from eha.explain.record import initial_position, recorded_start
+    from eha.explain.record import initial_position, p12_objective_weight, recorded_start
+    from eha.identification.measured import noise_level
 
+    unknown = [s for s in signals if s not in ASSESSED_SIGNALS]
+    if unknown or "xu" not in signals:
+        raise HealthError(f"signals: {','.join(signals)}; allowed xu or xu,p12")
+    p12, weight = None, 0.0
+    if "p12" in signals:
+        if data.p12 is None:
+            raise HealthError(f"signals: {data.source} has no p12 column (the load pressure "
+                              "the check was asked to fit)")
+        noise = data.info.get("noise_m")
+        noise = float(noise_level(data.xu) if noise is None else noise)
+        weight, _ = p12_objective_weight(noise, data.p12)
+        p12 = data.p12
     base = initial_position(data, _lf_base(base))
     return assess(data.xu, data.command, base=base, faults=faults, level=level, seed=seed,
                   noise=data.info.get("noise_m"), t_end=data.t_end,
-                  recorded_start=recorded_start(data), pop=pop, on_progress=on_progress)
+                  recorded_start=recorded_start(data), pop=pop, on_progress=on_progress,
+                  reference_p12=p12, p12_weight=weight)

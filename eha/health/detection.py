@@ -58,7 +58,7 @@ MAX_ACTUATORS = 10000
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
-                 "noise", "faults", "base_model", "level"}
+                 "noise", "faults", "base_model", "level", "signals", "noise_p12"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -77,6 +77,8 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         # or faults = ["GM", "Clk"] / "all": the levels declared with each fault
         base_model = "calibrated"            # LF of the assessment
         level = 0.9
+        signals = ["xu", "p12"]              # optional: the check fits the load pressure too
+        noise_p12 = 5e4                      # Pa, white noise of the recorded p12
 
     Without ``faults`` every actuator is healthy (a calibration fleet); with it, each fault
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
@@ -123,9 +125,13 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     level = section.get("level", 0.9)
     if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 < level < 1:
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
+    signals, noise_p12 = _signals(section, problems)
     groups = _fault_groups(section.get("faults", {}), problems)
     if problems:
         return []
+    # only a check that fits p12 says so: the position-only runs keep their keys
+    recorded = {"signals": list(signals), "noise_p12": noise_p12} if "p12" in signals else {}
+    tag = " (xu,p12)" if recorded else ""
     jobs = []
     for command in commands:
         shown = command_label(command)
@@ -138,15 +144,35 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                 truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
                 spec = {"command": command, "t_end": float(t_end), "hf": hf, "noise": float(noise),
                         "seed": s, "base_model": base_model, "level": float(level),
-                        "group": label, "truth": truth}
+                        "group": label, "truth": truth, **recorded}
                 jobs.append({"kind": "health_assessment", "spec": spec, "identity": {},
                              "columns": {"model": "hf", "command": shown, "faults": injected,
                                          "seed": s, "t_end": float(t_end),
                                          "fault_label": label,
-                                         "label": f"{shown} {label} actuator {s}",
+                                         "label": f"{shown} {label} actuator {s}{tag}",
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
+
+
+def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:
+    """The recorded signals the check fits and the load-pressure noise [Pa] of a ``[health]``
+    section; its problems appended."""
+    from eha.health.assessment import ASSESSED_SIGNALS
+
+    signals = section.get("signals", ["xu"])
+    if isinstance(signals, str):
+        signals = signals.split(",")
+    if not isinstance(signals, list) or "xu" not in signals or \
+            any(s not in ASSESSED_SIGNALS for s in signals):
+        problems.append(f"health.signals={section.get('signals')!r}: allowed [\"xu\"] or "
+                        f"[\"xu\", \"p12\"]")
+        signals = ["xu"]
+    noise_p12 = section.get("noise_p12", 5e4)
+    if isinstance(noise_p12, bool) or not isinstance(noise_p12, (int, float)) or \
+            not 0 < noise_p12 <= 1e7:
+        problems.append(f"health.noise_p12={noise_p12!r}: allowed range (0, 1e7] Pa")
+    return tuple(dict.fromkeys(signals)), float(noise_p12)
 
 
 def _fault_groups(faults: Any, problems: list[str]) -> list[tuple[str, dict[str, float]]]:
@@ -191,16 +217,19 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.identification.problem import BASE_MODELS
     from eha.health.assessment import assess_record
     from eha.identification.measured import from_arrays, synthetic_record
-    from eha.models import O_COM, O_T, O_XU
+    from eha.models import O_COM, O_P12, O_T, O_XU
     from eha.models.commands import command_label
     from eha.models.simulate import Trace
 
+    signals = tuple(spec.get("signals", ("xu",)))
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
-                          noise=float(spec["noise"]), seed=int(spec["seed"]))
+                          noise=float(spec["noise"]), seed=int(spec["seed"]),
+                          noise_p12=float(spec.get("noise_p12", 0.0)))
     rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
+                      p12=df["p12"].to_numpy() if "p12" in signals else None,
                       source=f"{spec['command']} {spec['group']} {spec['seed']}")
     a = assess_record(rec, base=BASE_MODELS[spec["base_model"]], level=float(spec["level"]),
-                      seed=int(spec["seed"]))
+                      seed=int(spec["seed"]), signals=signals)
     row = {"command": command_label(spec["command"]), "grp": spec["group"], "seed": int(spec["seed"]),
            "t_end": float(spec["t_end"]), "noise": float(spec["noise"]),
            "base_model": spec["base_model"], "level": a.level, "truth": dict(spec["truth"]),
@@ -212,6 +241,8 @@ def run_health_job(spec: Mapping[str, Any]):
            "seconds": a.seconds}
     data = np.full((len(rec), 9), np.nan)
     data[:, O_T], data[:, O_COM], data[:, O_XU] = rec.t, rec.com, rec.xu
+    if rec.p12 is not None:
+        data[:, O_P12] = rec.p12
     return row, Trace(data, {"model": "hf+noise", "command": spec["command"],
                              "params": dict(spec["hf"]), "seed": int(spec["seed"])})
 
@@ -224,8 +255,9 @@ def run_health_assessment_job(spec: Mapping[str, Any], run_key: str, campaign: s
     from eha.models.simulate import Trace
 
     row, record = run_health_job(spec)
+    columns = ["t", "com", "xu", *(["p12"] if "p12" in spec.get("signals", ()) else [])]
     write_trace(Trace(record.data, {**record.meta, "run_key": run_key, "campaign": campaign}),
-                trace_file, columns=["t", "com", "xu"])
+                trace_file, columns=columns)
     return {"rows": {"health_assessments": row}, "sim_s": row["seconds"]}
 
 

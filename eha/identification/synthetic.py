@@ -14,7 +14,7 @@ __all__ = ["synthetic_record"]
 
 def synthetic_record(command: Command | str = "test", overrides: dict[str, float] | None = None,
                      t_end: float = 1.0, noise: float = 1e-6, seed: int = 0,
-                     model: str = "hf", command_hold: str = "auto"):
+                     model: str = "hf", command_hold: str = "auto", noise_p12: float = 0.0):
     """A record made by the simulator, for tests and examples: HF (or LF) run plus noise.
 
     Parameters
@@ -33,6 +33,10 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
         How the model is driven between the command's 1 kHz samples: held (a digital
         controller) or interpolated; ``auto`` as :func:`eha.identification.measured.load` reads the record back
         (:func:`eha.identification.measured.detect_hold`), so that a record and its reading agree.
+    noise_p12 : float
+        Standard deviation of white Gaussian noise on the load pressure p12 [Pa] (default 0:
+        p12 exact). Drawn after the position's noise from the same seed, so ``xu`` is the same
+        with or without it.
 
     Returns
     -------
@@ -55,5 +59,7 @@ def synthetic_record(command: Command | str = "test", overrides: dict[str, float
     trace = simulate(model, sampled, dict(overrides or {}), t_end=t_end, seed=seed)
     rng = np.random.default_rng(seed)
     xu = trace.xu + rng.normal(0.0, noise, len(trace)) if noise > 0 else trace.xu.copy()
-    return pd.DataFrame({"t": trace.t, "com": trace["com"], "xu": xu, "p12": trace["p12"],
+    p12 = trace["p12"] + rng.normal(0.0, noise_p12, len(trace)) if noise_p12 > 0 \
+        else trace["p12"]
+    return pd.DataFrame({"t": trace.t, "com": trace["com"], "xu": xu, "p12": p12,
                          "xs": trace["xs"]})
