@@ -324,3 +324,40 @@ def test_the_load_pressure_shows_a_leak_the_position_reads_as_friction():
     assert both.best.fault == "Clk" and abs(both.means["Clk"] - 3e-12) < 1.5e-12
     with pytest.raises(HealthError, match="no p12 column"):
         assess_record(from_arrays(*args), signals=("xu", "p12"))
+
+
+def test_calibrate_bad_signals_one_line_nothing_written(tmp_path):
+    for bad, message in ((["--signals", "p12"], "error: --signals=['p12']: allowed"),
+                         (["--signals", "xu,p12", "--noise-p12", "0"],
+                          "error: --noise-p12=0.0: allowed range (0, 1e7] Pa"),
+                         (["--t-end", "20"], "error: --t-end=20.0: allowed range [0.2, 10] s")):
+        proc = invoke_eha("health", "calibrate", "--results", tmp_path / "res",
+                          "--no-progress", *bad, cwd=tmp_path)
+        assert error_line(proc, 2).startswith(message), proc.stdout + proc.stderr
+    assert not files_under(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_p12_calibration_checks_records_on_position_and_pressure(tmp_path):
+    """`eha health calibrate --signals xu,p12`: the file says what its checks fit; a record
+    with p12 is checked on both, one without p12 is refused in one line (exit 2, nothing
+    written)."""
+    res, cal = tmp_path / "res", tmp_path / "cal.json"
+    proc = invoke_eha("health", "calibrate", "--actuators", "5", "--t-end", "0.3",
+                      "--signals", "xu,p12", "--results", res, "--out", cal, "--no-progress")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert json.loads(cal.read_text())["signals"] == ["xu", "p12"]
+    rec = _record(tmp_path / "r.csv")
+    out = tmp_path / "check.json"
+    proc = invoke_eha("health", "check", rec, "--calibration", cal, "--results", res,
+                      "--json", out, "--no-progress")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert json.loads(out.read_text())["status"] in ("healthy", "degraded")
+    import pandas as pd
+
+    pd.read_csv(rec).drop(columns=["p12"]).to_csv(tmp_path / "xu.csv", index=False)
+    before = files_under(tmp_path)
+    proc = invoke_eha("health", "check", tmp_path / "xu.csv", "--calibration", cal,
+                      "--results", res, "--json", tmp_path / "no.json", "--no-progress")
+    assert "no load pressure (p12 column)" in error_line(proc, 2)
+    assert files_under(tmp_path) == before

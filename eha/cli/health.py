@@ -37,6 +37,11 @@ def health_calibrate(
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
     t_end: float = typer.Option(1.0, "--t-end", help="Record length in s, 0.2 to 10."),
     noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records in m."),
+    signals: str = typer.Option("xu", "--signals", help="What the checks fit: xu (the "
+                                "position) or xu,p12 (and the load pressure; the records "
+                                "checked must then have a p12 column)."),
+    noise_p12: float = typer.Option(5e4, "--noise-p12", help="Load-pressure sensor noise std "
+                                    "of the records in Pa (with --signals xu,p12)."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
                              "noise, optimizer)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
@@ -53,6 +58,9 @@ def health_calibrate(
     [0.7e-13, 1.4e-13] m^3/(Pa*s).
 
     Example: eha health calibrate --command chirp_1cm --actuators 30 --alpha 0.01
+
+    With --signals xu,p12 the checks fit the load pressure too: a leak that the position
+    alone reads as jack friction shows as leakage (docs/design.md).
     """
     from eha.health.monitoring import calibrate_fleet
 
@@ -62,7 +70,8 @@ def health_calibrate(
     with resumable("finished assessments are saved, re-run the same command to resume"):
         res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
                               noise=noise, alpha=alpha, out=out, results=results,
-                              workers=workers, progress=progress)
+                              workers=workers, progress=progress,
+                              signals=tuple(signals.split(",")), noise_p12=noise_p12)
     _render_calibration(res, actuators, command, alpha, results)
 
 

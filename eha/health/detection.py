@@ -315,6 +315,9 @@ class Calibration:
     false_alarms: dict[str, Any] = field(default_factory=dict)
     created_at: str = ""
     format: int = CALIBRATION_FORMAT
+    #: What the checks fit: the position (files made before this field), or with the load
+    #: pressure; a check assesses its record on the same signals.
+    signals: list[str] = field(default_factory=lambda: ["xu"])
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)

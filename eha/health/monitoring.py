@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -52,8 +53,14 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                     t_end: float = 1.0, noise: float = 1e-6, alpha: float = DEFAULT_ALPHA,
                     base_model: str = "calibrated", level: float = DEFAULT_LEVEL,
                     out: str | Path | None = None, results: str | Path = "results",
-                    workers: int = 2, progress: bool = True) -> dict[str, Any]:
+                    workers: int = 2, progress: bool = True,
+                    signals: tuple[str, ...] | list[str] = ("xu",),
+                    noise_p12: float = 5e4) -> dict[str, Any]:
     """Run a healthy fleet through the campaign runner and set per-fault thresholds.
+
+    ``signals`` is what the checks fit: ``("xu",)``, the position, or ``("xu", "p12")``, the
+    position and the load pressure (recorded with ``noise_p12`` [Pa] of white noise); the
+    calibration file says which, and :func:`check_record` assesses its records the same way.
 
     Returns ``{"calibration": Calibration, "path": file, "summary": RunSummary,
     "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
@@ -70,15 +77,17 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
         raise DetectionError(f"`command`: {exc}") from None
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
+    if "p12" in signals:          # a position-only calibration keeps its campaign name
+        section |= {"signals": list(signals), "noise_p12": noise_p12}
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
     name = f"health-calibrate-{label}-{tag}"
     try:
         camp = build_campaign({"name": name, "kind": "health", "health": section,
                                "description": f"healthy fleet of {actuators} for thresholds"})
     except CampaignError as exc:
-        first = str(exc).splitlines()[0]
-        raise DetectionError(first.replace("health.commands: command: ", "`command`: ")
-                             .replace("health.", "--")) from None
+        first = str(exc).splitlines()[0].replace("health.commands: command: ", "`command`: ")
+        # the section's keys are this function's keywords (the CLI names their flags)
+        raise DetectionError(re.sub(r"health\.(\w+)", r"`\1`", first)) from None
     summary = run_campaign(camp, results, workers=workers, progress=progress)
     rows = _assessments(results, name)
     if summary.failed or len(rows) < actuators:
@@ -93,6 +102,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                       fleet={"actuators": actuators, "seed": seed, "noise": noise,
                              "campaign": name, "dispersion": _dispersion_text()},
                       false_alarms=empirical_false_alarms(rows, thresholds),
+                      signals=["xu", "p12"] if "p12" in signals else ["xu"],
                       created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     path = Path(out) if out is not None else Path(results) / "health" / \
         f"calibration-{label}.json"
@@ -203,7 +213,12 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
                                  f"difference {1e3 * diff:.3g} mm), the command the calibration "
                                  f"{calibration} was made for; calibrate for this command")
     base = BASE_MODELS[cal.base_model if cal else "calibrated"]
-    a = assess_record(data, base=base, level=level, seed=seed, on_progress=on_progress)
+    signals = tuple(cal.signals) if cal else ("xu",)
+    if "p12" in signals and data.p12 is None:
+        raise DetectionError(f"{record}: no load pressure (p12 column); the calibration "
+                             f"{calibration} fits it (calibrated on position and p12)")
+    a = assess_record(data, base=base, level=level, seed=seed, on_progress=on_progress,
+                      signals=signals)
     vs, isolated = verdicts(a, cal)
     check_id = hashlib.sha256(json.dumps([str(Path(record).resolve()), str(calibration),
                                           level, seed, data.info.get("noise_m")]).encode()
