@@ -158,7 +158,7 @@ def loop_verdicts(command: Path, first, second, args) -> dict:
             path = command.parent / "loop" / f"{name}-{k}.csv"   # the pair's own folder
             kept = path.with_suffix(".json")
             if kept.exists():
-                calls.append(json.loads(kept.read_text()))
+                calls.append(_judged(json.loads(kept.read_text()), name))
                 continue
             if args.cached_only:
                 break
@@ -173,16 +173,30 @@ def loop_verdicts(command: Path, first, second, args) -> dict:
             rivals = [e["effect"] for e in res.not_excluded]
             call = {"record": k, "seed": 5000 + k, "truth": {param: value},
                     "found": found, "rivals": rivals,
-                    "decisive_and_right": found == [name] and not rivals,
-                    "confidently_wrong": bool(found) and name not in found and not rivals,
                     "verdict": res.verdict, "seconds": time.perf_counter() - start}
             kept.write_text(json.dumps(call, indent=1))
+            call = _judged(call, name)
             print(f"  {command.parent.name} truth {name} #{k}: {res.verdict[:100]}", flush=True)
             calls.append(call)
         out[name] = {"records": calls, "n": len(calls),
+                     "truth_found": sum(name in c["found"] for c in calls),
+                     "explained": sum(c["explained"] for c in calls),
                      "decisive_and_right": sum(c["decisive_and_right"] for c in calls),
                      "confidently_wrong": sum(c["confidently_wrong"] for c in calls)}
     return out
+
+
+def _judged(call: dict, name: str) -> dict:
+    """A record's call judged against its truth ``name``. *Decisive and right*: the truth is
+    the only effect found, no rival is left standing and the record is explained (the
+    verdict is not "partly explained" or "unexplained": a tentative finding on a residual
+    above the noise decides nothing). *Confidently wrong*: effects found, the truth not among
+    them, and no rival named."""
+    found, rivals = call["found"], call["rivals"]
+    explained = call["verdict"].startswith("explained")
+    return {**call, "explained": explained,
+            "decisive_and_right": found == [name] and not rivals and explained,
+            "confidently_wrong": bool(found) and name not in found and not rivals}
 
 
 def main() -> None:
