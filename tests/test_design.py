@@ -244,3 +244,33 @@ def test_a_pair_member_not_asked_for_counts_only_through_the_pair():
     alone = score(pred, targets, reference, [pair], detect=set())
     assert alone == pytest.approx(PAIR_WEIGHT * math.log(2.0))
     assert score(pred, targets, reference, [pair]) > alone + 1.0
+
+
+def test_a_command_the_lf_cannot_follow_loses_to_every_one_it_can():
+    """The best a followed separating test can score (both directions separable at 1e-3 of
+    the detectable size) against the worst (never separable): the whole span is below the
+    penalty of a command the LF cannot follow, so a search never prefers one; among the
+    unfollowed, the less unfollowed wins."""
+    from types import SimpleNamespace
+
+    from eha.design.predict import FOLLOW_RATIO
+    from eha.design.search import score, unfollowed_penalty
+
+    pair = ("motor_gain", "supply_pressure")
+    targets = resolve_targets([], (), [pair])
+    reference = {t.name: ("chirp_1cm", 1e-9) for t in targets}
+
+    def pred(separable, followed, model_form=1.0):
+        return SimpleNamespace(mds={t.name: 1e-6 for t in targets}, followed=followed,
+                               model_form=model_form,
+                               separable={"motor_gain": {"supply_pressure": separable},
+                                          "supply_pressure": {"motor_gain": separable}})
+
+    best_unfollowed = pred(1e-6, False, 1.01 * FOLLOW_RATIO)
+    worst_followed = pred(math.inf, True)
+    assert (score(best_unfollowed, targets, reference, [pair], detect=set())
+            + unfollowed_penalty(best_unfollowed)
+            > score(worst_followed, targets, reference, [pair], detect=set())
+            + unfollowed_penalty(worst_followed))
+    assert unfollowed_penalty(pred(1.0, False, 20 * FOLLOW_RATIO)) > \
+        unfollowed_penalty(pred(1.0, False, 2 * FOLLOW_RATIO)) > 0.0
