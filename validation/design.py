@@ -190,13 +190,15 @@ def _judged(call: dict, name: str) -> dict:
     """A record's call judged against its truth ``name``. *Decisive and right*: the truth is
     the only effect found, no rival is left standing and the record is explained (the
     verdict is not "partly explained" or "unexplained": a tentative finding on a residual
-    above the noise decides nothing). *Confidently wrong*: effects found, the truth not among
-    them, and no rival named."""
+    above the noise decides nothing). *Confidently wrong*: an explained record, effects found,
+    the truth not among them, and no rival named (a tentative finding in an unexplained
+    verdict claims nothing)."""
     found, rivals = call["found"], call["rivals"]
     explained = call["verdict"].startswith("explained")
     return {**call, "explained": explained,
             "decisive_and_right": found == [name] and not rivals and explained,
-            "confidently_wrong": bool(found) and name not in found and not rivals}
+            "confidently_wrong": explained and bool(found) and name not in found
+            and not rivals}
 
 
 def main() -> None:
