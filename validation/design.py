@@ -21,6 +21,8 @@ Parts:
    most 2 s at the fitted values; its predicted separable sizes against chirp_1cm's; with
    ``--loop N``, the residual loop on N HF records per truth made on the design (each pair
    member as the truth, at its fitted size): how often the verdict names the truth alone.
+4. **Wider limits** for the offset pairs (4 s at +-1 cm, 2 s at +-2 cm): what would show the
+   offsets the 2-s tests do not (predicted separable sizes).
 """
 
 from __future__ import annotations
@@ -142,6 +144,40 @@ def ambiguities(args) -> dict:
     return out
 
 
+#: Limits beyond the 2-s, +-1 cm of the separating tests, tried where the fitted offsets are
+#: below what those show (the "what would show it" of docs/design.md).
+WIDER = {"4 s, 1 cm": (4.0, 0.01), "2 s, 2 cm": (2.0, 0.02)}
+
+
+def wider_limits(args) -> dict:
+    """The offset pairs' separating designs under :data:`WIDER` limits (predicted sizes only;
+    each design kept in OUT/wider/A-B-TAG and reused with ``--reuse-designs``)."""
+    from eha.design import Limits, design
+
+    out = {}
+    for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
+        if b != "offset":
+            continue
+        for tag, (duration, stroke) in WIDER.items():
+            folder = Path(args.out) / "wider" / f"{a}-{b}-{tag.replace(' ', '').replace(',', '-')}"
+            start = time.perf_counter()
+            if args.reuse_designs and (folder / "design.json").exists():
+                saved = json.loads((folder / "design.json").read_text())
+                pair, seconds = saved["pairs"][0], saved.get("seconds")
+            else:
+                result = design(faults=[], separate=[(a, b)], around={a: va, b: vb},
+                                limits=Limits(duration, stroke, 0.1), seed=args.seed,
+                                generations=args.generations)
+                result.save(folder)
+                pair, seconds = result.pairs()[0], time.perf_counter() - start
+            out[f"{label} {tag}"] = {"limits": {"duration": duration, "max_stroke": stroke},
+                                     "separable_size": pair["design"],
+                                     "told_apart": pair["told_apart_at_these_sizes"],
+                                     "seconds": seconds}
+            print(label, tag, json.dumps(_finite(pair["design"])), flush=True)
+    return out
+
+
 def loop_verdicts(command: Path, first, second, args) -> dict:
     """The residual loop on ``--loop`` HF records per truth on the designed command. Each
     record's call is kept beside it (``NAME-K.json``) and reused by a later run, so a run cut
@@ -222,7 +258,7 @@ def main() -> None:
     ap.add_argument("--reuse-designs", action="store_true",
                     help="take each ambiguity's design from its folder when it has one "
                          "(OUT/ambiguities/A-B/design.json) instead of searching again")
-    ap.add_argument("--skip", default="", help="parts to skip: verify, verify-p12, ambiguities")
+    ap.add_argument("--skip", default="", help="parts to skip: verify, verify-p12, ambiguities, wider")
     ap.add_argument("--json", action="store_true", help="write the result file")
     ap.add_argument("--merge", action="store_true",
                     help="keep the result file's parts not rerun (each part has its seconds)")
@@ -240,6 +276,8 @@ def main() -> None:
         doc["verification_p12"] = verification(args, folder, "design-p12")
     if "ambiguities" not in skip:
         doc["ambiguities"] = ambiguities(args)
+    if "wider" not in skip:
+        doc["wider"] = wider_limits(args)
     doc["what"] = ("the seven-fault design at 1 s predicted and verified against library "
                    "commands; separating designs for the foreign ambiguities")
     print(json.dumps({k: v for k, v in doc.items() if k != "design"}, indent=1,
