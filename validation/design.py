@@ -170,15 +170,19 @@ def wider_limits(args) -> dict:
                                 generations=args.generations)
                 result.save(folder)
                 pair, seconds = result.pairs()[0], time.perf_counter() - start
-            out[f"{label} {tag}"] = {"limits": {"duration": duration, "max_stroke": stroke},
-                                     "separable_size": pair["design"],
-                                     "told_apart": pair["told_apart_at_these_sizes"],
-                                     "seconds": seconds}
+            entry = {"limits": {"duration": duration, "max_stroke": stroke},
+                     "separable_size": pair["design"],
+                     "told_apart": pair["told_apart_at_these_sizes"], "seconds": seconds}
+            if args.loop and entry["told_apart"]:
+                # the loop on records made on a design that separates the pair on paper
+                entry["loop"] = loop_verdicts(folder / "design.csv", (a, va), (b, vb), args,
+                                              t_end=duration)
+            out[f"{label} {tag}"] = entry
             print(label, tag, json.dumps(_finite(pair["design"])), flush=True)
     return out
 
 
-def loop_verdicts(command: Path, first, second, args) -> dict:
+def loop_verdicts(command: Path, first, second, args, t_end: float = 2.0) -> dict:
     """The residual loop on ``--loop`` HF records per truth on the designed command. Each
     record's call is kept beside it (``NAME-K.json``) and reused by a later run, so a run cut
     short loses one record; ``--cached-only`` summarises the calls kept, running none."""
@@ -200,7 +204,7 @@ def loop_verdicts(command: Path, first, second, args) -> dict:
                 break
             value = EFFECTS[name].off[param] + dev
             df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0, param: value},
-                                      t_end=2.0, noise=1e-6, seed=5000 + k)
+                                      t_end=t_end, noise=1e-6, seed=5000 + k)
             path.parent.mkdir(parents=True, exist_ok=True)
             df.to_csv(path, index=False)
             start = time.perf_counter()
