@@ -10,12 +10,13 @@ from typing import Iterable, Mapping, Sequence
 
 from eha.design.family import DesignError
 from eha.explain.effects import EFFECTS
+from eha.health.assessment import DEFAULT_NOISE_P12
 from eha.models.faults import FAULTS, core_faults
 from eha.models.params import SPECS
 
 #: Signals a test may record, with their unit and default white-noise std: the position [m],
 #: the load pressure P12 [Pa] and the motor current [mA].
-SIGNALS: dict[str, tuple[str, float]] = {"xu": ("m", 1e-6), "p12": ("Pa", 5e4),
+SIGNALS: dict[str, tuple[str, float]] = {"xu": ("m", 1e-6), "p12": ("Pa", DEFAULT_NOISE_P12),
                                          "cor": ("mA", 1e-3)}
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from eha.design.family import DesignError
+from eha.health.assessment import DEFAULT_NOISE_P12
 from eha.health.detection import calibrate_thresholds, isolate_row, statistic
 from eha.health.monitoring import _assessments
 from eha.models.faults import FAULTS
@@ -61,7 +62,7 @@ def verification_table(name: str, commands: Sequence[str], levels: Mapping[str, 
               "seed": int(seed), "noise": float(noise), "base_model": "calibrated",
               "level": 0.9, "faults": {k: list(v) for k, v in levels.items()}}
     if "p12" in signals:
-        health |= {"signals": ["xu", "p12"], "noise_p12": float(noise_p12 or 5e4)}
+        health |= {"signals": ["xu", "p12"], "noise_p12": float(noise_p12 or DEFAULT_NOISE_P12)}
     return {"name": name, "kind": "health",
             "description": "verification of a designed test command (eha design verify)",
             "health": health}

@@ -49,6 +49,8 @@ FAULTS: dict[str, Fault] = FAULT_REGISTRY
 HYPOTHESIS_SEARCH: dict[str, Any] = {"warm_start": True, "max_gen": 12, "stall": 4}
 #: Signals an assessment can fit: the position always, the load pressure when recorded.
 ASSESSED_SIGNALS = ("xu", "p12")
+#: Default white noise of a recorded load pressure [Pa] (0.5 bar), where none is given.
+DEFAULT_NOISE_P12 = 5e4
 
 
 class HealthError(InputError):

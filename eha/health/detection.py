@@ -158,7 +158,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
 def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:
     """The recorded signals the check fits and the load-pressure noise [Pa] of a ``[health]``
     section; its problems appended."""
-    from eha.health.assessment import ASSESSED_SIGNALS
+    from eha.health.assessment import ASSESSED_SIGNALS, DEFAULT_NOISE_P12
 
     signals = section.get("signals", ["xu"])
     if isinstance(signals, str):
@@ -168,7 +168,7 @@ def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str
         problems.append(f"health.signals={section.get('signals')!r}: allowed [\"xu\"] or "
                         f"[\"xu\", \"p12\"]")
         signals = ["xu"]
-    noise_p12 = section.get("noise_p12", 5e4)
+    noise_p12 = section.get("noise_p12", DEFAULT_NOISE_P12)
     if isinstance(noise_p12, bool) or not isinstance(noise_p12, (int, float)) or \
             not 0 < noise_p12 <= 1e7:
         problems.append(f"health.noise_p12={noise_p12!r}: allowed range (0, 1e7] Pa")

@@ -55,7 +55,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                     out: str | Path | None = None, results: str | Path = "results",
                     workers: int = 2, progress: bool = True,
                     signals: tuple[str, ...] | list[str] = ("xu",),
-                    noise_p12: float = 5e4) -> dict[str, Any]:
+                    noise_p12: float | None = None) -> dict[str, Any]:
     """Run a healthy fleet through the campaign runner and set per-fault thresholds.
 
     ``signals`` is what the checks fit: ``("xu",)``, the position, or ``("xu", "p12")``, the
@@ -78,7 +78,10 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
     if "p12" in signals:          # a position-only calibration keeps its campaign name
-        section |= {"signals": list(signals), "noise_p12": noise_p12}
+        from eha.health.assessment import DEFAULT_NOISE_P12
+
+        section |= {"signals": list(signals),
+                    "noise_p12": DEFAULT_NOISE_P12 if noise_p12 is None else noise_p12}
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
     name = f"health-calibrate-{label}-{tag}"
     try:
