@@ -21,8 +21,8 @@ Parts:
    most 2 s at the fitted values; its predicted separable sizes against chirp_1cm's; with
    ``--loop N``, the residual loop on N HF records per truth made on the design (each pair
    member as the truth, at its fitted size): how often the verdict names the truth alone.
-4. **Wider limits** for the offset pairs (4 s at +-1 cm, 2 s at +-2 cm): what would show the
-   offsets the 2-s tests do not (predicted separable sizes).
+4. **Wider limits** for the pairs the 2-s designs do not tell apart (4 s at +-1 cm, 2 s at
+   +-2 cm): what would separate them (predicted separable sizes).
 """
 
 from __future__ import annotations
@@ -144,19 +144,20 @@ def ambiguities(args) -> dict:
     return out
 
 
-#: Limits beyond the 2-s, +-1 cm of the separating tests, tried where the fitted offsets are
-#: below what those show (the "what would show it" of docs/design.md).
+#: Limits beyond the 2-s, +-1 cm of the separating tests, tried for every pair those do not
+#: tell apart at the fitted sizes (the "what would show it" of docs/design.md).
 WIDER = {"4 s, 1 cm": (4.0, 0.01), "2 s, 2 cm": (2.0, 0.02)}
 
 
 def wider_limits(args) -> dict:
-    """The offset pairs' separating designs under :data:`WIDER` limits (predicted sizes only;
-    each design kept in OUT/wider/A-B-TAG and reused with ``--reuse-designs``)."""
+    """The separating designs under :data:`WIDER` limits of the pairs the 2-s design does not
+    tell apart (predicted sizes; each design kept in OUT/wider/A-B-TAG and reused with
+    ``--reuse-designs``; with ``--loop``, the loop on records made on those that do)."""
     from eha.design import Limits, design
 
     out = {}
     for label, ((a, va), (b, vb)) in AMBIGUITIES.items():
-        if b != "offset":
+        if _told_apart_in_two_seconds(args, a, b):
             continue
         for tag, (duration, stroke) in WIDER.items():
             folder = Path(args.out) / "wider" / f"{a}-{b}-{tag.replace(' ', '').replace(',', '-')}"
@@ -180,6 +181,15 @@ def wider_limits(args) -> dict:
             out[f"{label} {tag}"] = entry
             print(label, tag, json.dumps(_finite(pair["design"])), flush=True)
     return out
+
+
+def _told_apart_in_two_seconds(args, a: str, b: str) -> bool:
+    """Whether the pair's 2-s design (OUT/ambiguities/A-B) tells both members apart at their
+    fitted sizes; a pair without one is tried under the wider limits."""
+    saved = Path(args.out) / "ambiguities" / f"{a}-{b}" / "design.json"
+    if not saved.exists():
+        return False
+    return bool(json.loads(saved.read_text())["pairs"][0]["told_apart_at_these_sizes"])
 
 
 def loop_verdicts(command: Path, first, second, args, t_end: float = 2.0) -> dict:
