@@ -49,6 +49,14 @@ def health_alpha() -> float:
     return DEFAULT_ALPHA
 
 
+def noise_p12() -> float:
+    """``--noise-p12`` of ``eha design`` and ``eha health calibrate``: the load-pressure
+    sensor noise the checks assume [Pa]."""
+    from eha.health.assessment import DEFAULT_NOISE_P12
+
+    return DEFAULT_NOISE_P12
+
+
 def rul_faults() -> str:
     from eha.models import faults
 

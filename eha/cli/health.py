@@ -40,7 +40,8 @@ def health_calibrate(
     signals: str = typer.Option("xu", "--signals", help="What the checks fit: xu (the "
                                 "position) or xu,p12 (and the load pressure; the records "
                                 "checked must then have a p12 column)."),
-    noise_p12: float = typer.Option(5e4, "--noise-p12", help="Load-pressure sensor noise std "
+    noise_p12: float = typer.Option(..., "--noise-p12", default_factory=defaults.noise_p12,
+                                    help="Load-pressure sensor noise std "
                                     "of the records in Pa (with --signals xu,p12)."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
                              "noise, optimizer)."),
