@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from eha.identification.healthy import DetectionError, tail_threshold
-from eha.explain.healthy_fleet import noise_class
+from eha.explain.simulated_record import noise_class
 from eha.explain.null import (Null, NullError, covered_effects, load_null, null_key,
                               records_null)
 
@@ -278,7 +278,8 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     off)."""
     from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
-    from eha.explain.healthy_fleet import healthy_record, healthy_statistics
+    from eha.explain.healthy_fleet import healthy_statistics
+    from eha.explain.simulated_record import healthy_record
     from eha.explain.null import simulated_null
 
     monkeypatch.setenv("EHA_CACHE_DIR", str(tmp_path / "cache"))

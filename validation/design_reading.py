@@ -8,20 +8,21 @@ judges the reading that follows, apart from the search: on the same records (eac
 flapper dynamics) and the true effect -- is fitted to the whole record by least squares
 from the truth (``eha.identification.fdi.identify(method="lm")`` through the loop's
 ``refit``), and the 90 % interval the loop would report at that estimate (HAC, widening, the
-loop's model-form floor :data:`eha.identification.intervals.LOOP_MODEL_FORM`) is checked
-against the truth. The jack friction is declared at 800 N (the loop records') and at 200 N
+loop's model-form floor :data:`eha.identification.intervals.LOOP_MODEL_FORM`), without and
+with the loop's replicate term (:mod:`eha.explain.replicates`: the spread of refits to HF
+re-simulations of the estimate), is checked against the truth. The jack friction is declared at 800 N (the loop records') and at 200 N
 (the thesis' healthy bound): a small effect read beside a large friction is where the
 reading is hardest.
 
     python validation/design_reading.py --out results/bench-design --records 5 --json
 
-One record takes 2-6 s (one core); 10 truths x 2 frictions x 5 records about 10 min.
+One record takes 10-30 s with its replicates (one core); 10 truths x 2 frictions x 5 records
+about 30-50 min.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -49,6 +50,7 @@ def read_one(command: Path, name: str, dev: float, friction: float, seed: int,
     import eha
     from eha.explain import LoopSettings, ResidualLoop
     from eha.explain.effects import EFFECTS
+    from eha.explain.replicates import replicate_spread
     from eha.identification.intervals import LOOP_MODEL_FORM
 
     effect = EFFECTS[name]
@@ -64,12 +66,19 @@ def read_one(command: Path, name: str, dev: float, friction: float, seed: int,
     start, bounds = model_of(loop, {**{s: {} for s in STRUCTURE}, name: {}}, values)
     fitted = loop.refit(start, bounds, "right model", method="lm", whole=True)
     row = spreads(loop, fitted, bounds)[param]
+    # the loop's replicate term (eha.explain.replicates), as the loop adds it
+    spread, _ = replicate_spread(loop, fitted, bounds, [*loop.bounds, *effect.params],
+                                 LoopSettings().interval_replicates)
+    widened = {**row, "base": {**row["base"], "abs": float(np.hypot(row["base"]["abs"],
+                                                                    spread.get(param, 0.0)))}}
     return {"seed": seed, "friction": friction, "param": param, "truth": value,
             "read": row["value"], "error": row["value"] - value,
             "rel_error": (row["value"] - value) / value if value else None,
             "error_of_deviation": (row["value"] - value) / dev,
             "hac_std": row["hac"], "residual_um": 1e6 * row["residual"],
-            "covered": bool(covered(row, value, LOOP_MODEL_FORM.rel))}
+            "covered_without_replicates": bool(covered(row, value, LOOP_MODEL_FORM.rel)),
+            "replicate_rms": spread.get(param),
+            "covered": bool(covered(widened, value, LOOP_MODEL_FORM.rel))}
 
 
 def main() -> None:
@@ -97,6 +106,8 @@ def main() -> None:
                     of_dev = [r["error_of_deviation"] for r in rows]
                     entry = {"design": f"{a}-{b}", "truth": name, "friction": friction,
                              "records": rows, "covered": sum(r["covered"] for r in rows),
+                             "covered_without_replicates": sum(
+                                 r["covered_without_replicates"] for r in rows),
                              "n": len(rows),
                              "rel_error_mean": float(np.mean(rel)) if rel else None,
                              "rel_error_range": [float(min(rel)), float(max(rel))]
@@ -104,8 +115,9 @@ def main() -> None:
                              "error_of_deviation_range": [float(min(of_dev)),
                                                           float(max(of_dev))]}
                     out[f"{a}-{b}: {name} @ FDJ {friction:g} N"] = entry
-                    print(f"{a}-{b}: {name} @ FDJ {friction:g} N: covered {entry['covered']}/"
-                          f"{len(rows)}, error {100 * entry['rel_error_mean']:+.1f} % "
+                    print(f"{a}-{b}: {name} @ FDJ {friction:g} N: covered "
+                          f"{entry['covered_without_replicates']}/{len(rows)} without the "
+                          f"replicates, {entry['covered']}/{len(rows)} with them, error {100 * entry['rel_error_mean']:+.1f} % "
                           f"[{100 * min(rel):+.1f}, {100 * max(rel):+.1f}]; of the deviation "
                           f"[{100 * min(of_dev):+.0f}, {100 * max(of_dev):+.0f}] %", flush=True)
     doc = {"what": "the right model's reading of each ambiguity's truth on its 2-s design: "

@@ -55,7 +55,7 @@ def _one(args):
     data, effect, value, seed = args
     from eha.explain import DEFAULT_FAULT_BOUNDS, explain
     from eha.explain.effects import EFFECTS
-    from eha.explain.healthy_fleet import healthy_record
+    from eha.explain.simulated_record import healthy_record
     from eha.explain.settings import STRUCTURAL
 
     rec, _ = healthy_record(data, dict(DEFAULT_FAULT_BOUNDS), seed,

@@ -119,7 +119,8 @@ def parameter_size(data, effect: str, footprint: float) -> float:
 def _one(args):
     data, fit, effect, value, seed, settings = args
     from eha.explain.effects import EFFECTS
-    from eha.explain.healthy_fleet import healthy_record, healthy_statistics
+    from eha.explain.healthy_fleet import healthy_statistics
+    from eha.explain.simulated_record import healthy_record
 
     param = EFFECTS[effect].tested
     rec, _ = healthy_record(data, fit, seed, {param: value})

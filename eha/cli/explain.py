@@ -73,6 +73,10 @@ HEALTHY = typer.Option(None, "--healthy", help="Folder of healthy records of you
 NULL_ACTUATORS = typer.Option(
     ..., "--null-actuators", default_factory=_setting("null_actuators", int),
     help="Healthy actuators of the simulated null (cached per command, sampling, noise).")
+INTERVAL_REPLICATES = typer.Option(
+    ..., "--interval-replicates", default_factory=_setting("interval_replicates", int),
+    help="HF re-simulations of the final model whose refits' spread widens the intervals of "
+         "the effects found, 0 to 100 (0: none).")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress display.")
 
 
@@ -86,6 +90,7 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             min_gain: float = MIN_GAIN, p12_weight: float = P12_WEIGHT,
             flow_gain_spread: float = FLOW_GAIN_SPREAD, alpha: float = ALPHA,
             healthy: Optional[Path] = HEALTHY, null_actuators: int = NULL_ACTUATORS,
+            interval_replicates: int = INTERVAL_REPLICATES,
             command_hold: CommandHoldOption = COMMAND_HOLD, columns: ColumnsOption = None,
             units: UnitsOption = None, progress: bool = PROGRESS):
     """Trace a measured record's residual to missing LF effects, add them, report the error.
@@ -113,7 +118,8 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             record, fit=fit, effects=effects, holdout=holdout,
             validate=validate and record.at(validate), prior=prior, known=known,
             command_hold=command_hold, on_progress=step, min_gain=min_gain, alpha=alpha,
-            null_actuators=null_actuators, max_steps=max_steps, candidates=candidates,
+            null_actuators=null_actuators, interval_replicates=interval_replicates,
+            max_steps=max_steps, candidates=candidates,
             p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
             seed=seed, null=record.at(healthy) if healthy is not None else "simulate")
     paths = res.save(folder, json_out)

@@ -28,7 +28,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
             max_steps: int | None = None, candidates: int | None = None,
             noise_factor: float | None = None, joint: bool | None = None,
             p12_weight: float | None = None, flow_gain_spread: float | None = None,
-            null_actuators: int | None = None,
+            null_actuators: int | None = None, interval_replicates: int | None = None,
             on_progress: Callable[[str], None] | None = None,
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -74,6 +74,9 @@ def explain(data: MeasuredData, *, fit: Any = None,
         healthy scatter).
     null_actuators : int, optional
         Healthy actuators of a simulated null (:class:`LoopSettings`, default 12).
+    interval_replicates : int, optional
+        HF re-simulations of the final model whose refits widen the intervals of a model the
+        loop built (:class:`LoopSettings`, default 6; 0: none).
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -88,7 +91,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
     given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
-             "null_actuators": null_actuators}
+             "null_actuators": null_actuators, "interval_replicates": interval_replicates}
     given = {k: v for k, v in given.items() if v is not None}
     settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,

@@ -5,7 +5,7 @@ A record's first run on a new command calibrates that command's healthy null
 minute on 2 cores, then cached). For the command presets (:data:`eha.models.commands.PRESETS`)
 logged as eha logs them, the null is calibrated in advance and shipped in ``eha/explain/nulls/``:
 one file per preset, for a record of :data:`LIBRARY_T_END` seconds at 1 kHz with a position noise
-in the class of :data:`LIBRARY_NOISE` (0.79-1.26 µm, :func:`eha.explain.healthy_fleet.noise_class`),
+in the class of :data:`LIBRARY_NOISE` (0.79-1.26 µm, :func:`eha.explain.simulated_record.noise_class`),
 the loop's default settings, declared faults and candidate effects, and no P12. The shipped file
 is the null such a record would calibrate (the same key, :func:`eha.explain.null.null_key`, the
 same procedure and seeds): a record that differs in any of these calibrates its own as before.

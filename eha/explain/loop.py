@@ -62,6 +62,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         except ParameterError as exc:
             raise ExplainError(str(exc)) from None
         fixed = set(fixed)
+        #: known parameters held at the base's values (test conditions)
+        self.fixed = fixed
         for name in sorted(fixed):
             if name in self.bounds:
                 raise ExplainError(f"`fixed` {name}: also a fitted fault (`fit`); give it one "
@@ -369,6 +371,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         from eha.identification.fdi import intervals_at
         from eha.identification.problem import DEFAULT_LEVEL, model_form_of
         from eha.identification.intervals import MODEL_FORM, loop_terms
+        from eha.explain.replicates import with_replicates
 
         final_bounds = dict(self.bounds)
         for step in self.steps:
@@ -378,11 +381,17 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         # is still not the actuator); a model to which nothing was added keeps its base's
         form = model_form_of(self.current)
         terms = loop_terms(MODEL_FORM.get(form, {}), list(final_bounds)) if self.steps else None
+        added = [st.effect for st in self.steps
+                 if st.effect not in STRUCTURAL and EFFECTS[st.effect].params]
+        replicated = None
+        if terms is not None and added:
+            # how far the reading moves on the HF simulated again (eha.explain.replicates)
+            terms, replicated = with_replicates(self, terms, final_bounds, added)
         iv = intervals_at(data.xu, data.command, self.current, final_bounds,
                           level=DEFAULT_LEVEL, noise=self.noise,
                           recorded_start=self.record.recorded_start, t_end=data.t_end,
                           model_form=form, terms=terms)
-        bounds, notes = dict(iv.bounds), iv.notes
+        bounds, notes = dict(iv.bounds), (*iv.notes, *([replicated] if replicated else []))
         flagged = iv.flagged or self.unexplained()
         if flagged:
             without = self.faults_without_tentative()

@@ -57,7 +57,8 @@ from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_PO
                                   RESOLUTION, STRUCTURAL)
 from eha.errors import InputError
 from eha.models import use_one_numba_thread
-from eha.explain.healthy_fleet import _fleet_member, healthy_statistics, noise_class
+from eha.explain.healthy_fleet import _fleet_member, healthy_statistics
+from eha.explain.simulated_record import noise_class
 from eha.identification.healthy import command_signature, tail_threshold
 
 #: Version of the cached null's format (and of the procedure: a change invalidates caches).

@@ -211,6 +211,9 @@ class LoopSettings:
         declared faults' fit (:meth:`ResidualLoop.baseline`) or, at the end, by running the loop
         again (:func:`explain`); docs/explain.md, "The healthy flow gain". Not fitted when GQ is a
         declared fault or known (``fixed``).
+    interval_replicates : int
+        HF re-simulations of the final model whose refits' spread widens the intervals of a
+        model the loop built, in [0, 100] (0: none; :mod:`eha.explain.replicates`).
     method, pop, seed
         Optimizer of every fit (:func:`eha.identification.fdi.identify`), same seed for all fits.
     """
@@ -227,6 +230,7 @@ class LoopSettings:
     joint: bool = True
     p12_weight: float = 1.0
     flow_gain_spread: float = 0.04
+    interval_replicates: int = 6
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -265,6 +269,9 @@ class LoopSettings:
         if not 0.0 <= self.flow_gain_spread <= 0.5:
             problems.append(f"`flow_gain_spread` {self.flow_gain_spread}: allowed range "
                             f"[0, 0.5]")
+        if not 0 <= self.interval_replicates <= 100:
+            problems.append(f"`interval_replicates` {self.interval_replicates}: allowed range "
+                            f"[0, 100]")
         if not self.pop >= 2:
             problems.append(f"`pop` {self.pop}: allowed range [2, ...]")
         if self.method not in GLOBAL_METHODS:

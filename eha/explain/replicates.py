@@ -1,0 +1,121 @@
+"""How far the loop's reading moves when the actuator it found is simulated again: the
+replicate term of the final intervals (:meth:`eha.explain.loop.ResidualLoop.final_intervals`).
+
+The HAC sandwich (:mod:`eha.identification.intervals`) treats the residual as stationary
+noise. The HF's dither, 10 µA every millisecond, makes the jack's stick and slip at each
+reversal a random event; with a jack friction of 800 N it leaves bursts at the reversals that
+the LF's mean-field dither does not reproduce, and a small effect that acts through the same
+force is read off by them: a hinge moment of 8270 N/m read 7-15 % low (1 of 5 intervals
+covering), a viscous friction of 5500 N·s/m 8 % low (0 of 5), an external load of 800 N 2 %
+high (0 of 5), each on its separating design; beside 200 N of friction, or without the dither,
+within 1-2 % and covered (``validation/design_reading.py``).
+
+The replicate term measures that at the record's own operating point: the final model's
+declared faults and the added effects' parameters, the ones the HF has, are put on the
+nominal HF, which is simulated again on the record's command ``replicates`` times with fresh
+dither and noise (seeds :data:`REPLICATE_SEED` + 1000 x the loop's seed + k), and the final
+model is refitted to each by least squares from the final estimate. The root mean square of
+each parameter's deviation -- bias and scatter together -- is added in quadrature to its
+interval's floors. It is our HF's model form at this point, not a real actuator's: on an
+actuator without dither it widens intervals that did not need it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+#: First seed of the HF re-simulations (dither and noise) of the replicate term.
+REPLICATE_SEED = 770_000
+
+
+def hf_overrides(params, names) -> dict[str, float]:
+    """The HF parameters of the final model: ``names`` that the HF model has, at their values
+    in ``params``."""
+    from eha.models.params import SPECS
+
+    return {n: float(getattr(params, n)) for n in names if n in SPECS
+            and "hf" in SPECS[n].models}
+
+
+def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
+                     hf_names, replicates: int, seed: int = 0
+                     ) -> tuple[dict[str, float], list[int]]:
+    """RMS deviation of each parameter of ``bounds`` over ``replicates`` least-squares refits
+    of ``params`` to HF re-simulations of it (see the module docstring).
+
+    Parameters
+    ----------
+    loop : ResidualLoop
+        The loop whose final model is ``params`` (its record, base, settings, known
+        parameters and fit options).
+    params : LFParams
+        The final model.
+    bounds : mapping
+        Every fitted parameter and its bounds.
+    hf_names : iterable of str
+        Parameters put on the HF (the declared faults and the added effects'); those the HF
+        does not have are left at the HF's own.
+    replicates : int
+        Re-simulations (0: none).
+    seed : int
+        The loop's seed.
+
+    Returns
+    -------
+    spread : dict of str to float
+        Per parameter, the RMS deviation [its unit]; empty with fewer than two refits that
+        ended finite.
+    seeds : list of int
+        The seeds of the re-simulations.
+    """
+    from eha.explain.simulated_record import healthy_record
+
+    overrides = {**hf_overrides(loop.base, loop.fixed), **hf_overrides(params, hf_names)}
+    seeds = [REPLICATE_SEED + 1000 * seed + k for k in range(replicates)]
+    deviations: dict[str, list[float]] = {n: [] for n in bounds}
+    for s in seeds:
+        record, _ = healthy_record(loop.data, {}, s, overrides, scatter=False)
+        again = type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
+                             loop.fixed, **loop.fdi_options)
+        refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
+                            whole=True)
+        values = {n: float(getattr(refit, n)) - float(getattr(params, n)) for n in bounds}
+        if all(math.isfinite(v) for v in values.values()):
+            for n, v in values.items():
+                deviations[n].append(v)
+    if min((len(v) for v in deviations.values()), default=0) < 2:
+        return {}, seeds
+    return {n: float(np.sqrt(np.mean(np.square(v)))) for n, v in deviations.items()}, seeds
+
+
+def with_replicates(loop, terms: Mapping, bounds: Mapping[str, tuple[float, float]],
+                    added) -> tuple[dict, str | None]:
+    """``terms`` (the final model's :class:`~eha.identification.intervals.ModelForm` per
+    parameter) with the replicate spread (:func:`replicate_spread`) added in quadrature to
+    each ``abs`` floor, and the note that says so; ``terms`` unchanged and no note when the
+    loop's ``interval_replicates`` is 0 or the refits failed. ``added``: the effects the loop
+    added (their parameters are put on the HF with the declared faults)."""
+    from eha.explain.effects import EFFECTS
+    from eha.identification.intervals import ModelForm
+
+    n = loop.settings.interval_replicates
+    if not n:
+        return dict(terms), None
+    names = [*loop.bounds, *(p for e in added for p in EFFECTS[e].params)]
+    phase, loop.phase = loop.phase, f"intervals: {n} HF re-simulations of the final model"
+    loop.progress(loop.phase)
+    try:
+        spread, seeds = replicate_spread(loop, loop.current, bounds, names, n,
+                                         loop.settings.seed)
+    finally:
+        loop.phase = phase
+    if not spread:
+        return dict(terms), (f"the {n} HF re-simulations of the final model did not refit: "
+                             "intervals without their spread")
+    out = {k: ModelForm(scale=t.scale, rel=t.rel, abs=math.hypot(t.abs, spread.get(k, 0.0)))
+           for k, t in terms.items()}
+    return out, (f"intervals include the spread of {n} refits to HF re-simulations of the "
+                 f"final model (dither and noise; seeds {seeds[0]}-{seeds[-1]})")

@@ -1,0 +1,87 @@
+"""The replicate term of the loop's final intervals (eha.explain.replicates): the spread of
+refits to HF re-simulations of the final model.
+
+Its coverage is measured in ``validation/design_reading.py`` (docs/design.md); here: the
+term is reproducible from its seed, finite for every fitted parameter, widens the floors it is
+added to and says so, is off at 0, and its setting is checked like every other.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from typer.testing import CliRunner
+
+from eha.cli import app
+from eha.explain import ExplainError, LoopSettings, ResidualLoop
+from eha.explain.effects import EFFECTS
+from eha.explain.replicates import replicate_spread, with_replicates
+from eha.identification.intervals import ModelForm
+from eha.identification.measured import load
+from eha.identification.synthetic import synthetic_record
+
+#: a small hinge moment beside a large jack friction: the case the term is for
+TRUTH = {"BKL": 1e-4, "FDJ": 800.0, "Kaer": 8270.0}
+
+
+def _fitted(tmp_path, replicates: int = 3):
+    """A loop on a 1-s chirp record of TRUTH whose model has the structure and the hinge
+    moment, refitted by least squares from the truth: (loop, bounds)."""
+    path = tmp_path / "hinge.csv"
+    synthetic_record("chirp_1cm", TRUTH, t_end=1.0, noise=1e-6, seed=3).to_csv(path,
+                                                                             index=False)
+    loop = ResidualLoop(load(path), fit="BKL,FDJ",
+                        settings=LoopSettings(interval_replicates=replicates))
+    params, bounds = loop.base.replace(BKL=TRUTH["BKL"], FDJ=TRUTH["FDJ"]), dict(loop.bounds)
+    for name in ("orifice_law", "flapper_dynamics", "hinge_moment"):
+        effect = EFFECTS[name]
+        params = effect.switch_on(params, {"Kaer": TRUTH["Kaer"]} if name == "hinge_moment"
+                                  else None)
+        bounds.update(effect.bounds)
+    loop.current = loop.refit(params, bounds, "right model", method="lm", whole=True)
+    return loop, bounds
+
+
+def test_the_replicate_spread_is_reproducible_and_finite(tmp_path):
+    """The same seed gives the same spread (the re-simulations' seeds are recorded), a
+    positive finite RMS for every fitted parameter; another seed, another spread."""
+    loop, bounds = _fitted(tmp_path)
+    names = [*loop.bounds, "Kaer"]
+    first, seeds = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
+    again, seeds_again = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
+    other, seeds_other = replicate_spread(loop, loop.current, bounds, names, 3, seed=1)
+    assert set(first) == set(bounds)
+    assert first == again and seeds == seeds_again and len(seeds) == 3
+    assert set(seeds).isdisjoint(seeds_other) and other["Kaer"] != first["Kaer"]
+    assert all(math.isfinite(v) and v > 0 for v in first.values())
+    # a small hinge moment beside 800 N of friction: the dither moves its reading by more
+    # than 1 % of its value (it moves 0.5-20 %, validation/design_reading.py)
+    assert first["Kaer"] > 0.01 * loop.current.Kaer
+
+
+def test_the_term_widens_the_floors_and_says_so(tmp_path):
+    """with_replicates adds the spread in quadrature to each parameter's absolute floor and
+    names the seeds; at 0 replicates the terms are unchanged and nothing is noted."""
+    loop, bounds = _fitted(tmp_path)
+    terms = {k: ModelForm(scale=1.0, rel=0.0075, abs=0.0) for k in bounds}
+    widened, note = with_replicates(loop, terms, bounds, ["hinge_moment"])
+    assert all(widened[k].abs > 0 and widened[k].rel == terms[k].rel for k in terms)
+    assert "3 refits to HF re-simulations" in note and "seeds 770000-770002" in note
+    loop.settings = LoopSettings(interval_replicates=0)
+    same, none = with_replicates(loop, terms, bounds, ["hinge_moment"])
+    assert same == terms and none is None
+
+
+def test_the_setting_is_checked_by_keyword_and_by_flag(tmp_path):
+    """Out of [0, 100]: the library names the keyword, the CLI the flag, exit 2, one line."""
+    with pytest.raises(ExplainError, match="`interval_replicates` -1: allowed range"):
+        LoopSettings(interval_replicates=-1)
+    path = tmp_path / "r.csv"
+    synthetic_record("chirp_1cm", {}, t_end=0.3, seed=1).to_csv(path, index=False)
+    result = CliRunner().invoke(app, ["explain", str(path), "--interval-replicates", "101",
+                                      "--results", str(tmp_path / "res"), "--no-progress"])
+    assert result.exit_code == 2
+    assert "--interval-replicates 101: allowed range [0, 100]" in result.output
+    assert len(result.output.strip().splitlines()) == 1
+    assert not (tmp_path / "res").exists()
