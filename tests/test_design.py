@@ -274,3 +274,23 @@ def test_a_command_the_lf_cannot_follow_loses_to_every_one_it_can():
             + unfollowed_penalty(worst_followed))
     assert unfollowed_penalty(pred(1.0, False, 20 * FOLLOW_RATIO)) > \
         unfollowed_penalty(pred(1.0, False, 2 * FOLLOW_RATIO)) > 0.0
+
+
+def test_a_pair_not_told_apart_says_what_would_tell_it_apart(tmp_path):
+    """A supply-pressure drop is told from a motor gain by no command the check's LF follows
+    (docs/design.md): the design names the pair's separable sizes with the load pressure
+    recorded, with a test load and on a 4x longer test, in its JSON and on the console."""
+    out = tmp_path / "out"
+    proc = invoke_eha("design", "--faults", "none", "--separate", "motor_gain,supply_pressure",
+                      "--duration", "0.5", "--population", "4", "--generations", "1",
+                      "--actuators", "1", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "design.json").read_text())
+    row = doc["pairs"][0]
+    assert row["told_apart_at_these_sizes"] is False
+    assert set(row["alternatives"]) == {"the load pressure P12 recorded",
+                                        "a 2000 N test load", "a 4x longer test"}
+    for sizes in row["alternatives"].values():
+        assert set(sizes) == {"motor_gain", "supply_pressure"}
+        assert 0 < sizes["motor_gain"] < 0.01      # the motor gain is told from the drop
+    assert "with a 2000 N test load: motor_gain from" in proc.stdout

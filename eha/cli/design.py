@@ -7,6 +7,7 @@ The design stack (numba kernels, pymoo) is imported inside the commands.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import List, Optional
 
@@ -174,11 +175,17 @@ def _show(result) -> None:
     for t in result.targets:
         if not result.prediction.detectable(t):
             console.print(f"{t.name}: {result.verdict(t)}", highlight=False)
-    pairs = result.settings.get("separate") or []
-    for f, g in pairs:
+    by = {t.name: t for t in result.targets}
+    for row in result.pairs():
+        f, g = row["pair"]
         sep = result.prediction.separable
-        console.print(f"{f} vs {g}: told apart from {sep[f][g]:.2g}x and "
-                      f"{sep[g][f]:.2g}x their detectable sizes", highlight=False)
+        ratio = [f"{n} from {sep[n][m]:.2g}x its detectable size" if math.isfinite(sep[n][m])
+                 else f"{n} never" for n, m in ((f, g), (g, f))]
+        console.print(f"{f} vs {g}: told apart: {', '.join(ratio)}", highlight=False)
+        for how, sizes in row["alternatives"].items():
+            shown = [f"{n} from {by[n].shown(v)}" if v is not None else f"{n} never"
+                     for n, v in sizes.items()]
+            console.print(f"  with {how}: {', '.join(shown)}", highlight=False)
 
 
 @design_app.command("verify")

@@ -50,6 +50,9 @@ class DesignResult:
     alternatives : dict
         For each target the design does not show: its predicted size with the load pressure
         recorded, with a test load, and on a test four times as long.
+    pair_alternatives : dict
+        For each pair the design does not tell apart at its sizes (``"A,B"``): the separable
+        sizes of both members under the same three alternatives.
     history : list of float
         Best search score per generation.
     seconds : float
@@ -66,6 +69,7 @@ class DesignResult:
     alternatives: dict[str, dict[str, float]] = field(default_factory=dict)
     history: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    pair_alternatives: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
 
     # -- reading
 
@@ -109,6 +113,9 @@ class DesignResult:
             row["told_apart_at_these_sizes"] = all(
                 self.prediction.separable_size(a, b) <= abs(by[a].probe)
                 for a, b in ((f, g), (g, f)))
+            row["alternatives"] = {how: {k: _finite(v) for k, v in sizes.items()}
+                                   for how, sizes in
+                                   self.pair_alternatives.get(f"{f},{g}", {}).items()}
             out.append(row)
         return out
 
@@ -268,6 +275,12 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                                     if math.isfinite(v) and n not in (around or {})})
     prediction = predict(command, refined, limits.duration, **options)
     alternatives = _alternatives(command, t, com, refined, prediction, limits, options)
+    apart = [(f, g) for f, g in pairs if not _told_apart(prediction, refined, f, g)]
+    if apart:
+        say(f"what would tell apart {', '.join(f'{f}/{g}' for f, g in apart)}: the load "
+            f"pressure, a test load, a 4x longer test")
+    pair_alternatives = {f"{f},{g}": sizes for (f, g), sizes in zip(apart, _pair_alternatives(
+        command, com, refined, apart, limits, options))}
     settings = {"faults": [x.name for x in targets if x.kind == "fault"],
                 "effects": [x.name for x in targets if x.kind == "effect"],
                 "separate": [list(p) for p in pairs], "around": dict(around or {}),
@@ -278,7 +291,8 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                 "chosen": (f"library command {incumbent[0]}" if incumbent is not None
                            else "searched")}
     return DesignResult(t, com, refined, prediction, library, settings, segments,
-                        alternatives, history, time.perf_counter() - start)
+                        alternatives, history, time.perf_counter() - start,
+                        pair_alternatives)
 
 
 def _better_library_command(t, com, targets, limits, reference, pairs, at_size, library,
@@ -330,13 +344,15 @@ def _check(signals, sampling, noise, alpha, actuators, population, generations, 
             "n_actuators": actuators, "decimate": int(round(1000.0 / sampling))}
 
 
-def _alternatives(command, t, com, targets, prediction, limits, options) -> dict:
-    """For each target the design does not show: its predicted size with P12 recorded, with
-    a test load and on the command repeated four times (a 4x longer test)."""
-    hidden = [x for x in targets if not prediction.detectable(x)]
-    if not hidden:
-        return {}
-    out: dict[str, dict[str, float]] = {x.name: {} for x in hidden}
+def _told_apart(prediction: Prediction, targets, f: str, g: str) -> bool:
+    """Whether ``prediction`` tells ``f`` and ``g`` apart, both ways, at their probes."""
+    by = {t.name: t for t in targets}
+    return all(prediction.separable_size(a, b) <= abs(by[a].probe) for a, b in ((f, g), (g, f)))
+
+
+def _tries(command, com, limits, options) -> list[tuple]:
+    """What would show more: ``(label, command, t_end, options, setting)`` with P12 recorded
+    (when it is not), with a :data:`TEST_LOAD` and on the command repeated four times."""
     tries = []
     if "p12" not in options["signals"]:
         tries.append(("the load pressure P12 recorded", command, limits.duration,
@@ -349,10 +365,34 @@ def _alternatives(command, t, com, targets, prediction, limits, options) -> dict
     long_com = np.concatenate([com[:-1]] * 4 + [com[-1:]])
     tries.append(("a 4x longer test", array_command(long_t, long_com, "design x4"),
                   4 * limits.duration, options, None))
-    for label, cmd, t_end, opts, setting in tries:
+    return tries
+
+
+def _alternatives(command, t, com, targets, prediction, limits, options) -> dict:
+    """For each target the design does not show: its predicted size with P12 recorded, with
+    a test load and on the command repeated four times (a 4x longer test)."""
+    hidden = [x for x in targets if not prediction.detectable(x)]
+    if not hidden:
+        return {}
+    out: dict[str, dict[str, float]] = {x.name: {} for x in hidden}
+    for label, cmd, t_end, opts, setting in _tries(command, com, limits, options):
         pred = predict(cmd, hidden, t_end, pairs=[], setting=setting, **opts)
         for x in hidden:
             out[x.name][label] = pred.mds[x.name]
+    return out
+
+
+def _pair_alternatives(command, com, targets, pairs, limits, options) -> list[dict]:
+    """For each pair of ``pairs``: the separable sizes of both members [their units] under
+    each of :func:`_tries`' alternatives, ``{label: {f: size, g: size}}``."""
+    out: list[dict[str, dict[str, float]]] = [{} for _ in pairs]
+    if not pairs:
+        return out
+    for label, cmd, t_end, opts, setting in _tries(command, com, limits, options):
+        both = [o for f, g in pairs for o in ((f, g), (g, f))]
+        pred = predict(cmd, targets, t_end, pairs=both, setting=setting, **opts)
+        for row, (f, g) in zip(out, pairs):
+            row[label] = {f: pred.separable_size(f, g), g: pred.separable_size(g, f)}
     return out
 
 
