@@ -23,6 +23,8 @@ Parts:
    member as the truth, at its fitted size): how often the verdict names the truth alone.
 4. **Wider limits** for the pairs the 2-s designs do not tell apart (4 s at +-1 cm, 2 s at
    +-2 cm): what would separate them (predicted separable sizes).
+5. **Test loads** on the motor-gain / supply-pressure design: the load that would show the
+   drop (predicted), and whether the check's LF still follows the actuator under it.
 """
 
 from __future__ import annotations
@@ -183,6 +185,42 @@ def wider_limits(args) -> dict:
     return out
 
 
+#: Test loads [N] tried on the supply-pressure pair's design (the jack stalls near 16 kN).
+TEST_LOADS = (0.0, 2000.0, 6000.0, 10000.0, 13000.0)
+
+
+def test_loads(args) -> dict:
+    """The motor-gain / supply-pressure pair on its 2-s design under :data:`TEST_LOADS`, the
+    position alone and with P12 (predicted separable sizes, and whether the check's LF
+    follows the loaded actuator): the LF's supply pressure bounds the load pressure, so only
+    a load that brings P12 near the supply shows the drop."""
+    from eha.design.predict import predict
+    from eha.design.targets import SIGNALS, resolve_targets, with_probes
+    from eha.models.commands import load_command_file
+
+    (a, va), (b, vb) = AMBIGUITIES["motor gain-supply pressure (f13, f25)"]
+    folder = Path(args.out) / "ambiguities" / f"{a}-{b}"
+    if not (folder / "design.csv").exists():
+        return {}
+    command = load_command_file(str(folder / "design.csv"))
+    targets = with_probes(resolve_targets([], (), [(a, b)]), {a: va, b: vb})
+    out = []
+    for load in TEST_LOADS:
+        for signals in (("xu",), ("xu", "p12")):
+            start = time.perf_counter()
+            pred = predict(command, targets, 2.0, signals=signals,
+                           noise={s: SIGNALS[s][1] for s in signals}, pairs=[(a, b), (b, a)],
+                           setting={"FRC": load} if load else None)
+            out.append({"test_load": load, "signals": list(signals),
+                        "separable_size": {a: pred.separable_size(a, b),
+                                           b: pred.separable_size(b, a)},
+                        "followed": pred.followed, "seconds": time.perf_counter() - start})
+            print(f"test load {load:g} N, {'+'.join(signals)}: {a} from "
+                  f"{pred.separable_size(a, b):.3g}, {b} from {pred.separable_size(b, a):.3g}; "
+                  f"followed {pred.followed}", flush=True)
+    return {"design": str(folder / "design.csv"), "pair": [a, b], "rows": out}
+
+
 def _told_apart_in_two_seconds(args, a: str, b: str) -> bool:
     """Whether the pair's 2-s design (OUT/ambiguities/A-B) tells both members apart at their
     fitted sizes; a pair without one is tried under the wider limits."""
@@ -272,7 +310,8 @@ def main() -> None:
     ap.add_argument("--reuse-designs", action="store_true",
                     help="take each ambiguity's design from its folder when it has one "
                          "(OUT/ambiguities/A-B/design.json) instead of searching again")
-    ap.add_argument("--skip", default="", help="parts to skip: verify, verify-p12, ambiguities, wider")
+    ap.add_argument("--skip", default="", help="parts to skip: verify, verify-p12, "
+                    "ambiguities, wider, test-loads")
     ap.add_argument("--json", action="store_true", help="write the result file")
     ap.add_argument("--merge", action="store_true",
                     help="keep the result file's parts not rerun (each part has its seconds)")
@@ -292,6 +331,8 @@ def main() -> None:
         doc["ambiguities"] = ambiguities(args)
     if "wider" not in skip:
         doc["wider"] = wider_limits(args)
+    if "test-loads" not in skip:
+        doc["test_loads"] = test_loads(args)
     doc["what"] = ("the seven-fault design at 1 s predicted and verified against library "
                    "commands; separating designs for the foreign ambiguities")
     print(json.dumps({k: v for k, v in doc.items() if k != "design"}, indent=1,
