@@ -90,7 +90,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "noise_rmse",
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
-                        "undetectable", "not_excluded",
+                        "undetectable", "not_excluded", "rivals_ruled_out",
                         # the verdict's kind, facts and finding (issue 42)
                         "verdict_kind", "at_noise", "within_healthy_band",
                         "unique_explanation", "found", "units"}

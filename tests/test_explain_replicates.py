@@ -1,5 +1,5 @@
-"""The replicate term of the loop's final intervals (eha.explain.replicates): the spread of
-refits to HF re-simulations of the final model.
+"""HF re-simulations of the loop's final model: the replicate term of its intervals
+(eha.explain.replicates) and the rival check (eha.explain.rival_check).
 
 Its coverage is measured in ``validation/design_reading.py`` (docs/design.md); here: the
 term is reproducible from its seed, finite for every fitted parameter, widens the floors it is
@@ -73,15 +73,56 @@ def test_the_term_widens_the_floors_and_says_so(tmp_path):
     assert same == terms and none is None
 
 
-def test_the_setting_is_checked_by_keyword_and_by_flag(tmp_path):
+@pytest.mark.parametrize("keyword", ["interval_replicates", "rival_replicates"])
+def test_the_settings_are_checked_by_keyword_and_by_flag(tmp_path, keyword):
     """Out of [0, 100]: the library names the keyword, the CLI the flag, exit 2, one line."""
-    with pytest.raises(ExplainError, match="`interval_replicates` -1: allowed range"):
-        LoopSettings(interval_replicates=-1)
+    flag = "--" + keyword.replace("_", "-")
+    with pytest.raises(ExplainError, match=f"`{keyword}` -1: allowed range"):
+        LoopSettings(**{keyword: -1})
     path = tmp_path / "r.csv"
     synthetic_record("chirp_1cm", {}, t_end=0.3, seed=1).to_csv(path, index=False)
-    result = CliRunner().invoke(app, ["explain", str(path), "--interval-replicates", "101",
+    result = CliRunner().invoke(app, ["explain", str(path), flag, "101",
                                       "--results", str(tmp_path / "res"), "--no-progress"])
     assert result.exit_code == 2
-    assert "--interval-replicates 101: allowed range [0, 100]" in result.output
+    assert f"{flag} 101: allowed range [0, 100]" in result.output
     assert len(result.output.strip().splitlines()) == 1
     assert not (tmp_path / "res").exists()
+
+
+@pytest.mark.slow
+def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
+    """The rival check (eha.explain.rival_check) on a real model: an external load of 800 N
+    on a 1-s chirp, the structure and the load accepted, an offset as the rival. An offset of
+    the detectable size put on the HF moves the rival's reading towards it; a re-simulation is
+    reproducible from its seed; the decision is the stated rule on the figures returned."""
+    from eha.explain import Candidate, Choice
+    from eha.explain.rival_check import MIN_SHOWN, _readings, check_rival, hf_overrides
+
+    path = tmp_path / "load.csv"
+    synthetic_record("chirp_1cm", {"BKL": 1e-4, "FDJ": 800.0, "FRC": 800.0}, t_end=1.0,
+                     noise=1e-6, seed=2).to_csv(path, index=False)
+    loop = ResidualLoop(load(path), fit="BKL,FDJ",
+                        settings=LoopSettings(rival_replicates=3, pop=8))
+    loop.baseline()
+    for name in ("orifice_law", "external_load"):
+        loop.accept(Choice(loop.try_candidate(Candidate(name, math.nan, math.nan)), set(),
+                           [name]))
+    rival = EFFECTS["offset"]
+    start, free = loop.candidate_start([rival])
+    for st in loop.steps:
+        free.update(EFFECTS[st.effect].bounds)
+    local, _ = loop.local_test(start, free, [rival])
+    check = check_rival(loop, rival, [rival], local, detectable=0.01, threshold=0.005)
+    assert set(check) == {"record", "without", "with", "size", "threshold", "spread",
+                          "ruled_out", "seeds"}
+    (m0, _), (m1, _) = check["without"], check["with"]
+    assert check["size"] in (0.01, -0.01) and (m1 - m0) * check["size"] > 0
+    assert check["ruled_out"] == (abs(check["record"] - m0) <= 0.005
+                                  and check["spread"] <= 0.005
+                                  and abs(m1 - m0) >= MIN_SHOWN * 0.01)
+    names = [*loop.bounds, *(p for st in loop.steps for p in EFFECTS[st.effect].params)]
+    model = hf_overrides(loop.current, names)
+    seed = check["seeds"][0]
+    assert _readings(loop, rival, [rival], model, [seed]) == \
+        _readings(loop, rival, [rival], model, [seed])
+    assert check_rival(loop, rival, [rival], local, math.inf, 0.005) == {}  # no size, no check

@@ -77,6 +77,11 @@ INTERVAL_REPLICATES = typer.Option(
     ..., "--interval-replicates", default_factory=_setting("interval_replicates", int),
     help="HF re-simulations of the final model whose refits' spread widens the intervals of "
          "the effects found, 0 to 100 (0: none).")
+RIVAL_REPLICATES = typer.Option(
+    ..., "--rival-replicates", default_factory=_setting("rival_replicates", int),
+    help="HF re-simulations of the final model without and with each rival the record cannot "
+         "rule out, which rule it out when it reads only the model's own model form, 0 to 100 "
+         "(0: none).")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress display.")
 
 
@@ -91,6 +96,7 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             flow_gain_spread: float = FLOW_GAIN_SPREAD, alpha: float = ALPHA,
             healthy: Optional[Path] = HEALTHY, null_actuators: int = NULL_ACTUATORS,
             interval_replicates: int = INTERVAL_REPLICATES,
+            rival_replicates: int = RIVAL_REPLICATES,
             command_hold: CommandHoldOption = COMMAND_HOLD, columns: ColumnsOption = None,
             units: UnitsOption = None, progress: bool = PROGRESS):
     """Trace a measured record's residual to missing LF effects, add them, report the error.
@@ -119,6 +125,7 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
             validate=validate and record.at(validate), prior=prior, known=known,
             command_hold=command_hold, on_progress=step, min_gain=min_gain, alpha=alpha,
             null_actuators=null_actuators, interval_replicates=interval_replicates,
+            rival_replicates=rival_replicates,
             max_steps=max_steps, candidates=candidates,
             p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
             seed=seed, null=record.at(healthy) if healthy is not None else "simulate")
@@ -136,8 +143,15 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
         fail(f"results database not written: {db_error}", code=1)
 
 def _next_test(res, json_out: Optional[Path]) -> None:
-    """Rivals the record could not rule out: the command that designs the test deciding it
-    (docs/design.md)."""
+    """Rivals ruled out by re-simulation, with the figures; rivals the record could not rule
+    out: the command that designs the test deciding it (docs/design.md)."""
+    for e in res.rivals_ruled_out:
+        c, unit = e["rival_check"], e.get("value_unit", e["unit"])
+        console.print(f"{e['effect']} beside the model: ruled out by re-simulation (the record "
+                      f"reads {e['param']} {c['record']:.3g} {unit}, the model alone "
+                      f"{c['without'][0]:.3g} ± {c['without'][1]:.2g}; with "
+                      f"{c['size']:+.3g} {unit} of it {c['with'][0]:.3g} ± "
+                      f"{c['with'][1]:.2g})", highlight=False)
     if not res.not_excluded:
         return
     rivals = ", ".join(f"{e['effect']} ({e['param']} {e['value']:.3g} "

@@ -29,6 +29,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
             noise_factor: float | None = None, joint: bool | None = None,
             p12_weight: float | None = None, flow_gain_spread: float | None = None,
             null_actuators: int | None = None, interval_replicates: int | None = None,
+            rival_replicates: int | None = None,
             on_progress: Callable[[str], None] | None = None,
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -77,6 +78,9 @@ def explain(data: MeasuredData, *, fit: Any = None,
     interval_replicates : int, optional
         HF re-simulations of the final model whose refits widen the intervals of a model the
         loop built (:class:`LoopSettings`, default 6; 0: none).
+    rival_replicates : int, optional
+        HF re-simulations without and with a rival the exclusion check lists, which may rule
+        it out (:class:`LoopSettings`, default 6; 0: none).
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -91,7 +95,8 @@ def explain(data: MeasuredData, *, fit: Any = None,
     given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
              "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
-             "null_actuators": null_actuators, "interval_replicates": interval_replicates}
+             "null_actuators": null_actuators, "interval_replicates": interval_replicates,
+             "rival_replicates": rival_replicates}
     given = {k: v for k, v in given.items() if v is not None}
     settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,

@@ -18,6 +18,7 @@ from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.decide import keeps_effect
 from eha.explain.record import corr
 from eha.explain.results import Dismissal, Evaluation, Step, ranking_score
+from eha.explain.rival_check import check_rival
 from eha.explain.settings import GLOBAL_RIVALS, STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import signatures
 from eha.models.params import LFParams
@@ -43,12 +44,17 @@ class FinalCheck:
         threshold, but not its state: the null runs it with the structure in and no other
         effect, and an effect in the model (or the structure missing) makes others less
         identifiable, so the rate at which it lists an effect is measured, not ``alpha``
-        (docs/explain.md, "The exclusion check"). Returns one dict per such effect (empty
-        without a null)."""
+        (docs/explain.md, "The exclusion check"). An effect so listed is then re-checked on
+        HF re-simulations of the final model (:func:`eha.explain.rival_check.check_rival`):
+        when the record reads only what the final model's own model form makes it read, and
+        a rival of the detectable size would read otherwise, it is ruled out
+        (:attr:`rivals_ruled_out`, with the check's figures). Returns one dict per effect
+        not ruled out (empty without a null)."""
         if not self.thresholds or self.null is None:
             return []
         detectable = self.null.detectable(self.settings.alpha)
         in_model = {st.effect for st in self.steps}
+        self.rivals_ruled_out = []
         out = []
         self.phase = "exclusion check (does another effect fit as well?)"
         try:
@@ -71,12 +77,18 @@ class FinalCheck:
             statistic = self.statistic_at(effect, local)
             if self.past(effect, local, detectable):
                 param = effect.tested
-                out.append({"effect": effect.name, "param": param,
-                            "value": float(getattr(local, param)),
-                            "value_unit": effect.units()[param],
-                            "shift": float(statistic),
-                            "threshold": float(self.thresholds[effect.name]),
-                            "detectable": float(size), "unit": effect.statistic_unit})
+                entry = {"effect": effect.name, "param": param,
+                         "value": float(getattr(local, param)),
+                         "value_unit": effect.units()[param],
+                         "shift": float(statistic),
+                         "threshold": float(self.thresholds[effect.name]),
+                         "detectable": float(size), "unit": effect.statistic_unit}
+                # the found model's own model form may be what pulls the rival's fit
+                check = check_rival(self, effect, members, local, size,
+                                    float(self.thresholds[effect.name]))
+                if check:
+                    entry["rival_check"] = check
+                (self.rivals_ruled_out if check.get("ruled_out") else out).append(entry)
         return out
 
     def prune(self) -> list[Dismissal]:

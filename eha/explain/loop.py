@@ -64,6 +64,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         fixed = set(fixed)
         #: known parameters held at the base's values (test conditions)
         self.fixed = fixed
+        #: rivals of the exclusion check ruled out by the rival check (FinalCheck.not_excluded)
+        self.rivals_ruled_out: list[dict] = []
         for name in sorted(fixed):
             if name in self.bounds:
                 raise ExplainError(f"`fixed` {name}: also a fitted fault (`fit`); give it one "
@@ -337,6 +339,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
             unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
             beyond_healthy=flagged, not_excluded=self.rivals,
+            rivals_ruled_out=self.rivals_ruled_out,
             interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
             null=self.null_summary())

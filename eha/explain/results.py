@@ -194,6 +194,9 @@ class ExplainResult:
     #: size and the threshold; non-empty only for a model at the noise level, then
     #: ``unexplained``
     not_excluded: list[dict[str, Any]] = field(default_factory=list)
+    #: rivals the exclusion check listed that the rival check ruled out
+    #: (:func:`eha.explain.rival_check.check_rival`), with its figures
+    rivals_ruled_out: list[dict[str, Any]] = field(default_factory=list)
     #: the run's name in the files and the database: :func:`eha.explain.from_file.explain_file`
     #: names it by the file's bytes and what went in; otherwise (:attr:`key`) by the record's
     #: samples and the settings
@@ -359,6 +362,7 @@ class ExplainResult:
             "null": self.null,
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
+            "rivals_ruled_out": [dict(e) for e in self.rivals_ruled_out],
             **self.verdict_facts.to_json(),
             "units": self.units(),
         }

@@ -214,6 +214,9 @@ class LoopSettings:
     interval_replicates : int
         HF re-simulations of the final model whose refits' spread widens the intervals of a
         model the loop built, in [0, 100] (0: none; :mod:`eha.explain.replicates`).
+    rival_replicates : int
+        HF re-simulations of the final model, without a rival the exclusion check lists and
+        with it, that may rule it out, in [0, 100] (0: none; :mod:`eha.explain.rival_check`).
     method, pop, seed
         Optimizer of every fit (:func:`eha.identification.fdi.identify`), same seed for all fits.
     """
@@ -231,6 +234,7 @@ class LoopSettings:
     p12_weight: float = 1.0
     flow_gain_spread: float = 0.04
     interval_replicates: int = 6
+    rival_replicates: int = 6
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
@@ -271,6 +275,9 @@ class LoopSettings:
                             f"[0, 0.5]")
         if not 0 <= self.interval_replicates <= 100:
             problems.append(f"`interval_replicates` {self.interval_replicates}: allowed range "
+                            f"[0, 100]")
+        if not 0 <= self.rival_replicates <= 100:
+            problems.append(f"`rival_replicates` {self.rival_replicates}: allowed range "
                             f"[0, 100]")
         if not self.pop >= 2:
             problems.append(f"`pop` {self.pop}: allowed range [2, ...]")
