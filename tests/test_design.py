@@ -181,13 +181,26 @@ def test_an_undecided_explain_answer_names_the_test_that_decides_it(tmp_path):
     from eha.cli.guard import console
 
     res = SimpleNamespace(not_excluded=[{"effect": "offset", "param": "Ofs", "value": -0.009,
-                                         "unit": "mA"}])
+                                         "unit": "mA"}], rivals_ruled_out=[])
     with console.capture() as cap:
         _next_test(res, tmp_path / "out.json")
-        _next_test(SimpleNamespace(not_excluded=[]), tmp_path / "out.json")
+        _next_test(SimpleNamespace(not_excluded=[], rivals_ruled_out=[]), tmp_path / "out.json")
     text = " ".join(cap.get().split())
     assert "offset (Ofs -0.009 mA)" in text
     assert f"eha design --faults none --around {tmp_path / 'out.json'}" in text.replace("\n", "")
+    # a rival the re-simulations ruled out: named with its figures, no design line
+    check = {"record": -0.00605, "without": [-0.00696, 0.00022], "with": [-0.00463, 0.00056],
+             "size": 0.00242}
+    ruled = SimpleNamespace(not_excluded=[], rivals_ruled_out=[
+        {"effect": "offset", "param": "Ofs", "value": -0.00605, "value_unit": "mA",
+         "unit": "mA", "rival_check": check}])
+    with console.capture() as cap:
+        _next_test(ruled, tmp_path / "out.json")
+    text = " ".join(cap.get().split())
+    assert ("offset beside the model: ruled out by re-simulation (the record reads Ofs "
+            "-0.00605 mA, the model alone -0.00696 ± 0.00022; with +0.00242 mA of it "
+            "-0.00463 ± 0.00056)") in text
+    assert "eha design" not in text
 
 
 def test_a_library_command_within_the_limits_is_outside_only_when_it_breaks_one():
