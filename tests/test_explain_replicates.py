@@ -126,3 +126,15 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     assert _readings(loop, rival, [rival], model, [seed]) == \
         _readings(loop, rival, [rival], model, [seed])
     assert check_rival(loop, rival, [rival], local, math.inf, 0.005) == {}  # no size, no check
+
+
+def test_an_injected_rival_lies_within_its_bounds():
+    """The rival check injects a rival on the record's side of off when its bounds allow it
+    (a viscous friction cannot go below off: the foreign record f13's check had put it at
+    -2142 N·s/m, which the HF refused), else on the other side, else none."""
+    from eha.explain.rival_check import _side
+
+    viscous, offset = EFFECTS["viscous_friction"], EFFECTS["offset"]
+    assert _side(viscous, -1.0, 2192.0) == 1.0
+    assert _side(offset, -1.0, 0.007) == -1.0 and _side(offset, 1.0, 0.007) == 1.0
+    assert _side(viscous, 1.0, 1e9) is None

@@ -27,6 +27,8 @@ from typing import Mapping
 
 import numpy as np
 
+from eha.models.params import ParameterError
+
 #: First seed of the HF re-simulations (dither and noise) of the replicate term.
 REPLICATE_SEED = 770_000
 
@@ -77,9 +79,12 @@ def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
     seeds = [REPLICATE_SEED + 1000 * seed + k for k in range(replicates)]
     deviations: dict[str, list[float]] = {n: [] for n in bounds}
     for s in seeds:
-        record, _ = healthy_record(loop.data, {}, s, overrides, scatter=False)
+        try:
+            record, _ = healthy_record(loop.data, {}, s, overrides, scatter=False)
+        except (ParameterError, FloatingPointError, ValueError):
+            continue        # a model the HF refuses (a value beyond its range): no replicate
         again = type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
-                             loop.fixed, **loop.fdi_options)
+                           loop.fixed, **loop.fdi_options)
         refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
                             whole=True)
         values = {n: float(getattr(refit, n)) - float(getattr(params, n)) for n in bounds}

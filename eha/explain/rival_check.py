@@ -41,6 +41,7 @@ from typing import Sequence
 import numpy as np
 
 from eha.explain.replicates import hf_overrides
+from eha.models.params import ParameterError
 
 #: First seed of the re-simulations of the rival check (dither and noise).
 RIVAL_SEED = 880_000
@@ -54,6 +55,18 @@ def reading(effect, params) -> float:
     if effect.footprint:
         return math.nan
     return float(getattr(params, effect.tested))
+
+
+def _side(effect, preferred: float, size: float) -> float | None:
+    """The side of off on which a rival of ``size`` lies within its search bounds: the
+    record's side when it can (a viscous friction cannot go below its off value), else the
+    other; None when neither can."""
+    lo, hi = effect.bounds[effect.tested]
+    off = effect.off[effect.tested]
+    for side in (preferred, -preferred):
+        if lo <= off + side * size <= hi:
+            return side
+    return None
 
 
 def _readings(loop, effect, members, overrides, seeds) -> list[float]:
@@ -112,11 +125,15 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         r0 = _readings(loop, effect, members, without, seeds[0])
         record = reading(effect, local)
         m0, s0 = float(np.mean(r0)), float(np.std(r0, ddof=1))
-        side = 1.0 if record >= m0 else -1.0
+        side = _side(effect, 1.0 if record >= m0 else -1.0, detectable)
+        if side is None:
+            return {}
         rival = {**hf_overrides(local, [p for m in members for p in m.params]),
                  effect.tested: effect.off[effect.tested] + side * detectable}
         r1 = _readings(loop, effect, members, {**without, **hf_overrides(
             local.replace(**rival), list(rival))}, seeds[1])
+    except (ParameterError, FloatingPointError, ValueError):
+        return {}       # a re-simulation the HF refuses decides nothing: the rival stays
     finally:
         loop.phase = phase
     m1, s1 = float(np.mean(r1)), float(np.std(r1, ddof=1))
