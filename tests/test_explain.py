@@ -24,7 +24,7 @@ from eha.models.params import LFParams
 FAULTS = {"BKL": 1e-4, "FDJ": 800.0}
 NOISE = 1e-6
 FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0,
-        "null_actuators": 5}
+        "null_actuators": 5, "interval_replicates": 2, "rival_replicates": 2}
 #: For records the LF model made: no healthy scatter and no structure to tell from an effect,
 #: so no null (an effect is refused only when its fit switches it off).
 FAST_LF = {**FAST, "null": None}
@@ -297,6 +297,7 @@ def test_load_test_calibration_keeps_the_nominal_leakage_healthy_through_the_cli
     js = tmp_path / "cal.json"
     result = CliRunner().invoke(app, ["explain", str(data), "--set", "FRC=4000", "--pop", "12",
                                       "--candidates", "4", "--null-actuators", "5",
+                                      "--interval-replicates", "2", "--rival-replicates", "2",
                                       "--json", str(js),
                                       "--out",
                                       str(tmp_path / "out"), "--results",
