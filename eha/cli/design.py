@@ -61,8 +61,8 @@ _SIGNALS = typer.Option("xu", "--signals", help="Recorded signals: xu, or xu wit
 _SAMPLING = typer.Option(1000.0, "--sampling", help="Recorded sampling in Hz, a "
                          "divisor of 1000.")
 _NOISE = typer.Option(1e-6, "--noise", help="Position sensor noise std in m.")
-_NOISE_P12 = typer.Option(..., "--noise-p12", default_factory=defaults.noise_p12, help="Load-pressure sensor noise "
-                          "std in Pa (with --signals xu,p12).")
+_NOISE_P12 = typer.Option(..., "--noise-p12", default_factory=defaults.noise_p12,
+                          help="Load-pressure sensor noise std in Pa (with --signals xu,p12).")
 _ALPHA = typer.Option(0.01, "--alpha", help="False-alarm probability of one "
                       "check, in (0, 0.5).")
 _SEED = typer.Option(0, "--seed", help="Search seed (the same seed, the same "

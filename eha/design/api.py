@@ -388,8 +388,8 @@ def _pair_alternatives(command, com, targets, pairs, limits, options) -> list[di
     out: list[dict[str, dict[str, float]]] = [{} for _ in pairs]
     if not pairs:
         return out
+    both = [o for f, g in pairs for o in ((f, g), (g, f))]
     for label, cmd, t_end, opts, setting in _tries(command, com, limits, options):
-        both = [o for f, g in pairs for o in ((f, g), (g, f))]
         pred = predict(cmd, targets, t_end, pairs=both, setting=setting, **opts)
         for row, (f, g) in zip(out, pairs):
             row[label] = {f: pred.separable_size(f, g), g: pred.separable_size(g, f)}

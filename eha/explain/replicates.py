@@ -42,6 +42,17 @@ def hf_overrides(params, names) -> dict[str, float]:
             and "hf" in SPECS[n].models}
 
 
+def resimulated(loop, overrides: Mapping[str, float], seed: int):
+    """A loop like ``loop`` (its fit, base, settings, known parameters and fit options) on a
+    re-simulation of the nominal HF with ``overrides``, on ``loop``'s command, sampling and
+    noise, with fresh dither and noise from ``seed``; it fits nothing yet."""
+    from eha.explain.simulated_record import healthy_record
+
+    record, _ = healthy_record(loop.data, {}, seed, overrides, scatter=False)
+    return type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
+                      loop.fixed, **loop.fdi_options)
+
+
 def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
                      hf_names, replicates: int, seed: int = 0
                      ) -> tuple[dict[str, float], list[int]]:
@@ -73,18 +84,14 @@ def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
     seeds : list of int
         The seeds of the re-simulations.
     """
-    from eha.explain.simulated_record import healthy_record
-
     overrides = {**hf_overrides(loop.base, loop.fixed), **hf_overrides(params, hf_names)}
     seeds = [REPLICATE_SEED + 1000 * seed + k for k in range(replicates)]
     deviations: dict[str, list[float]] = {n: [] for n in bounds}
     for s in seeds:
         try:
-            record, _ = healthy_record(loop.data, {}, s, overrides, scatter=False)
+            again = resimulated(loop, overrides, s)
         except (ParameterError, FloatingPointError, ValueError):
             continue        # a model the HF refuses (a value beyond its range): no replicate
-        again = type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
-                           loop.fixed, **loop.fdi_options)
         refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
                             whole=True)
         values = {n: float(getattr(refit, n)) - float(getattr(params, n)) for n in bounds}

@@ -40,7 +40,7 @@ from typing import Sequence
 
 import numpy as np
 
-from eha.explain.replicates import hf_overrides
+from eha.explain.replicates import hf_overrides, resimulated
 from eha.models.params import ParameterError
 
 #: First seed of the re-simulations of the rival check (dither and noise).
@@ -50,8 +50,8 @@ MIN_SHOWN = 0.5
 
 
 def reading(effect, params) -> float:
-    """What the check compares: the rival's tested parameter (signed), or its footprint
-    statistic for an effect tested by its footprint."""
+    """What the check compares: the rival's tested parameter (signed); nan for an effect
+    tested by its footprint, which the check does not re-check."""
     if effect.footprint:
         return math.nan
     return float(getattr(params, effect.tested))
@@ -73,21 +73,17 @@ def _readings(loop, effect, members, overrides, seeds) -> list[float]:
     """The rival's reading on re-simulations of ``overrides`` (one per seed), refitted beside
     the final model as :meth:`~eha.explain.final_check.FinalCheck.not_excluded` does."""
     from eha.explain.effects import EFFECTS
-    from eha.explain.simulated_record import healthy_record
 
     out = []
     for s in seeds:
-        record, _ = healthy_record(loop.data, {}, s, overrides, scatter=False)
-        again = type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
-                           loop.fixed, **loop.fdi_options)
+        again = resimulated(loop, overrides, s)
         again.current, again.free, again.steps = loop.current, dict(loop.free), list(loop.steps)
         again.phase = "rival check"
         start, free = again.candidate_start(members)
         for st in again.steps:
             free.update(EFFECTS[st.effect].bounds)
         local, _ = again.local_test(start, free, members)
-        out.append(reading(effect, local) if not effect.footprint
-                   else again.statistic_at(effect, local))
+        out.append(reading(effect, local))
     return out
 
 
