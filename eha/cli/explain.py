@@ -188,6 +188,10 @@ def _render(res) -> None:
 
     console.print(f"record: {res.source} ({len(res.t)} samples at 1 kHz); held "
                   f"out: {res.holdout}", highlight=False)
+    if res.settled:
+        # the question the prior brought is this record's first finding
+        console.print(f"the first record's rivals, on this one: {res.settled['text']}",
+                      highlight=False)
     console.print(_steps_table(res))
     note = structure_note(res)
     for line in ([note] if note else []) + _notes(res):

@@ -97,8 +97,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
              "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
              "null_actuators": null_actuators, "interval_replicates": interval_replicates,
              "rival_replicates": rival_replicates}
-    given = {k: v for k, v in given.items() if v is not None}
-    settings = LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+    settings = loop_settings(given, method, pop, seed)
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
                         fdi_options)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
@@ -119,6 +118,36 @@ def explain(data: MeasuredData, *, fit: Any = None,
     again.facts.flow_gain_released = edge
     again.seconds += result.seconds
     return again
+
+
+def loop_settings(given: Mapping[str, Any], method: str | None = None, pop: int = 20,
+                  seed: int = 0) -> LoopSettings:
+    """:class:`LoopSettings` from :func:`explain`'s keywords (None: the default)."""
+    given = {k: v for k, v in given.items() if v is not None}
+    return LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
+
+
+def settle_prior(data: MeasuredData, prior: Mapping[str, Any], *, fit: Any = None,
+                 effects: Iterable[str] | str | None = None, base: LFParams | None = None,
+                 fixed: Iterable[str] = (), null: Any = "simulate", method: str | None = None,
+                 pop: int = 20, seed: int = 0,
+                 on_progress: Callable[[str], None] | None = None, **keywords: Any):
+    """:func:`eha.explain.settle.settle` on ``data``: the first record's explanations
+    (``prior``, its ``--json``) against this record, with the healthy null of this command
+    for the nominal ``base`` (known test conditions only). ``keywords``: :func:`explain`'s
+    settings and fit options. Returns the :class:`~eha.explain.settle.Settlement`, or None
+    when the prior lists no rival."""
+    from eha.explain.settle import settle
+
+    names = set(LoopSettings.__dataclass_fields__)
+    settings = loop_settings({k: v for k, v in keywords.items() if k in names}, method, pop,
+                             seed)
+    fdi_options = {k: v for k, v in keywords.items() if k not in names and k != "validate"}
+    found = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
+                         fdi_options)
+    loop = ResidualLoop(data, fit, effects, None, base, settings, fixed, on_progress,
+                        pin_structure=True, null=found, **fdi_options)
+    return settle(loop, prior)
 
 
 def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,

@@ -11,10 +11,11 @@ import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from eha.explain.api import explain
+from eha.explain.api import explain, settle_prior
 from eha.explain.record import augmented_base
 from eha.explain.results import ExplainResult
 from eha.explain.settings import ExplainError
+from eha.explain.settle import rivals_of
 from eha.identification.measured import load
 from eha.models.params import ParameterError, parse_assignments, resolve
 
@@ -22,6 +23,7 @@ from eha.models.params import ParameterError, parse_assignments, resolve
 def read_prior(path: str | Path) -> list:
     """``--prior``: the ``--json`` of an earlier ``eha explain`` (an object whose ``steps`` is a
     list of ``{"effect": ..., "params": {...}}``, or that list itself); its steps.
+    :func:`read_prior_json` returns the whole object.
 
     Raises
     ------
@@ -46,6 +48,14 @@ def read_prior(path: str | Path) -> list:
     return steps
 
 
+def read_prior_json(path: str | Path) -> dict:
+    """The whole ``--prior`` object, checked as :func:`read_prior` does (a bare list of steps
+    becomes ``{"steps": [...]}``)."""
+    steps = read_prior(path)
+    prior = json.loads(Path(path).read_text(encoding="utf-8"))
+    return prior if isinstance(prior, dict) else {"steps": steps}
+
+
 def explain_file(data: str | Path, *, validate: str | Path | None = None,
                  prior: str | Path | None = None,
                  known: Mapping[str, float] | list[str] | None = None,
@@ -62,7 +72,9 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
         A second record scored as held-out data.
     prior : path, optional
         The JSON output of an earlier run: its effects start in the model
-        (:func:`read_prior`).
+        (:func:`read_prior`). When it lists rivals it could not rule out, this record first
+        settles between them (:mod:`eha.explain.settle`; the result's ``settled``) and the
+        explanation that stands starts the model.
     known : mapping or list of ``"NAME=VALUE"``, optional
         LF parameters held at known values (test conditions such as a test load
         ``{"FRC": 4000}``), on top of the prior's effects; they are not candidates.
@@ -83,16 +95,21 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
             known = parse_assignments(known, "`known`")
         except ParameterError as exc:
             raise ExplainError(str(exc)) from None
-    steps = read_prior(prior) if prior is not None else None
+    first = read_prior_json(prior) if prior is not None else None
+    steps = first["steps"] if first is not None else None
     record = load(data, command_hold=command_hold)
     check = load(validate, command_hold=command_hold) if validate is not None else None
-    base = augmented_base(steps) if steps is not None else None
-    if known:
-        try:
-            base = resolve("lf", dict(known), base=base)
-        except ParameterError as exc:
-            raise ExplainError(f"`known` {exc}") from None
+    settled = None
+    if first is not None and rivals_of(first):
+        # the first record could not tell its finding from a rival: this record decides
+        # between them, and the one that stands starts the loop (eha.explain.settle)
+        settled = settle_prior(record, first, base=_known_base(known, None),
+                               fixed=tuple(known or ()), **keywords)
+        if settled is not None and settled.winner is not None:
+            steps = settled.steps
+    base = _known_base(known, augmented_base(steps) if steps is not None else None)
     result = explain(record, validate=check, base=base, fixed=tuple(known or ()), **keywords)
+    result.settled = settled.to_json() if settled is not None else None
     digest = hashlib.sha1(Path(data).read_bytes())
     digest.update(json.dumps([str(validate), str(prior), dict(known or {}), result.settings,
                               {k: list(v) for k, v in result.fit_bounds.items()}],
@@ -101,3 +118,13 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
         digest.update(json.dumps([data.columns, data.units], sort_keys=True).encode())
     result.run_id = digest.hexdigest()[:16]
     return result
+
+
+def _known_base(known, base):
+    """``base`` (nominal when None) with the known test conditions set; None when neither."""
+    if not known:
+        return base
+    try:
+        return resolve("lf", dict(known), base=base)
+    except ParameterError as exc:
+        raise ExplainError(f"`known` {exc}") from None

@@ -197,6 +197,9 @@ class ExplainResult:
     #: rivals the exclusion check listed that the rival check ruled out
     #: (:func:`eha.explain.rival_check.check_rival`), with its figures
     rivals_ruled_out: list[dict[str, Any]] = field(default_factory=list)
+    #: with a ``--prior`` that lists rivals: which of the first record's explanations this
+    #: record leaves standing (:meth:`eha.explain.settle.Settlement.to_json`), else None
+    settled: dict[str, Any] | None = None
     #: the run's name in the files and the database: :func:`eha.explain.from_file.explain_file`
     #: names it by the file's bytes and what went in; otherwise (:attr:`key`) by the record's
     #: samples and the settings
@@ -363,6 +366,7 @@ class ExplainResult:
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
             "rivals_ruled_out": [dict(e) for e in self.rivals_ruled_out],
+            "settled": self.settled,
             **self.verdict_facts.to_json(),
             "units": self.units(),
         }

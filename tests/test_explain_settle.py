@@ -1,0 +1,130 @@
+"""A first record's rivals settled on a second record (eha.explain.settle, ``eha explain
+--prior FIRST.json`` when FIRST lists rivals).
+
+Its decisions on the designed follow-ups are measured in ``validation/design_settle.py``
+(docs/design.md); here: the hypotheses read from a prior, the stated rule on the figures
+returned, a round trip with a known truth (the truth stands, a rival at a size this record
+does not show falls, a found size this record contradicts leaves nothing standing), and the
+explain run that starts from the explanation that stands.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from eha.explain import ExplainError, LoopSettings, ResidualLoop
+from eha.explain.null import Null
+from eha.explain.settle import SAME_EFFECT_SPREAD, hypotheses, rivals_of, settle
+from eha.identification.measured import load
+from eha.identification.synthetic import synthetic_record
+
+TRUTH = {"BKL": 1e-4, "FDJ": 800.0, "FRC": 800.0}
+
+
+def _prior(load_value: float = 800.0, offset_value: float = -0.05) -> dict:
+    """A first record's JSON: an external load found, a motor offset it could not rule out."""
+    return {"steps": [{"effect": "orifice_law", "params": {}},
+                      {"effect": "external_load", "params": {"FRC": load_value}}],
+            "not_excluded": [{"effect": "offset", "param": "Ofs", "value": offset_value}],
+            "null": {"effects": {"external_load": {"threshold": 20.0},
+                                 "offset": {"threshold": 0.005}}}}
+
+
+def _null() -> Null:
+    """A canned healthy null: small healthy readings of the two effects, residual ratios
+    about 1.25 (a limit near 1.7)."""
+    from eha.models.simulate import MODEL_VERSION
+
+    stats = {"external_load": [3.0, -2.0, 4.0, -1.0, 2.0],
+             "offset": [0.001, -0.0008, 0.0005, -0.0012, 0.0009]}
+    return Null(source="canned", key="k", statistics=stats,
+                gains={k: [0.0] * 5 for k in stats}, resolution={k: 0.0 for k in stats},
+                units={"external_load": "N", "offset": "mA"}, records=5, seconds=0.0,
+                residual_ratios=[1.1, 1.3, 1.2, 1.4, 1.25], model_version=MODEL_VERSION)
+
+
+@pytest.fixture(scope="module")
+def record_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("settle") / "load.csv"
+    synthetic_record("chirp_1cm", TRUTH, t_end=1.0, noise=1e-6, seed=4).to_csv(path,
+                                                                             index=False)
+    return path
+
+
+def _loop(path) -> ResidualLoop:
+    return ResidualLoop(load(path), fit="BKL,FDJ", effects="orifice_law,flapper_dynamics,"
+                        "external_load,offset", settings=LoopSettings(pop=8),
+                        pin_structure=True, null=_null())
+
+
+def test_the_hypotheses_are_the_found_model_and_each_rival_in_its_place():
+    hyps = hypotheses(_prior())
+    assert [h.name for h in hyps] == ["external_load", "offset"]
+    assert hyps[0].rival is None and hyps[0].effects == {"external_load": {"FRC": 800.0}}
+    assert (hyps[1].rival, hyps[1].replaces) == ("offset", "external_load")
+    assert hyps[1].effects == {"offset": {"Ofs": -0.05}}
+    assert hyps[1].first_thresholds == {"external_load": 20.0, "offset": 0.005}
+    # nothing to settle: no rival, a bare list of steps, only structure found
+    assert hypotheses({**_prior(), "not_excluded": []}) == []
+    assert not rivals_of(_prior()["steps"])
+    assert hypotheses({**_prior(), "steps": [{"effect": "orifice_law", "params": {}}]}) == []
+
+
+def test_the_truth_stands_and_a_rival_of_another_size_falls(record_path):
+    """An 800 N load on a 1-s chirp; the first record said 800 N of load or -0.05 mA of
+    offset. The load stands (reads within its tolerance, residual within the limit); the
+    offset does not, with the reason; each decision is the stated rule on its figures."""
+    loop = _loop(record_path)
+    s = settle(loop, _prior())
+    assert s.winner == "external_load" and s.steps == [
+        {"effect": "external_load", "params": {"FRC": s.hypotheses[0]["params"]["FRC"]}}]
+    assert s.text.startswith("settled: external_load")
+    load_h, offset_h = s.hypotheses
+    assert abs(load_h["params"]["FRC"] - 800.0) < 80.0        # 10 % of the truth
+    assert not offset_h["stands"] and offset_h["why"]
+    for h in s.hypotheses:
+        same = all(abs(r["here"] - r["first"]) <= r["tolerance"] for r in h["readings"])
+        assert h["stands"] == (h["residual_ratio"] <= s.residual_limit and same)
+        assert h["fits"] == (h["residual_ratio"] <= s.residual_limit)
+    r = load_h["readings"][0]
+    assert r["tolerance"] >= SAME_EFFECT_SPREAD * 800.0     # the spread is in it
+    assert json.loads(json.dumps(s.to_json()))["winner"] == "external_load"
+
+
+def test_a_found_size_the_record_contradicts_settles_nothing(record_path):
+    """The first record said 2500 N: this record's 800 N is not that load, and the offset
+    falls too; nothing stands and nothing is settled."""
+    s = settle(_loop(record_path), _prior(load_value=2500.0))
+    assert s.winner is None and s.steps is None
+    assert not any(h["stands"] for h in s.hypotheses)
+    assert s.text.startswith("not settled: this record fits none")
+    assert "FRC reads" in s.hypotheses[0]["why"]
+
+
+def test_settling_needs_a_null(record_path):
+    loop = ResidualLoop(load(record_path), fit="BKL,FDJ", settings=LoopSettings(pop=8))
+    with pytest.raises(ExplainError, match="healthy null"):
+        settle(loop, _prior())
+    assert settle(loop, {**_prior(), "not_excluded": []}) is None
+
+
+def test_explain_with_a_prior_that_lists_rivals_starts_from_the_one_that_stands(
+        record_path, tmp_path):
+    """``explain_file(..., prior=FIRST)`` settles first: the result carries the settlement
+    (JSON key ``settled``) and the loop's base has the load at this record's reading, so the
+    loop does not add it again."""
+    from eha.explain.from_file import explain_file
+
+    first = tmp_path / "first.json"
+    first.write_text(json.dumps(_prior()))
+    res = explain_file(record_path, prior=first, fit="BKL,FDJ", null=_null(),
+                       effects="orifice_law,flapper_dynamics,external_load,offset",
+                       pop=8, candidates=2, max_gen=10, stall=3, interval_replicates=0,
+                       rival_replicates=0)
+    assert res.settled["winner"] == "external_load"
+    assert "external_load" not in res.effects
+    assert res.after.params.FRC == pytest.approx(
+        res.settled["hypotheses"][0]["params"]["FRC"])
+    assert res.to_json()["settled"]["text"].startswith("settled: external_load")

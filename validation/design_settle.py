@@ -1,0 +1,164 @@
+"""The first record as prior: does a designed follow-up settle each foreign ambiguity?
+
+The foreign set's first records (``validation/priors/fNN.json``: their ``eha explain --json``)
+end "cannot be told apart" between a found effect and a rival. Each pair has a 2-s separating
+design (``validation/design.py``, ``OUT/ambiguities/A-B/design.csv``). On it, HF records are
+made with either member as the truth at its fitted size (BKL 1e-4, FDJ 800 N, 1 µm noise,
+seeds 5000+k: the records of ``validation/design.py --loop``, reused when there), and each is
+settled against its first record (:mod:`eha.explain.settle`, the prior restricted to the pair's
+rival: the design was made for that pair). Counted per truth: settled on the truth, settled on
+the other (confidently wrong), not settled. With ``--loop K`` the whole ``eha explain
+RECORD --prior FIRST`` runs on the first K records per truth too: the settlement, then the loop
+from the explanation that stands (decisive and right: the truth settled, the loop's verdict
+"explained", nothing further found and no rival left).
+
+    python validation/design_settle.py --out results/bench-design --records 10 --json
+
+A settlement takes 3-10 s on a record with the command's healthy null cached (the null itself
+2-3 min per design, once); a whole explain 1-20 min.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
+from _results import ROOT, write_result  # noqa: E402
+
+from design import AMBIGUITIES  # noqa: E402
+
+#: Each ambiguity's first record (validation/priors/) and the rival kept in its prior.
+FIRST = {"load-offset (f01, f02)": ("f01", "offset"),
+         "bias-offset (f09)": ("f09", "offset"),
+         "motor gain-supply pressure (f13, f25)": ("f13", "supply_pressure"),
+         "motor gain-viscous friction (f13, f25)": ("f13", "viscous_friction"),
+         "sensor gain-hinge moment (f21)": ("f21", "hinge_moment")}
+PRIORS = Path(__file__).resolve().parent / "priors"
+
+
+def prior_of(label: str) -> dict:
+    """The first record's JSON for ``label``, its rivals restricted to the pair's."""
+    name, rival = FIRST[label]
+    prior = json.loads((PRIORS / f"{name}.json").read_text())
+    prior["not_excluded"] = [r for r in prior["not_excluded"] if r["effect"] == rival]
+    return prior
+
+
+def record(command: Path, name: str, dev: float, k: int, t_end: float = 2.0) -> Path:
+    """HF record ``k`` of truth ``name`` (deviation ``dev`` from off) on ``command``: the
+    loop study's (same path, seed and truth), made when missing."""
+    import eha
+    from eha.explain.effects import EFFECTS
+
+    path = command.parent / "loop" / f"{name}-{k}.csv"
+    if not path.exists():
+        param = EFFECTS[name].tested
+        df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0,
+                                                 param: EFFECTS[name].off[param] + dev},
+                                  t_end=t_end, noise=1e-6, seed=5000 + k)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        df.to_csv(path, index=False)
+    return path
+
+
+def settle_one(path: Path, prior: dict, k: int) -> dict:
+    import eha
+    from eha.explain.api import settle_prior
+
+    start = time.perf_counter()
+    s = settle_prior(eha.load(path), prior, fit="BKL,FDJ", seed=k)
+    return {"record": k, "winner": s.winner, "text": s.text,
+            "hypotheses": [{key: h[key] for key in ("name", "residual_ratio", "fits",
+                                                    "stands", "readings")}
+                           for h in s.hypotheses],
+            "residual_limit": s.residual_limit, "seconds": time.perf_counter() - start}
+
+
+def explain_one(path: Path, prior_path: Path, k: int, truth: str) -> dict:
+    from eha.explain.from_file import explain_file
+
+    start = time.perf_counter()
+    res = explain_file(path, prior=prior_path, fit="BKL,FDJ", seed=k)
+    found = [e for e in res.effects if e not in ("orifice_law", "flapper_dynamics")]
+    rivals = [e["effect"] for e in res.not_excluded]
+    winner = (res.settled or {}).get("winner")
+    explained = res.verdict.startswith("explained")
+    return {"record": k, "settled": winner, "found_after": found, "rivals": rivals,
+            "verdict": res.verdict, "explained": explained,
+            "decisive_and_right": winner == truth and explained and not found and not rivals,
+            "seconds": time.perf_counter() - start}
+
+
+def pair(label: str, args, folder: Path) -> dict:
+    (a, va), (b, vb) = AMBIGUITIES[label]
+    command = folder / f"{a}-{b}" / "design.csv"
+    if not command.exists():
+        return {"skipped": f"no design at {command} (run validation/design.py first)"}
+    prior = prior_of(label)
+    prior_path = folder / f"{a}-{b}" / "prior.json"
+    prior_path.write_text(json.dumps(prior))
+    out = {"command": str(command), "first_record": FIRST[label][0], "truths": {}}
+    for name, dev in ((a, va), (b, vb)):
+        rows = []
+        for k in range(args.records):
+            row = settle_one(record(command, name, dev, k), prior, k)
+            rows.append(row)
+            print(f"{label} truth {name} #{k}: {row['text'][:150]} ({row['seconds']:.0f} s)",
+                  flush=True)
+        loops = []
+        for k in range(args.loop):
+            loops.append(explain_one(record(command, name, dev, k), prior_path, k, name))
+            print(f"  explain --prior #{k}: {loops[-1]['verdict'][:150]}", flush=True)
+        out["truths"][name] = {
+            "at": dev, "records": len(rows),
+            "settled_right": sum(r["winner"] == name for r in rows),
+            "settled_wrong": sum(r["winner"] not in (None, name) for r in rows),
+            "not_settled": sum(r["winner"] is None for r in rows),
+            "rows": rows,
+            **({"explain": {"records": len(loops),
+                            "decisive_and_right": sum(r["decisive_and_right"] for r in loops),
+                            "rows": loops}} if loops else {})}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(ROOT / "results" / "bench-design"),
+                    help="validation/design.py's output folder (its ambiguities/ designs)")
+    ap.add_argument("--records", type=int, default=10, help="HF records per truth and pair")
+    ap.add_argument("--loop", type=int, default=0,
+                    help="of those, how many also get the whole explain with the prior")
+    ap.add_argument("--pairs", default="",
+                    help="only these ambiguities, by folder name (A-B, comma-separated)")
+    ap.add_argument("--json", action="store_true", help="write the result file")
+    args = ap.parse_args()
+    load = os.getloadavg()
+    folder = Path(args.out).resolve() / "ambiguities"
+    start = time.perf_counter()
+    doc = {"what": "the foreign ambiguities settled by a record of their 2-s separating "
+                   "design, the first record as prior (eha.explain.settle)",
+           "records_per_truth": args.records, "pairs": {}}
+    wanted = [p for p in args.pairs.split(",") if p]
+    for label in AMBIGUITIES:
+        (a, _), (b, _) = AMBIGUITIES[label]
+        if wanted and f"{a}-{b}" not in wanted:
+            continue
+        doc["pairs"][label] = pair(label, args, folder)
+    doc["seconds"] = time.perf_counter() - start
+    summary = {label: {t: f"{v['settled_right']}/{v['records']} right, "
+                          f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
+                       for t, v in p.get("truths", {}).items()}
+               for label, p in doc["pairs"].items()}
+    print(json.dumps(summary, indent=1))
+    if args.json:
+        write_result("design_settle", doc, load_start=load)
+
+
+if __name__ == "__main__":
+    main()
