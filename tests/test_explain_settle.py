@@ -70,6 +70,12 @@ def test_the_hypotheses_are_the_found_model_and_each_rival_in_its_place():
     assert hypotheses({**_prior(), "not_excluded": []}) == []
     assert not rivals_of(_prior()["steps"])
     assert hypotheses({**_prior(), "steps": [{"effect": "orifice_law", "params": {}}]}) == []
+    # a damaged prior: one line naming it
+    with pytest.raises(ExplainError, match="`prior`: each rival"):
+        hypotheses({**_prior(), "not_excluded": [{"effect": "offset", "param": "Ofs"}]})
+    with pytest.raises(ExplainError, match="`prior`"):
+        hypotheses({**_prior(), "not_excluded": [{"effect": "offset", "param": "Ofs",
+                                                  "value": "a lot"}]})
 
 
 def test_the_truth_stands_and_a_rival_of_another_size_falls(record_path):
@@ -128,3 +134,24 @@ def test_explain_with_a_prior_that_lists_rivals_starts_from_the_one_that_stands(
     assert res.after.params.FRC == pytest.approx(
         res.settled["hypotheses"][0]["params"]["FRC"])
     assert res.to_json()["settled"]["text"].startswith("settled: external_load")
+    assert res.verdict.startswith("explained") or res.verdict.startswith("partly")
+    assert "the first record's external load, settled here at" in res.verdict
+
+
+def test_a_damaged_prior_is_one_line_and_exit_2(record_path, tmp_path):
+    """``eha explain REC --prior BAD.json`` with a rival lacking its value: one line naming
+    the prior, exit 2, no traceback, nothing written."""
+    from typer.testing import CliRunner
+
+    from eha.cli import app
+
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**_prior(), "not_excluded": [{"effect": "offset",
+                                                             "param": "Ofs"}]}))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["explain", str(record_path), "--prior", str(bad),
+                                   "--out", str(out), "--results", str(tmp_path / "res")])
+    assert res.exit_code == 2, res.output
+    assert "`prior`" in res.output and "Traceback" not in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    assert not out.exists() and not (tmp_path / "res").exists()

@@ -112,13 +112,18 @@ def _first_threshold(prior: Mapping[str, Any], effect: str) -> float:
 def hypotheses(prior: Mapping[str, Any]) -> list[Hypothesis]:
     """The first record's explanations: the found model, and each rival of ``not_excluded``
     in the place of each found effect (empty when the prior lists no rival)."""
-    rivals = [r for r in prior.get("not_excluded") or [] if r.get("effect") in EFFECTS]
-    steps = [s for s in prior.get("steps") or []
-             if s.get("effect") in EFFECTS and s["effect"] not in STRUCTURAL]
-    if not rivals or not steps:
+    try:
+        rivals = [{"effect": r["effect"], "param": str(r["param"]), "value": float(r["value"])}
+                  for r in prior.get("not_excluded") or [] if r.get("effect") in EFFECTS]
+        steps = [s for s in prior.get("steps") or []
+                 if s.get("effect") in EFFECTS and s["effect"] not in STRUCTURAL]
+        found = {s["effect"]: {k: float(v) for k, v in (s.get("params") or {}).items()}
+                 for s in steps}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ExplainError(f"`prior`: each rival of 'not_excluded' needs an effect, a param "
+                           f"and a numeric value, each step numeric params ({exc})") from None
+    if not rivals or not found:
         return []
-    found = {s["effect"]: {k: float(v) for k, v in (s.get("params") or {}).items()}
-             for s in steps}
     names = {*found, *(r["effect"] for r in rivals)}
     thresholds = {n: _first_threshold(prior, n) for n in names}
     out = [Hypothesis(dict(found), thresholds)]

@@ -157,6 +157,19 @@ def _rival(e: dict[str, Any]) -> str:
     return f"a {label(e['effect'])} of {show(param, value)} ({beyond})"
 
 
+def _settled_text(res) -> str:
+    """``the first record's motor offset, settled here at -0.0085 mA`` when a ``--prior``'s
+    rivals were settled on this record (:mod:`eha.explain.settle`; the effect is then in the
+    loop's base, not among its steps), else ``""``."""
+    settled = getattr(res, "settled", None) or {}
+    standing = [h for h in settled.get("hypotheses", []) if h.get("stands")]
+    if settled.get("winner") is None or len(standing) != 1:
+        return ""
+    values = ", ".join(show(r["param"], r["here"]) for r in standing[0]["readings"])
+    names = " + ".join(label(r["effect"]) for r in standing[0]["readings"])
+    return f"the first record's {names}, settled here at {values}"
+
+
 def verdict_of(res) -> Verdict:
     """The verdict of an :class:`eha.explain.results.ExplainResult`."""
     within = not res.beyond_healthy
@@ -164,6 +177,7 @@ def verdict_of(res) -> Verdict:
     unique = not res.not_excluded
     found = _found(res)
     effects = _effects_text(found, res.level)
+    settled = _settled_text(res)
     if not within and res.leads is not None:
         finding = res.leads.describe()
         limit = (res.null or {}).get("residual_limit")
@@ -175,9 +189,11 @@ def verdict_of(res) -> Verdict:
         finding = (f"unexplained residual {1e6 * res.rmse_after:.3g} µm"
                    + (f"; tentative: {effects}" if effects else ""))
     else:
-        what = effects or "nothing beyond the healthy band"
+        what = effects or ("nothing further" if settled else "nothing beyond the healthy band")
         finding = (f"found {what}" + ("" if at_noise or not effects else " (tentative)")
                    + "; " + _residual_text(res, at_noise))
+    if settled:
+        finding = f"{settled}; {finding}"
     return Verdict(at_noise=at_noise, within_healthy_band=within, unique_explanation=unique,
                    finding=finding, rivals=tuple(_rival(e) for e in res.not_excluded),
                    found=tuple(found))
