@@ -152,6 +152,6 @@ def test_a_damaged_prior_is_one_line_and_exit_2(record_path, tmp_path):
     res = CliRunner().invoke(app, ["explain", str(record_path), "--prior", str(bad),
                                    "--out", str(out), "--results", str(tmp_path / "res")])
     assert res.exit_code == 2, res.output
-    assert "`prior`" in res.output and "Traceback" not in res.output
+    assert "--prior" in res.output and "Traceback" not in res.output
     assert len(res.output.strip().splitlines()) == 1
     assert not out.exists() and not (tmp_path / "res").exists()
