@@ -98,6 +98,16 @@ def explain_one(path: Path, prior_path: Path, k: int, truth: str) -> dict:
             "seconds": time.perf_counter() - start}
 
 
+def _kept(path: Path, fresh: bool, run) -> dict:
+    """A record's call kept beside it (``NAME-K.settle.json``, ``NAME-K.explain-prior.json``)
+    and reused by a later run unless ``--fresh``: a run cut short loses one record."""
+    if path.exists() and not fresh:
+        return json.loads(path.read_text())
+    row = run()
+    path.write_text(json.dumps(row, indent=1))
+    return row
+
+
 def pair(label: str, args, folder: Path) -> dict:
     (a, va), (b, vb) = AMBIGUITIES[label]
     command = folder / f"{a}-{b}" / "design.csv"
@@ -110,13 +120,17 @@ def pair(label: str, args, folder: Path) -> dict:
     for name, dev in ((a, va), (b, vb)):
         rows = []
         for k in range(args.records):
-            row = settle_one(record(command, name, dev, k), prior, k)
+            path = record(command, name, dev, k)
+            row = _kept(path.with_suffix(".settle.json"), args.fresh,
+                        lambda: settle_one(path, prior, k))
             rows.append(row)
             print(f"{label} truth {name} #{k}: {row['text'][:150]} ({row['seconds']:.0f} s)",
                   flush=True)
         loops = []
         for k in range(args.loop):
-            loops.append(explain_one(record(command, name, dev, k), prior_path, k, name))
+            path = record(command, name, dev, k)
+            loops.append(_kept(path.with_suffix(".explain-prior.json"), args.fresh,
+                               lambda: explain_one(path, prior_path, k, name)))
             print(f"  explain --prior #{k}: {loops[-1]['verdict'][:150]}", flush=True)
         out["truths"][name] = {
             "at": dev, "records": len(rows),
@@ -139,6 +153,9 @@ def main() -> None:
                     help="of those, how many also get the whole explain with the prior")
     ap.add_argument("--pairs", default="",
                     help="only these ambiguities, by folder name (A-B, comma-separated)")
+    ap.add_argument("--fresh", action="store_true",
+                    help="settle and explain every record again (default: reuse the calls "
+                         "kept beside the records)")
     ap.add_argument("--json", action="store_true", help="write the result file")
     args = ap.parse_args()
     load = os.getloadavg()
