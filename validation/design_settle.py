@@ -127,9 +127,12 @@ def pair(label: str, args, folder: Path) -> dict:
             print(f"{label} truth {name} #{k}: {row['text'][:150]} ({row['seconds']:.0f} s)",
                   flush=True)
         loops = []
-        for k in range(args.loop):
+        for k in range(max(args.loop, args.records)):
             path = record(command, name, dev, k)
-            loops.append(_kept(path.with_suffix(".explain-prior.json"), args.fresh,
+            kept = path.with_suffix(".explain-prior.json")
+            if k >= args.loop and not kept.exists():
+                continue        # beyond --loop: only the explain calls an earlier run kept
+            loops.append(_kept(kept, args.fresh and k < args.loop,
                                lambda: explain_one(path, prior_path, k, name)))
             print(f"  explain --prior #{k}: {loops[-1]['verdict'][:150]}", flush=True)
         out["truths"][name] = {
@@ -150,7 +153,8 @@ def main() -> None:
                     help="validation/design.py's output folder (its ambiguities/ designs)")
     ap.add_argument("--records", type=int, default=10, help="HF records per truth and pair")
     ap.add_argument("--loop", type=int, default=0,
-                    help="of those, how many also get the whole explain with the prior")
+                    help="of those, how many also get the whole explain with the prior "
+                         "(the calls kept beside further records are summarised too)")
     ap.add_argument("--pairs", default="",
                     help="only these ambiguities, by folder name (A-B, comma-separated)")
     ap.add_argument("--fresh", action="store_true",
