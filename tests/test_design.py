@@ -188,6 +188,8 @@ def test_an_undecided_explain_answer_names_the_test_that_decides_it(tmp_path):
     text = " ".join(cap.get().split())
     assert "offset (Ofs -0.009 mA)" in text
     assert f"eha design --faults none --around {tmp_path / 'out.json'}" in text.replace("\n", "")
+    # and how to read that test's record: the first record as prior (eha.explain.settle)
+    assert f"eha explain TEST.csv --prior {tmp_path / 'out.json'}" in text.replace("\n", "")
     # a rival the re-simulations ruled out: named with its figures, no design line
     check = {"record": -0.00605, "without": [-0.00696, 0.00022], "with": [-0.00463, 0.00056],
              "size": 0.00242}

@@ -37,7 +37,8 @@ HOLDOUT = typer.Option(None, "--holdout", help="Fraction of the record held out 
 VALIDATE = typer.Option(None, "--validate", help="Second record used as held-out data "
                         "instead of --holdout.")
 PRIOR = typer.Option(None, "--prior", help="--json of an earlier run: its effects start "
-                     "switched on (e.g. from nominal data).")
+                     "switched on (e.g. from nominal data). When it lists rivals it could not "
+                     "rule out, this record first settles which explanation stands.")
 KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALUE, repeatable "
                      "(a test condition, e.g. a test load FRC=4000).")
 JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
@@ -158,7 +159,8 @@ def _next_test(res, json_out: Optional[Path]) -> None:
                        f"{e.get('value_unit', e['unit'])})" for e in res.not_excluded)
     around = str(json_out) if json_out is not None else "OUT.json (rerun with --json OUT.json)"
     console.print(f"to decide between the model and {rivals}: design the separating "
-                  f"test with: eha design --faults none --around {around}", highlight=False)
+                  f"test with: eha design --faults none --around {around}; then explain its "
+                  f"record with: eha explain TEST.csv --prior {around}", highlight=False)
 
 
 class _progress_bar:
