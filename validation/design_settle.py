@@ -7,7 +7,8 @@ made with either member as the truth at its fitted size (BKL 1e-4, FDJ 800 N, 1 
 seeds 5000+k: the records of ``validation/design.py --loop``, reused when there), and each is
 settled against its first record (:mod:`eha.explain.settle`, the prior restricted to the pair's
 rival: the design was made for that pair). Counted per truth: settled on the truth, settled on
-the other (confidently wrong), not settled. With ``--loop K`` the whole ``eha explain
+the other (confidently wrong), not settled; and, as the control, on ``--healthy`` records
+with neither effect, how many settle at all (each would be a confident wrong answer). With ``--loop K`` the whole ``eha explain
 RECORD --prior FIRST`` runs on the first K records per truth too: the settlement, then the loop
 from the explanation that stands (decisive and right: the truth settled, the loop's verdict
 "explained", nothing further found and no rival left).
@@ -50,18 +51,20 @@ def prior_of(label: str) -> dict:
     return prior
 
 
-def record(command: Path, name: str, dev: float, k: int, t_end: float = 2.0) -> Path:
-    """HF record ``k`` of truth ``name`` (deviation ``dev`` from off) on ``command``: the
-    loop study's (same path, seed and truth), made when missing."""
+def record(command: Path, name: str | None, dev: float, k: int, t_end: float = 2.0) -> Path:
+    """HF record ``k`` of truth ``name`` (deviation ``dev`` from off; None: neither effect,
+    the declared faults alone) on ``command``: the loop study's (same path, seed and truth),
+    made when missing."""
     import eha
     from eha.explain.effects import EFFECTS
 
-    path = command.parent / "loop" / f"{name}-{k}.csv"
+    path = command.parent / "loop" / f"{name or 'healthy'}-{k}.csv"
     if not path.exists():
-        param = EFFECTS[name].tested
-        df = eha.synthetic_record(str(command), {"BKL": 1e-4, "FDJ": 800.0,
-                                                 param: EFFECTS[name].off[param] + dev},
-                                  t_end=t_end, noise=1e-6, seed=5000 + k)
+        truth = {"BKL": 1e-4, "FDJ": 800.0}
+        if name is not None:
+            param = EFFECTS[name].tested
+            truth[param] = EFFECTS[name].off[param] + dev
+        df = eha.synthetic_record(str(command), truth, t_end=t_end, noise=1e-6, seed=5000 + k)
         path.parent.mkdir(parents=True, exist_ok=True)
         df.to_csv(path, index=False)
     return path
@@ -144,6 +147,17 @@ def pair(label: str, args, folder: Path) -> dict:
             **({"explain": {"records": len(loops),
                             "decisive_and_right": sum(r["decisive_and_right"] for r in loops),
                             "rows": loops}} if loops else {})}
+    if args.healthy:
+        # the control: an actuator with neither explanation must settle nothing
+        rows = []
+        for k in range(args.healthy):
+            path = record(command, None, 0.0, k)
+            rows.append(_kept(path.with_suffix(".settle.json"), args.fresh,
+                              lambda: settle_one(path, prior, k)))
+            print(f"{label} healthy #{k}: {rows[-1]['text'][:150]}", flush=True)
+        out["healthy"] = {"records": len(rows),
+                          "settled": sum(r["winner"] is not None for r in rows),
+                          "not_settled": sum(r["winner"] is None for r in rows), "rows": rows}
     return out
 
 
@@ -152,6 +166,9 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "results" / "bench-design"),
                     help="validation/design.py's output folder (its ambiguities/ designs)")
     ap.add_argument("--records", type=int, default=10, help="HF records per truth and pair")
+    ap.add_argument("--healthy", type=int, default=5,
+                    help="records per pair with neither effect (the control: nothing may "
+                         "settle)")
     ap.add_argument("--loop", type=int, default=0,
                     help="of those, how many also get the whole explain with the prior "
                          "(the calls kept beside further records are summarised too)")
@@ -180,6 +197,8 @@ def main() -> None:
     summary = {label: {t: f"{v['settled_right']}/{v['records']} right, "
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
                        for t, v in p.get("truths", {}).items()}
+               | ({"healthy": f"{p['healthy']['settled']}/{p['healthy']['records']} settled"}
+                  if "healthy" in p else {})
                for label, p in doc["pairs"].items()}
     print(json.dumps(summary, indent=1))
     if args.json:
