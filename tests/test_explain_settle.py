@@ -92,7 +92,8 @@ def test_the_truth_stands_and_a_rival_of_another_size_falls(record_path):
     assert not offset_h["stands"] and offset_h["why"]
     for h in s.hypotheses:
         same = all(abs(r["here"] - r["first"]) <= r["tolerance"] for r in h["readings"])
-        assert h["stands"] == (h["residual_ratio"] <= s.residual_limit and same)
+        present = all(r["present"] for r in h["readings"])
+        assert h["stands"] == (h["residual_ratio"] <= s.residual_limit and same and present)
         assert h["fits"] == (h["residual_ratio"] <= s.residual_limit)
     r = load_h["readings"][0]
     assert r["tolerance"] >= SAME_EFFECT_SPREAD * 800.0     # the spread is in it
@@ -107,6 +108,22 @@ def test_a_found_size_the_record_contradicts_settles_nothing(record_path):
     assert not any(h["stands"] for h in s.hypotheses)
     assert s.text.startswith("not settled: this record fits none")
     assert "FRC reads" in s.hypotheses[0]["why"]
+
+
+def test_a_record_that_does_not_show_the_effect_settles_nothing(tmp_path):
+    """A healthy actuator (no load, no offset) against a prior of 30 N of load or 0.002 mA
+    of offset, readings loose enough to match: neither effect is beyond what healthy
+    actuators read here (the canned null's bands: 6 N, 0.002 mA), so nothing stands."""
+    path = tmp_path / "healthy.csv"
+    synthetic_record("chirp_1cm", {"BKL": 1e-4, "FDJ": 800.0}, t_end=1.0, noise=1e-6,
+                     seed=5).to_csv(path, index=False)
+    prior = _prior(load_value=30.0, offset_value=-0.002)
+    prior["null"]["effects"] = {"external_load": {"threshold": 60.0},
+                                "offset": {"threshold": 0.02}}
+    s = settle(_loop(path), prior)
+    assert s.winner is None
+    assert all(any(not r["present"] for r in h["readings"]) for h in s.hypotheses)
+    assert all("not shown here" in h["why"] for h in s.hypotheses)
 
 
 def test_settling_needs_a_null(record_path):

@@ -13,7 +13,13 @@ both hold:
    residual limit, :meth:`eha.explain.null.Null.residual_limit`): it explains this record;
 2. each of its effects reads here what it read on the first record, within the two records'
    healthy thresholds and :data:`SAME_EFFECT_SPREAD` of its size, added in quadrature: it is
-   the same effect at the same size.
+   the same effect at the same size;
+3. each of its effects is beyond the healthy band here (the loop's own test,
+   :meth:`~eha.explain.fitting.Fitting.within_healthy_at`: its reading, or for the supply
+   pressure its footprint, beyond what healthy actuators reach on this command): the record
+   shows it. Without this a healthy record "settles" on an effect whose reading is too loose
+   on this command to contradict the first record's size (a supply-pressure drop of 1.2 MPa
+   read within ±1.8 MPa on the motor-gain design).
 
 The second test is what makes a short designed test decisive where the rival alone is below
 what the test shows. On the load / offset design an offset of -0.009 mA is under the
@@ -217,16 +223,24 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
                     for n in h.effects]
         fits = ratio <= limit
         off = [r for r in readings if not r["same"]]
+        for r in readings:
+            # the loop's own test: beyond what healthy actuators read on this command
+            r["present"] = not loop.within_healthy_at(EFFECTS[r["effect"]], fitted)
+        absent = [r for r in readings if not r["present"]]
         why = "" if fits else f"its best fit leaves {ratio:.2g}x the noise, beyond the " \
                               f"{limit:.2g}x healthy actuators leave"
         if off:
             why = (why + "; " if why else "") + "; ".join(
                 f"{r['param']} reads {r['here']:.4g}{_unit(r)} here against "
                 f"{r['first']:.4g} on the first record (± {r['tolerance']:.2g})" for r in off)
+        if absent:
+            why = (why + "; " if why else "") + "; ".join(
+                f"{r['effect']} reads within what healthy actuators read on this command "
+                f"({r['param']} {r['here']:.4g}{_unit(r)}): not shown here" for r in absent)
         out.hypotheses.append({
             "name": h.name, "rival": h.rival, "replaces": h.replaces,
             "residual_ratio": ratio, "fits": fits, "readings": readings,
-            "stands": fits and not off, "why": why,
+            "stands": fits and not off and not absent, "why": why,
             "params": {p: float(getattr(fitted, p)) for n in h.effects
                        for p in EFFECTS[n].params}})
     standing = [h for h in out.hypotheses if h["stands"]]
