@@ -32,12 +32,12 @@ def _prior(load_value: float = 800.0, offset_value: float = -0.05) -> dict:
                                  "offset": {"threshold": 0.005}}}}
 
 
-def _null() -> Null:
-    """A canned healthy null: small healthy readings of the two effects, residual ratios
-    about 1.25 (a limit near 1.7)."""
+def _null(load_scale: float = 1.0) -> Null:
+    """A canned healthy null: small healthy readings of the two effects (the load's times
+    ``load_scale``), residual ratios about 1.25 (a limit near 1.7)."""
     from eha.models.simulate import MODEL_VERSION
 
-    stats = {"external_load": [3.0, -2.0, 4.0, -1.0, 2.0],
+    stats = {"external_load": [load_scale * v for v in (3.0, -2.0, 4.0, -1.0, 2.0)],
              "offset": [0.001, -0.0008, 0.0005, -0.0012, 0.0009]}
     return Null(source="canned", key="k", statistics=stats,
                 gains={k: [0.0] * 5 for k in stats}, resolution={k: 0.0 for k in stats},
@@ -53,10 +53,10 @@ def record_path(tmp_path_factory):
     return path
 
 
-def _loop(path) -> ResidualLoop:
+def _loop(path, null: Null | None = None) -> ResidualLoop:
     return ResidualLoop(load(path), fit="BKL,FDJ", effects="orifice_law,flapper_dynamics,"
                         "external_load,offset", settings=LoopSettings(pop=8),
-                        pin_structure=True, null=_null())
+                        pin_structure=True, null=null or _null())
 
 
 def test_the_hypotheses_are_the_found_model_and_each_rival_in_its_place():
@@ -124,6 +124,16 @@ def test_a_record_that_does_not_show_the_effect_settles_nothing(tmp_path):
     assert s.winner is None
     assert all(any(not r["present"] for r in h["readings"]) for h in s.hypotheses)
     assert all("not shown here" in h["why"] for h in s.hypotheses)
+
+
+def test_an_effect_read_loosely_is_shown_by_a_record_nothing_else_explains(record_path):
+    """Healthy loads read up to ~1000 N on this (canned) command, so 800 N is within the
+    band; but without an effect the record is far beyond the healthy residual, so the load
+    is shown and stands."""
+    s = settle(_loop(record_path, _null(load_scale=300.0)), _prior())
+    assert s.baseline_ratio > s.residual_limit
+    assert s.winner == "external_load"
+    assert s.hypotheses[0]["readings"][0]["present"]
 
 
 def test_settling_needs_a_null(record_path):

@@ -14,12 +14,14 @@ both hold:
 2. each of its effects reads here what it read on the first record, within the two records'
    healthy thresholds and :data:`SAME_EFFECT_SPREAD` of its size, added in quadrature: it is
    the same effect at the same size;
-3. each of its effects is beyond the healthy band here (the loop's own test,
-   :meth:`~eha.explain.fitting.Fitting.within_healthy_at`: its reading, or for the supply
-   pressure its footprint, beyond what healthy actuators reach on this command): the record
-   shows it. Without this a healthy record "settles" on an effect whose reading is too loose
-   on this command to contradict the first record's size (a supply-pressure drop of 1.2 MPa
-   read within ±1.8 MPa on the motor-gain design).
+3. the record shows it: each of its effects is beyond the healthy band here (the loop's own
+   test, :meth:`~eha.explain.fitting.Fitting.within_healthy_at`: its reading, or for the
+   supply pressure its footprint, beyond what healthy actuators reach on this command), or
+   the record is beyond the healthy residual without any effect (the declared faults and the
+   structure alone). Without this a healthy record "settles" on an effect whose reading is
+   too loose on this command to contradict the first record's size (a supply-pressure drop
+   of 1.2 MPa read within ±1.8 MPa on the motor-gain design); with the band alone, a record
+   of that drop, which no motor gain fits (26x the noise), would not.
 
 The second test is what makes a short designed test decisive where the rival alone is below
 what the test shows. On the load / offset design an offset of -0.009 mA is under the
@@ -78,6 +80,8 @@ class Settlement:
     steps: list[dict[str, Any]] | None = None
     #: the residual-to-noise ratio healthy actuators reach on this command
     residual_limit: float = math.nan
+    #: the residual-to-noise ratio of the declared faults and the structure alone
+    baseline_ratio: float = math.nan
 
     @property
     def text(self) -> str:
@@ -98,6 +102,7 @@ class Settlement:
 
     def to_json(self) -> dict[str, Any]:
         return {"winner": self.winner, "text": self.text, "residual_limit": self.residual_limit,
+                "baseline_ratio": self.baseline_ratio,
                 "hypotheses": [dict(h) for h in self.hypotheses]}
 
 
@@ -214,7 +219,10 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
     loop.baseline()
     limit = loop.residual_limit
     reference = noise_reference(loop.noise, loop.data.xu)
-    out = Settlement(residual_limit=float(limit))
+    # without any effect (the declared faults and the structure): beyond the healthy residual,
+    # the record needs an effect, whatever the effects' own readings say
+    base_ratio = float(loop.cur.rmse_all / reference) if reference > 0 else math.inf
+    out = Settlement(residual_limit=float(limit), baseline_ratio=base_ratio)
     for h in hyps:
         fitted = _fit(loop, h)
         ev = loop.evaluate([fitted])[0]
@@ -224,8 +232,10 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
         fits = ratio <= limit
         off = [r for r in readings if not r["same"]]
         for r in readings:
-            # the loop's own test: beyond what healthy actuators read on this command
-            r["present"] = not loop.within_healthy_at(EFFECTS[r["effect"]], fitted)
+            # shown: the loop's own test (beyond what healthy actuators read on this
+            # command), or a record that no model without an effect explains
+            r["present"] = (base_ratio > limit
+                            or not loop.within_healthy_at(EFFECTS[r["effect"]], fitted))
         absent = [r for r in readings if not r["present"]]
         why = "" if fits else f"its best fit leaves {ratio:.2g}x the noise, beyond the " \
                               f"{limit:.2g}x healthy actuators leave"
