@@ -193,7 +193,14 @@ def main() -> None:
         if wanted and f"{a}-{b}" not in wanted:
             continue
         doc["pairs"][label] = pair(label, args, folder)
-    doc["seconds"] = time.perf_counter() - start
+    doc["seconds"] = time.perf_counter() - start     # this run's (kept calls are reused)
+    doc["seconds_of_the_calls"] = {
+        "settle": sum(r["seconds"] for p in doc["pairs"].values()
+                      for v in [*p.get("truths", {}).values(), p.get("healthy", {})]
+                      for r in v.get("rows", [])),
+        "explain": sum(r["seconds"] for p in doc["pairs"].values()
+                       for v in p.get("truths", {}).values()
+                       for r in v.get("explain", {}).get("rows", []))}
     summary = {label: {t: f"{v['settled_right']}/{v['records']} right, "
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
                        for t, v in p.get("truths", {}).items()}
