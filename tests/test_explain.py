@@ -91,9 +91,12 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
                         "undetectable", "not_excluded", "rivals_ruled_out",
+                        # a --prior's rivals settled on this record (none here)
+                        "settled",
                         # the verdict's kind, facts and finding (issue 42)
                         "verdict_kind", "at_noise", "within_healthy_band",
                         "unique_explanation", "found", "units"}
+    assert doc["settled"] is None
     assert all(e["shift"] > e["detectable"] > e["threshold"] for e in doc["not_excluded"])
     assert doc["unexplained"] or not doc["not_excluded"]
     assert doc["null"]["records"] == 5 and doc["null"]["alpha"] == 0.05
