@@ -30,8 +30,12 @@ def read_prior(path: str | Path) -> list:
     ExplainError
         Not a readable JSON file, or not of that shape (one line naming ``--prior``).
     """
-    from eha.explain.settings import ExplainError
+    return read_prior_json(path)["steps"]
 
+
+def read_prior_json(path: str | Path) -> dict:
+    """The whole ``--prior`` object, checked as :func:`read_prior` says (a bare list of steps
+    becomes ``{"steps": [...]}``)."""
     try:
         prior = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
@@ -45,14 +49,6 @@ def read_prior(path: str | Path) -> list:
         raise ExplainError(f"`prior` {path}: expected the `json_out` of an earlier eha explain (key "
                            f"'steps', a list of {{effect, params}}); found "
                            f"{keys or 'an empty object'}")
-    return steps
-
-
-def read_prior_json(path: str | Path) -> dict:
-    """The whole ``--prior`` object, checked as :func:`read_prior` does (a bare list of steps
-    becomes ``{"steps": [...]}``)."""
-    steps = read_prior(path)
-    prior = json.loads(Path(path).read_text(encoding="utf-8"))
     return prior if isinstance(prior, dict) else {"steps": steps}
 
 

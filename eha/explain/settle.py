@@ -7,7 +7,7 @@ as prior*: the same actuator holds one of the explanations, at about the size th
 record read. Each explanation is a hypothesis (the found effects as found; each rival in the
 place of a found effect), fitted on the second record by least squares (the declared faults
 and the hypothesis' effects free, the structure at its physical values), and it stands when
-both hold:
+all three hold:
 
 1. its best fit (least squares on the whole record) leaves no more than healthy actuators
    leave on this command (the null's residual limit,
@@ -22,7 +22,7 @@ both hold:
    structure alone). Without this a healthy record "settles" on an effect whose reading is
    too loose on this command to contradict the first record's size (a supply-pressure drop
    of 1.2 MPa read within ±1.8 MPa on the motor-gain design); with the band alone, a record
-   of that drop, which no motor gain fits (26x the noise), would not.
+   of that drop, which no motor gain fits (14x the noise), would not.
 
 The second test is what makes a short designed test decisive where the rival alone is below
 what the test shows. On the load / offset design an offset of -0.009 mA is under the
@@ -152,9 +152,8 @@ def _reading(loop, effect: str, fitted, first: Mapping[str, float],
     """The effect's tested parameter here against the first record's (:data:`SAME_EFFECT_SPREAD`)."""
     e = EFFECTS[effect]
     param = e.tested
-    key = e.shift_key or effect
-    here_threshold = float((loop.thresholds or {}).get(key, 0.0)) if (
-        not e.footprint or e.shift_key) else 0.0
+    # the threshold of the parameter's shift (a footprint effect's second statistic)
+    here_threshold = float((loop.thresholds or {}).get(e.shift_key or effect, 0.0))
     value_first = float(first.get(param, getattr(loop.current, param)))
     off = e.off[param]
     tolerance = math.sqrt(first_threshold ** 2 + here_threshold ** 2
