@@ -400,3 +400,51 @@ def test_a_preset_record_takes_the_shipped_null_and_another_noise_calibrates(mon
         0.0, 3e-6, len(data.xu)), command_hold=data.info["command_hold"])
     with pytest.raises(TypeError):             # it would calibrate: the patched pool is None
         healthy_null(noisy, None, None, None, LoopSettings(), (), "simulate")
+
+
+def test_the_fleet_carries_the_effects_its_base_starts_with():
+    """A loop that starts from a prior's effects (a settled motor gain of 0.0085 N/mA, a
+    sensor bias) asks what an actuator *with* them leaves: each healthy actuator of its null
+    carries them on the HF, its own scatter kept relative to them (GM within 1 %, as the
+    nominal 0.01 is); the structure (the flapper's SNF, which the HF has of its own) and a
+    declared fault are not carried; the cache key tells such a null from one without them;
+    the re-simulations of the interval replicates and the rival check carry them too."""
+    from eha.explain import DEFAULT_FAULT_BOUNDS
+    from eha.explain.effects import EFFECTS
+    from eha.explain.healthy_fleet import fleet_actuator
+    from eha.explain.replicates import started_effects
+    from eha.identification.healthy import draw_actuator
+    from eha.identification.measured import from_arrays
+    from eha.models.params import LFParams
+
+    t = np.arange(201) * 1e-3
+    com = 1e-3 * np.sin(2 * np.pi * 3 * t)
+    data = from_arrays(t, com, com + np.random.default_rng(0).normal(0, 1e-6, t.size))
+    base = LFParams()
+    for name, values in (("motor_gain", {"GM": 0.0085}), ("sensor_bias", {"sensor_bias": 2e-5}),
+                         ("flapper_dynamics", None)):
+        base = EFFECTS[name].switch_on(base, values)
+    base = base.replace(FDJ=650.0)
+    started = started_effects(base, DEFAULT_FAULT_BOUNDS)
+    assert started == {"GM": 0.0085, "sensor_bias": 2e-5}
+    assert started_effects(LFParams(), DEFAULT_FAULT_BOUNDS) == {}
+    _, hf = fleet_actuator(data, DEFAULT_FAULT_BOUNDS, 11, base)
+    drawn = draw_actuator(11)["GM"] / 0.01
+    assert hf["GM"] == pytest.approx(0.0085 * drawn, rel=1e-12) and abs(drawn - 1) <= 0.01
+    assert hf["sensor_bias"] == 2e-5 and "SNF" not in hf and hf["FDJ"] != 650.0
+    _, plain = fleet_actuator(data, DEFAULT_FAULT_BOUNDS, 11, LFParams())
+    assert plain["GM"] == pytest.approx(0.01 * drawn) and "sensor_bias" not in plain
+    from eha.explain import LoopSettings
+    names, s = covered_effects(["leakage", "offset"]), LoopSettings()
+    assert (null_key(data, DEFAULT_FAULT_BOUNDS, names, s, 12, 0, base)
+            != null_key(data, DEFAULT_FAULT_BOUNDS, names, s, 12, 0,
+                        base.replace(GM=0.0086)))
+    assert (null_key(data, DEFAULT_FAULT_BOUNDS, names, s, 12, 0)
+            == null_key(data, DEFAULT_FAULT_BOUNDS, names, s, 12, 0, None))
+    from eha.explain import ResidualLoop
+    from eha.explain.replicates import model_overrides
+
+    loop = ResidualLoop(data, fit="BKL,FDJ", base=base)
+    carried = model_overrides(loop, loop.base.replace(BKL=2e-4), ["BKL"])
+    assert carried["GM"] == 0.0085 and carried["sensor_bias"] == 2e-5
+    assert carried["BKL"] == 2e-4 and "FDJ" not in carried and "SNF" not in carried

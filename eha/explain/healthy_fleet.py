@@ -72,12 +72,22 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     return shifts, gains, float(ratio)
 
 
+def fleet_actuator(data, fit: Mapping[str, tuple[float, float]], seed: int, base=None,
+                   fixed: Sequence[str] = ()):
+    """The healthy fleet's actuator ``seed`` on ``data``'s command: its record and HF
+    parameters (:func:`~eha.explain.simulated_record.healthy_record`). A known test condition
+    (``fixed``: a test load) is every actuator's; so are the effects ``base`` starts with (a
+    prior's, a settled one: :func:`~eha.explain.replicates.started_effects`), each scattered as
+    the part it changes is. The null is then what an actuator *with* those effects leaves, the
+    question the loop asks when it starts from them: without them on the HF a settled motor
+    gain left a healthy actuator's own leakage of 1e-13 m^3/(s*Pa) to be found beside it."""
+    from eha.explain.replicates import hf_overrides, started_effects
+
+    known = hf_overrides(base, fixed) if base is not None and fixed else {}
+    return healthy_record(data, fit, seed, known, started=started_effects(base, fit))
+
+
 def _fleet_member(args):
     data, fit, effects, settings, seed, base, fixed, fdi_options = args
-    known = {}
-    if base is not None and fixed:
-        from eha.models.params import SPECS
-        # a known test condition (a test load) is the healthy fleet's too
-        known = {n: getattr(base, n) for n in fixed if "hf" in SPECS[n].models}
-    record, _ = healthy_record(data, fit, seed, known)
+    record, _ = fleet_actuator(data, fit, seed, base, fixed)
     return healthy_statistics(record, fit, effects, settings, base, fixed, fdi_options)

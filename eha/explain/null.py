@@ -58,6 +58,7 @@ from eha.explain.settings import (DECLARED_DRAW, DEFAULT_ACTUATORS, DETECTION_PO
 from eha.errors import InputError
 from eha.models import use_one_numba_thread
 from eha.explain.healthy_fleet import _fleet_member, healthy_statistics
+from eha.explain.replicates import started_effects
 from eha.explain.simulated_record import noise_class
 from eha.identification.healthy import command_signature, tail_threshold
 
@@ -238,6 +239,10 @@ def null_key(data, fit: Mapping[str, tuple[float, float]], effects: Sequence[str
         "base": _changed(base), "fixed": sorted(fixed),
         "fdi_options": dict(sorted((fdi_options or {}).items())),
     }
+    started = started_effects(base, fit)
+    if started:
+        # the fleet carries the effects the base starts with (healthy_fleet.fleet_actuator)
+        parts["started"] = started
     blob = json.dumps(parts, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:20]
 

@@ -11,8 +11,8 @@ high (0 of 5), each on its separating design; beside 200 N of friction, or witho
 within 1-2 % and covered (``validation/design_reading.py``).
 
 The replicate term measures that at the record's own operating point: the final model's
-declared faults and the added effects' parameters, the ones the HF has, are put on the
-nominal HF, which is simulated again on the record's command ``replicates`` times with fresh
+declared faults, the effects it started with (a prior's: :func:`started_effects`) and the
+added effects' parameters, the ones the HF has, are put on the nominal HF, which is simulated again on the record's command ``replicates`` times with fresh
 dither and noise (seeds :data:`REPLICATE_SEED` + 1000 x the loop's seed + k), and the final
 model is refitted to each by least squares from the final estimate. The root mean square of
 each parameter's deviation -- bias and scatter together -- is added in quadrature to its
@@ -40,6 +40,30 @@ def hf_overrides(params, names) -> dict[str, float]:
 
     return {n: float(getattr(params, n)) for n in names if n in SPECS
             and "hf" in SPECS[n].models}
+
+
+def started_effects(base, fitted=()) -> dict[str, float]:
+    """The HF parameters of the effects ``base`` starts with (a prior's, a settled one): every
+    effect on in ``base`` but the model's known structure (the HF has its own), at its LF
+    value, less the ``fitted`` parameters. Every re-simulation of a loop on ``base`` carries
+    them, as the healthy fleet behind its null does (:mod:`eha.explain.healthy_fleet`): the
+    question the loop asks is what such an actuator leaves, not what a healthy one does."""
+    from eha.explain.effects import EFFECTS
+    from eha.explain.settings import STRUCTURAL
+
+    if base is None:
+        return {}
+    names = [p for e in EFFECTS.values() if e.name not in STRUCTURAL and e.is_on(base)
+             for p in e.params]
+    return hf_overrides(base, [n for n in names if n not in fitted])
+
+
+def model_overrides(loop, params, names) -> dict[str, float]:
+    """What a re-simulation of ``loop``'s model ``params`` puts on the HF: the known test
+    conditions, the effects the loop started with (:func:`started_effects`) and ``names`` at
+    their values in ``params`` (those the HF has)."""
+    return {**hf_overrides(loop.base, loop.fixed), **started_effects(loop.base, loop.bounds),
+            **hf_overrides(params, names)}
 
 
 def resimulated(loop, overrides: Mapping[str, float], seed: int):
@@ -84,7 +108,7 @@ def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
     seeds : list of int
         The seeds of the re-simulations.
     """
-    overrides = {**hf_overrides(loop.base, loop.fixed), **hf_overrides(params, hf_names)}
+    overrides = model_overrides(loop, params, hf_names)
     seeds = [REPLICATE_SEED + 1000 * seed + k for k in range(replicates)]
     deviations: dict[str, list[float]] = {n: [] for n in bounds}
     for s in seeds:

@@ -9,7 +9,8 @@ healthy actuator reaches and below the 0.014 mA at which the design tells the tw
 5 such records named the offset as a rival.
 
 The check here is a parametric bootstrap on the HF, relative to the found model. The final
-model (its declared faults and added effects, the parameters the HF has) is simulated
+model (its declared faults, the effects it started with and those it added, the parameters
+the HF has) is simulated
 ``rival_replicates`` times with fresh dither and noise, *without* the rival, and as many times
 *with* it at the size the exclusion check's bar stands for (the healthy null's detectable
 size, on the side the record points to); on each re-simulation the rival is refitted beside
@@ -40,7 +41,7 @@ from typing import Sequence
 
 import numpy as np
 
-from eha.explain.replicates import hf_overrides, resimulated
+from eha.explain.replicates import hf_overrides, model_overrides, resimulated
 from eha.models.params import ParameterError
 
 #: First seed of the re-simulations of the rival check (dither and noise).
@@ -112,7 +113,7 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         return {}
     added = [p for st in loop.steps for p in EFFECTS[st.effect].params]
     names = [*loop.bounds, *added]
-    without = {**hf_overrides(loop.base, loop.fixed), **hf_overrides(loop.current, names)}
+    without = model_overrides(loop, loop.current, names)
     first = RIVAL_SEED + 1000 * loop.settings.seed
     seeds = [first + k for k in range(n)], [first + 500 + k for k in range(n)]
     phase, loop.phase = loop.phase, f"rival check: {effect.name}, {2 * n} HF re-simulations"

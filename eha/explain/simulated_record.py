@@ -13,6 +13,7 @@ import numpy as np
 
 from eha.explain.settings import DECLARED_DRAW, NOISE_CLASSES_PER_DECADE
 from eha.identification.healthy import draw_actuator
+from eha.models.params import SPECS
 
 
 def noise_class(noise: float) -> float:
@@ -38,21 +39,29 @@ def _declared_values(rng: np.random.Generator, fit: Mapping[str, tuple[float, fl
 
 
 def healthy_record(data, fit: Mapping[str, tuple[float, float]], seed: int,
-                   known: Mapping[str, float] | None = None, scatter: bool = True):
+                   known: Mapping[str, float] | None = None, scatter: bool = True,
+                   started: Mapping[str, float] | None = None):
     """One simulated healthy record like ``data``: same command (its original samples and
     hold), sampling, length and noise (position; P12 when ``data`` has it).
 
     The actuator is :func:`eha.identification.healthy.draw_actuator` ``(seed)`` with the declared
     faults drawn by :data:`DECLARED_DRAW` (``default_rng([seed, 3])``); ``seed`` is also the HF's
     dither seed and, with ``[seed, 4]``, the noise's. ``known`` HF parameters (test conditions) are
-    set on every actuator. Without ``scatter`` the actuator is the nominal HF (the loop's
-    interval replicates, :mod:`eha.explain.replicates`).
+    set on every actuator. ``started`` HF parameters (the effects a prior says the actuator
+    has) replace their nominal values, each actuator's manufacturing scatter kept relative to
+    them (a motor gain read at 0.0085 N/mA is drawn within 1 % of it, as 0.01 is). Without
+    ``scatter`` the actuator is the nominal HF (the loop's interval replicates,
+    :mod:`eha.explain.replicates`).
     """
     from eha.identification.measured import from_arrays, noise_level
     from eha.models.simulate import simulate
 
     overrides = draw_actuator(seed) if scatter else {}
     overrides.update(_declared_values(np.random.default_rng([seed, 3]), fit))
+    for name, value in (started or {}).items():
+        nominal = SPECS[name].nominal
+        overrides[name] = (value * overrides[name] / nominal if name in overrides and nominal
+                           else float(value))
     overrides.update(known or {})
     t_cmd, com = data.command.samples
     trace = simulate("hf", data.command, overrides, t_end=float(t_cmd[-1] - t_cmd[0]),
