@@ -318,6 +318,10 @@ def simulated_null(data, fit: Mapping[str, tuple[float, float]], effects: Sequen
         Healthy actuators; actuator ``k`` has seed ``1000 * seed + k``.
     workers : int, optional
         Processes (default: the machine's cores, at most 2 per calibration).
+    base, fixed : optional
+        The loop's starting LF parameters and its known ones: every actuator carries the
+        known test conditions and the effects ``base`` starts with (a prior's:
+        :func:`eha.explain.healthy_fleet.fleet_actuator`), and is fitted from ``base``.
     """
     from eha.models.simulate import MODEL_VERSION
 
