@@ -203,6 +203,9 @@ def main() -> None:
                        for r in v.get("explain", {}).get("rows", []))}
     summary = {label: {t: f"{v['settled_right']}/{v['records']} right, "
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
+                          + (f"; explain --prior decisive and right "
+                             f"{v['explain']['decisive_and_right']}/{v['explain']['records']}"
+                             if "explain" in v else "")
                        for t, v in p.get("truths", {}).items()}
                | ({"healthy": f"{p['healthy']['settled']}/{p['healthy']['records']} settled"}
                   if "healthy" in p else {})
