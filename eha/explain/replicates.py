@@ -12,8 +12,9 @@ within 1-2 % and covered (``validation/design_reading.py``).
 
 The replicate term measures that at the record's own operating point: the final model's
 declared faults, the effects it started with (a prior's: :func:`started_effects`) and the
-added effects' parameters, the ones the HF has, are put on the nominal HF, which is simulated again on the record's command ``replicates`` times with fresh
-dither and noise (seeds :data:`REPLICATE_SEED` + 1000 x the loop's seed + k), and the final
+added effects' parameters, the ones the HF has, are put on the nominal HF, which is simulated
+again on the record's command ``replicates`` times with fresh dither and noise (seeds
+:data:`REPLICATE_SEED` + 1000 x the loop's seed + k), and the final
 model is refitted to each by least squares from the final estimate. The root mean square of
 each parameter's deviation -- bias and scatter together -- is added in quadrature to its
 interval's floors. It is our HF's model form at this point, not a real actuator's: on an

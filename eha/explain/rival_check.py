@@ -10,13 +10,12 @@ healthy actuator reaches and below the 0.014 mA at which the design tells the tw
 
 The check here is a parametric bootstrap on the HF, relative to the found model. The final
 model (its declared faults, the effects it started with and those it added, the parameters
-the HF has) is simulated
-``rival_replicates`` times with fresh dither and noise, *without* the rival, and as many times
-*with* it at the size the exclusion check's bar stands for (the healthy null's detectable
-size, on the side the record points to); on each re-simulation the rival is refitted beside
-the final model exactly as on the record. The readings without it are what the found model's
-model form makes the rival read; the healthy null's threshold is how far a healthy actuator's
-own scatter moves that reading. The rival is ruled out when all three hold:
+the HF has) is simulated ``rival_replicates`` times with fresh dither and noise, *without* the
+rival, and as many times *with* it at the size the exclusion check's bar stands for (the
+healthy null's detectable size, on the side the record points to); on each re-simulation the
+rival is refitted beside the final model exactly as on the record. The readings without it
+are what the found model's model form makes the rival read; the healthy null's threshold is
+how far a healthy actuator's own scatter moves that reading. The rival is ruled out when all three hold:
 
 1. the record's reading is within the threshold of the mean reading without it;
 2. those readings scatter within the threshold themselves (a Student-t band at the loop's
