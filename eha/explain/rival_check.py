@@ -15,7 +15,8 @@ rival, and as many times *with* it at the size the exclusion check's bar stands 
 healthy null's detectable size, on the side the record points to); on each re-simulation the
 rival is refitted beside the final model exactly as on the record. The readings without it
 are what the found model's model form makes the rival read; the healthy null's threshold is
-how far a healthy actuator's own scatter moves that reading. The rival is ruled out when all three hold:
+how far a healthy actuator's own scatter moves that reading. The rival is ruled out when all
+three hold:
 
 1. the record's reading is within the threshold of the mean reading without it;
 2. those readings scatter within the threshold themselves (a Student-t band at the loop's
