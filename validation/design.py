@@ -83,6 +83,22 @@ def seven_faults(args) -> tuple[dict, Path]:
     return out, folder
 
 
+def campaign_time(results: Path, campaign: str) -> dict:
+    """What a verification campaign's assessments cost when they ran, read from its store:
+    this run's ``seconds`` are a summary's when the campaign runner had them all already.
+
+    Returns the runs done, their seconds in the workers (summed) and the span from the first
+    start to the last finish [s] (a campaign resumed later spans the pause too)."""
+    from eha.campaigns.query import query
+
+    row = query(results, "SELECT count(*) AS n, sum(elapsed_s) AS s, min(started_at) AS a, "
+                         "max(finished_at) AS b FROM runs WHERE campaign = ? AND status = 'done'",
+                [campaign]).iloc[0]
+    span = (row["b"] - row["a"]).total_seconds() if int(row["n"]) else 0.0
+    return {"runs": int(row["n"]), "worker_seconds": float(row["s"] or 0.0),
+            "span_seconds": float(span)}
+
+
 def verification(args, folder: Path, name: str = "design") -> dict:
     """The verification campaign of ``folder/NAME.json`` (its design on the full healthy
     fleet, then the ``--library`` commands on the same seeds and levels)."""
@@ -97,14 +113,17 @@ def verification(args, folder: Path, name: str = "design") -> dict:
                calibration=args.calibration, per_level=args.per_level,
                results=runs, workers=args.workers, progress=False)
     v.save(folder / f"{name}-verification.json")
-    out = {"seconds": time.perf_counter() - start, **v.to_dict(), "table": v.markdown()}
+    out = {"seconds": time.perf_counter() - start, **v.to_dict(), "table": v.markdown(),
+           "campaign_time": campaign_time(runs, v.to_dict()["campaign"])}
     library = [c for c in args.library.split(",") if c]
     if library:
         lib = verify(folder / f"{name}.json", library=library, healthy=args.library_healthy,
                      calibration=args.calibration, per_level=args.library_per_level,
                      results=Path(f"{runs}-lib"), workers=args.workers,
                      progress=False, with_design=False)
-        out["library"] = {**lib.to_dict(), "table": lib.markdown()}
+        out["library"] = {**lib.to_dict(), "table": lib.markdown(),
+                          "campaign_time": campaign_time(Path(f"{runs}-lib"),
+                                                         lib.to_dict()["campaign"])}
         out["seconds"] = time.perf_counter() - start
     return out
 

@@ -146,6 +146,10 @@ def pair(label: str, args, folder: Path) -> dict:
             "rows": rows,
             **({"explain": {"records": len(loops),
                             "decisive_and_right": sum(r["decisive_and_right"] for r in loops),
+                            # the truth alone named (settled, nothing further, no rival), the
+                            # residual's verdict aside: "partly explained" counts here
+                            "truth_alone": sum(r["settled"] == name and not r["found_after"]
+                                               and not r["rivals"] for r in loops),
                             "rows": loops}} if loops else {})}
     if args.healthy:
         # the control: an actuator with neither explanation must settle nothing
@@ -205,6 +209,7 @@ def main() -> None:
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
                           + (f"; explain --prior decisive and right "
                              f"{v['explain']['decisive_and_right']}/{v['explain']['records']}"
+                             f" (the truth alone {v['explain']['truth_alone']})"
                              if "explain" in v else "")
                        for t, v in p.get("truths", {}).items()}
                | ({"healthy": f"{p['healthy']['settled']}/{p['healthy']['records']} settled"}
