@@ -210,6 +210,19 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     assert loop.statistic_at(supply, base.replace(PSR=psr)) == pytest.approx(5e-6, rel=1e-3)
     # a parameter-shift effect is tested as before
     assert loop.statistic_at(EFFECTS["external_load"], base.replace(FRC=-30.0)) == 30.0
+    # a rival past its bar by the PSR shift alone is reported by that shift, in Pa: its
+    # footprint (below the footprint's bar) is not what the record cannot rule out, and the
+    # verdict said "a footprint of 5.25 µm, beyond the 19.9 µm" (a foreign-ambiguity record)
+    from eha.explain.verdict import _rival
+    loop2.thresholds = both.thresholds(0.05)
+    by_shift = loop2.rival_entry(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6})
+    assert by_shift["unit"] == "Pa" and by_shift["shift"] == pytest.approx(4e6)
+    assert by_shift["shift"] > by_shift["detectable"] == 1e6 > by_shift["threshold"] > 0
+    assert by_shift["value"] == 1.6e7 and by_shift["value_unit"] == "Pa"
+    assert "beyond the 1 MPa change this command shows" in _rival(by_shift), _rival(by_shift)
+    by_footprint = loop2.rival_entry(supply, drop.replace(XSSK=0.0), {"supply_pressure": 1e-6})
+    assert by_footprint["unit"] == "m" and by_footprint["shift"] > 1e-5
+    assert "a footprint of" in _rival(by_footprint)
 
 
 def test_undetectable_lines_name_each_effect_not_added():

@@ -74,15 +74,8 @@ class FinalCheck:
                 free.update(EFFECTS[st.effect].bounds)
             local, _ = self.local_test(start, free, members)
             size = detectable.get(effect.name, math.inf)
-            statistic = self.statistic_at(effect, local)
             if self.past(effect, local, detectable):
-                param = effect.tested
-                entry = {"effect": effect.name, "param": param,
-                         "value": float(getattr(local, param)),
-                         "value_unit": effect.units()[param],
-                         "shift": float(statistic),
-                         "threshold": float(self.thresholds[effect.name]),
-                         "detectable": float(size), "unit": effect.statistic_unit}
+                entry = self.rival_entry(effect, local, detectable)
                 # the found model's own model form may be what pulls the rival's fit
                 check = check_rival(self, effect, members, local, size,
                                     float(self.thresholds[effect.name]))
@@ -90,6 +83,27 @@ class FinalCheck:
                     entry["rival_check"] = check
                 (self.rivals_ruled_out if check.get("ruled_out") else out).append(entry)
         return out
+
+    def rival_entry(self, effect: Effect, local: LFParams,
+                    detectable: Mapping[str, float]) -> dict:
+        """The ``not_excluded`` entry of ``effect`` as fitted in ``local``, past its bar in
+        ``detectable``: its value, and the statistic that is past (``shift``), with that
+        statistic's ``threshold``, ``detectable`` size and ``unit``. An effect tested by its
+        footprint that passes by its parameter's shift alone (a supply of 10.4 MPa whose
+        footprint, 5 µm, is below the 20 µm this command shows) is reported by that shift, in
+        the parameter's unit: its footprint is not what the record cannot rule out."""
+        param = effect.tested
+        statistic = float(self.statistic_at(effect, local))
+        size = float(detectable.get(effect.name, math.inf))
+        threshold = float(self.thresholds[effect.name])
+        unit = effect.statistic_unit
+        key = effect.shift_key
+        if key is not None and statistic <= size and key in detectable:
+            statistic, size = float(effect.shift_at(local)), float(detectable[key])
+            threshold, unit = float(self.thresholds.get(key, math.nan)), effect.units()[param]
+        return {"effect": effect.name, "param": param, "value": float(getattr(local, param)),
+                "value_unit": effect.units()[param], "shift": statistic,
+                "threshold": threshold, "detectable": size, "unit": unit}
 
     def prune(self) -> list[Dismissal]:
         """(f) After the last round: is each effect added still needed now that the later
@@ -149,8 +163,8 @@ class FinalCheck:
         (``current`` against ``without``, the model with them off), each is switched on at its
         probe value and everything in ``free`` refitted with it (pattern search; when the model
         leaves the record unexplained, the :data:`GLOBAL_RIVALS` best so refitted also by the
-        loop's GA warm-started at the probe and from scratch, the best fit kept); effects that need structure the model lacks
-        (:attr:`Effect.requires`) are not tried. With ``pairs`` each two of those rivals are
+        loop's GA warm-started at the probe and from scratch, the best fit kept); effects that
+        need structure the model lacks (:attr:`Effect.requires`) are not tried. With ``pairs`` each two of those rivals are
         also tried together (a one-for-two). Returns the replacing effects and their fit;
         None when every refit leaves an effect within its healthy band."""
         in_model = {st.effect for st in self.steps}
