@@ -164,8 +164,8 @@ class FinalCheck:
         probe value and everything in ``free`` refitted with it (pattern search; when the model
         leaves the record unexplained, the :data:`GLOBAL_RIVALS` best so refitted also by the
         loop's GA warm-started at the probe and from scratch, the best fit kept); effects that
-        need structure the model lacks (:attr:`Effect.requires`) are not tried. With ``pairs`` each two of those rivals are
-        also tried together (a one-for-two). Returns the replacing effects and their fit;
+        need structure the model lacks (:attr:`Effect.requires`) are not tried. With ``pairs``
+        each two of those rivals are also tried together (a one-for-two). Returns the replacing effects and their fit;
         None when every refit leaves an effect within its healthy band."""
         in_model = {st.effect for st in self.steps}
         others = [o for o in self.remaining()
