@@ -165,8 +165,9 @@ class FinalCheck:
         leaves the record unexplained, the :data:`GLOBAL_RIVALS` best so refitted also by the
         loop's GA warm-started at the probe and from scratch, the best fit kept); effects that
         need structure the model lacks (:attr:`Effect.requires`) are not tried. With ``pairs``
-        each two of those rivals are also tried together (a one-for-two). Returns the replacing effects and their fit;
-        None when every refit leaves an effect within its healthy band."""
+        each two of those rivals are also tried together (a one-for-two). Returns the replacing
+        effects and their fit; None when every refit leaves an effect within its healthy
+        band."""
         in_model = {st.effect for st in self.steps}
         others = [o for o in self.remaining()
                   if o.name not in in_model and o.name not in STRUCTURAL and o.params
