@@ -215,7 +215,8 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     # verdict said "a footprint of 5.25 µm, beyond the 19.9 µm" (a foreign-ambiguity record)
     from eha.explain.verdict import _rival
     loop2.thresholds = both.thresholds(0.05)
-    by_shift = loop2.rival_entry(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6})
+    bars = {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6}
+    by_shift = loop2.rival_entry(supply, drop, bars)
     assert by_shift["unit"] == "Pa" and by_shift["shift"] == pytest.approx(4e6)
     assert by_shift["shift"] > by_shift["detectable"] == 1e6 > by_shift["threshold"] > 0
     assert by_shift["value"] == 1.6e7 and by_shift["value_unit"] == "Pa"

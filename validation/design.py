@@ -113,17 +113,19 @@ def verification(args, folder: Path, name: str = "design") -> dict:
                calibration=args.calibration, per_level=args.per_level,
                results=runs, workers=args.workers, progress=False)
     v.save(folder / f"{name}-verification.json")
-    out = {"seconds": time.perf_counter() - start, **v.to_dict(), "table": v.markdown(),
-           "campaign_time": campaign_time(runs, v.to_dict()["campaign"])}
+    doc = v.to_dict()
+    out = {"seconds": time.perf_counter() - start, **doc, "table": v.markdown(),
+           "campaign_time": campaign_time(runs, doc["campaign"])}
     library = [c for c in args.library.split(",") if c]
     if library:
         lib = verify(folder / f"{name}.json", library=library, healthy=args.library_healthy,
                      calibration=args.calibration, per_level=args.library_per_level,
                      results=Path(f"{runs}-lib"), workers=args.workers,
                      progress=False, with_design=False)
-        out["library"] = {**lib.to_dict(), "table": lib.markdown(),
+        lib_doc = lib.to_dict()
+        out["library"] = {**lib_doc, "table": lib.markdown(),
                           "campaign_time": campaign_time(Path(f"{runs}-lib"),
-                                                         lib.to_dict()["campaign"])}
+                                                         lib_doc["campaign"])}
         out["seconds"] = time.perf_counter() - start
     return out
 
