@@ -418,3 +418,38 @@ def test_query_takes_parameters_instead_of_quoted_sql(tmp_path):
     got = query(results, "SELECT count(*) AS n FROM campaigns WHERE name = $n",
                 {"n": "x' OR '1'='1"})
     assert got["n"][0] == 0
+
+
+_CREATE = """
+import sys
+from eha.campaigns.store import connect
+import duckdb
+print('ready', flush=True)
+sys.stdin.readline()
+connect(sys.argv[1]).close()
+"""
+
+
+@pytest.mark.skipif(not POSIX, reason="POSIX signals")
+def test_a_kill_the_moment_the_database_appears_leaves_a_usable_store(tmp_path):
+    # CI once killed a campaign right as eha.duckdb appeared: DuckDB had created the file but
+    # not yet written its header, and every later run stopped on "not a valid DuckDB database
+    # file". Killed on sight of the file (36 of 40 left an empty file before the fix), the
+    # database must appear whole or not at all, and the next writer must find no leftovers.
+    from eha.campaigns.store import connect
+
+    for k in range(12):
+        results = tmp_path / f"r{k}"
+        proc = subprocess.Popen([sys.executable, "-c", _CREATE, str(results)],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert proc.stdout.readline() == "ready\n"
+        proc.stdin.write("go\n")
+        proc.stdin.flush()
+        db = results / "eha.duckdb"
+        while not db.exists() and proc.poll() is None:
+            pass
+        proc.kill()
+        proc.wait(timeout=30)
+        assert db.stat().st_size > 0
+        connect(results).close()  # raised DatabaseDamaged before
+        assert sorted(p.name for p in results.iterdir()) == ["eha.duckdb"]

@@ -22,6 +22,7 @@ Trace files are :mod:`eha.campaigns.traces`'.
 from __future__ import annotations
 
 import json
+import os
 import re
 from contextlib import contextmanager
 from pathlib import Path
@@ -127,6 +128,7 @@ def connect(results: str | Path, read_only: bool = False):
     try:
         if not read_only:
             path.parent.mkdir(parents=True, exist_ok=True)
+            _create_whole(path, duckdb)
         con = duckdb.connect(str(path), read_only=read_only)
     except OSError as exc:
         raise StoreError(f"{path.parent}: cannot create the results folder "
@@ -155,6 +157,45 @@ def connect(results: str | Path, read_only: bool = False):
             raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
                              "move it away and run the campaign again") from None
     return con
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _create_whole(path: Path, duckdb) -> None:
+    """Create a missing database under a temporary name and link it into place.
+
+    DuckDB creates a new file before it writes its header: a process killed in between leaves an
+    empty file that DuckDB then refuses ("not a valid DuckDB database file"), and every later
+    run would stop on it. Made under a temporary name (``creating-<pid>`` after the file's) and
+    hard-linked (which never replaces a file another process made first), the database appears
+    whole or not at all; the temporary files of processes no longer alive are removed here.
+    """
+    for stale in path.parent.glob(f"{path.name}.creating-*"):
+        pid = stale.name.rsplit("-", 1)[-1].split(".")[0]
+        if pid.isdigit() and (int(pid) == os.getpid() or not _pid_alive(int(pid))):
+            stale.unlink(missing_ok=True)
+    if path.exists():
+        return
+    tmp = path.with_name(f"{path.name}.creating-{os.getpid()}")
+    duckdb.connect(str(tmp)).close()
+    try:
+        os.link(tmp, path)
+    except FileExistsError:  # another process created it meanwhile: theirs is kept
+        pass
+    except OSError:  # a file system without hard links
+        if not path.exists():
+            os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        tmp.with_name(tmp.name + ".wal").unlink(missing_ok=True)
 
 
 def _create(con, entry: Table) -> None:
