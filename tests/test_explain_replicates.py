@@ -126,6 +126,20 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     assert _readings(loop, rival, [rival], model, [seed]) == \
         _readings(loop, rival, [rival], model, [seed])
     assert check_rival(loop, rival, [rival], local, math.inf, 0.005) == {}  # no size, no check
+    # a supply pressure, tested by its footprint, is checked on its PSR when listed by that
+    # shift (it was never checked: two bias/offset records kept it as a rival)
+    supply = EFFECTS["supply_pressure"]
+    start, free = loop.candidate_start([supply])
+    for st in loop.steps:
+        free.update(EFFECTS[st.effect].bounds)
+    local, _ = loop.local_test(start, free, [supply])
+    assert check_rival(loop, supply, [supply], local, 2e6, 5e5) == {}   # its footprint: not
+    check = check_rival(loop, supply, [supply], local, 2e6, 5e5, by_shift=True)
+    assert check["record"] == local.PSR and abs(check["size"]) == 2e6
+    (m0, _), (m1, _) = check["without"], check["with"]
+    assert 1e7 < m0 < 3e7 and (m1 - m0) * check["size"] > 0      # Pa, moved by the injection
+    assert check["ruled_out"] == (abs(check["record"] - m0) <= 5e5 and check["spread"] <= 5e5
+                                  and abs(m1 - m0) >= MIN_SHOWN * 2e6)
 
 
 def test_an_injected_rival_lies_within_its_bounds():

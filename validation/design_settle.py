@@ -30,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
-from _results import ROOT, write_result  # noqa: E402
+from _results import ROOT, _git, write_result  # noqa: E402
 
 from design import AMBIGUITIES  # noqa: E402
 
@@ -98,7 +98,8 @@ def explain_one(path: Path, prior_path: Path, k: int, truth: str) -> dict:
     return {"record": k, "settled": winner, "found_after": found, "rivals": rivals,
             "verdict": res.verdict, "explained": explained,
             "decisive_and_right": winner == truth and explained and not found and not rivals,
-            "seconds": time.perf_counter() - start}
+            "seconds": time.perf_counter() - start,
+            "commit": _git("rev-parse", "HEAD")}   # a kept call outlives the code that made it
 
 
 def _kept(path: Path, fresh: bool, run) -> dict:

@@ -73,12 +73,13 @@ class FinalCheck:
             for st in self.steps:           # every parameter of the final model free
                 free.update(EFFECTS[st.effect].bounds)
             local, _ = self.local_test(start, free, members)
-            size = detectable.get(effect.name, math.inf)
             if self.past(effect, local, detectable):
                 entry = self.rival_entry(effect, local, detectable)
-                # the found model's own model form may be what pulls the rival's fit
-                check = check_rival(self, effect, members, local, size,
-                                    float(self.thresholds[effect.name]))
+                # the found model's own model form may be what pulls the rival's fit; one
+                # listed by its parameter's shift is checked on that shift's bar
+                by_shift = effect.footprint and entry["unit"] != effect.statistic_unit
+                check = check_rival(self, effect, members, local, entry["detectable"],
+                                    entry["threshold"], by_shift)
                 if check:
                     entry["rival_check"] = check
                 (self.rivals_ruled_out if check.get("ruled_out") else out).append(entry)

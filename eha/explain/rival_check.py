@@ -27,7 +27,9 @@ three hold:
 Where the pair trades (the rival can stand in for the found effect) the readings without it
 scatter widely or the injected rival is absorbed, and the rival stays: the check never turns an
 undecidable pair into a confident answer. An effect tested by its footprint (the supply
-pressure) is not re-checked.
+pressure) is re-checked only when it is listed by its parameter's shift alone (its footprint
+within its bar): on that parameter, with the shift's threshold and detectable size; a footprint
+past its bar is not re-checked.
 
 Measured on the external load's separating design (an 800 N load, the offset as the rival):
 the record reads -0.0060 mA, the load alone -0.0070 ± 0.0002 mA on the HF, an offset of
@@ -50,10 +52,10 @@ RIVAL_SEED = 880_000
 MIN_SHOWN = 0.5
 
 
-def reading(effect, params) -> float:
+def reading(effect, params, by_shift: bool = False) -> float:
     """What the check compares: the rival's tested parameter (signed); nan for an effect
-    tested by its footprint, which the check does not re-check."""
-    if effect.footprint:
+    tested by its footprint, unless it is checked ``by_shift`` (its parameter's)."""
+    if effect.footprint and not by_shift:
         return math.nan
     return float(getattr(params, effect.tested))
 
@@ -70,7 +72,7 @@ def _side(effect, preferred: float, size: float) -> float | None:
     return None
 
 
-def _readings(loop, effect, members, overrides, seeds) -> list[float]:
+def _readings(loop, effect, members, overrides, seeds, by_shift: bool = False) -> list[float]:
     """The rival's reading on re-simulations of ``overrides`` (one per seed), refitted beside
     the final model as :meth:`~eha.explain.final_check.FinalCheck.not_excluded` does."""
     from eha.explain.effects import EFFECTS
@@ -84,15 +86,17 @@ def _readings(loop, effect, members, overrides, seeds) -> list[float]:
         for st in again.steps:
             free.update(EFFECTS[st.effect].bounds)
         local, _ = again.local_test(start, free, members)
-        out.append(reading(effect, local))
+        out.append(reading(effect, local, by_shift))
     return out
 
 
 def check_rival(loop, effect, members: Sequence, local, detectable: float,
-                threshold: float) -> dict:
+                threshold: float, by_shift: bool = False) -> dict:
     """The rival check of ``effect`` (fitted beside the final model in ``local``, with the
     ``members`` it needs; ``detectable`` and ``threshold``: the healthy null's detectable size
-    and threshold of its statistic, its parameter's unit); see the module docstring.
+    and threshold of its statistic, its parameter's unit; ``by_shift``: an effect tested by
+    its footprint, listed by its parameter's shift and checked on it); see the module
+    docstring.
 
     Returns
     -------
@@ -101,14 +105,14 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         readings, the parameter's unit), ``size`` (the rival put on the HF), ``threshold``,
         ``spread`` (the Student-t half-width of the readings without it), ``ruled_out`` and
         ``seeds`` (first and last); empty when ``rival_replicates`` is 0, the effect is
-        tested by its footprint or the sizes are not finite.
+        tested by its footprint (and not ``by_shift``) or the sizes are not finite.
     """
     from scipy.stats import t as student
 
     from eha.explain.effects import EFFECTS
 
     n = loop.settings.rival_replicates
-    if not n or effect.footprint or not (math.isfinite(detectable)
+    if not n or (effect.footprint and not by_shift) or not (math.isfinite(detectable)
                                          and math.isfinite(threshold)):
         return {}
     added = [p for st in loop.steps for p in EFFECTS[st.effect].params]
@@ -119,8 +123,8 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
     phase, loop.phase = loop.phase, f"rival check: {effect.name}, {2 * n} HF re-simulations"
     loop.progress(loop.phase)
     try:
-        r0 = _readings(loop, effect, members, without, seeds[0])
-        record = reading(effect, local)
+        r0 = _readings(loop, effect, members, without, seeds[0], by_shift)
+        record = reading(effect, local, by_shift)
         m0, s0 = float(np.mean(r0)), float(np.std(r0, ddof=1))
         side = _side(effect, 1.0 if record >= m0 else -1.0, detectable)
         if side is None:
@@ -128,7 +132,7 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         rival = {**hf_overrides(local, [p for m in members for p in m.params]),
                  effect.tested: effect.off[effect.tested] + side * detectable}
         r1 = _readings(loop, effect, members, {**without, **hf_overrides(
-            local.replace(**rival), list(rival))}, seeds[1])
+            local.replace(**rival), list(rival))}, seeds[1], by_shift)
     except (ParameterError, FloatingPointError, ValueError):
         return {}       # a re-simulation the HF refuses decides nothing: the rival stays
     finally:
