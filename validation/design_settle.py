@@ -98,6 +98,8 @@ def explain_one(path: Path, prior_path: Path, k: int, truth: str) -> dict:
     return {"record": k, "settled": winner, "found_after": found, "rivals": rivals,
             "verdict": res.verdict, "explained": explained,
             "decisive_and_right": winner == truth and explained and not found and not rivals,
+            # each rival with its figures (and its rival check's: why it stayed)
+            "not_excluded": [dict(e) for e in res.not_excluded],
             "seconds": time.perf_counter() - start,
             "commit": _git("rev-parse", "HEAD")}   # a kept call outlives the code that made it
 
