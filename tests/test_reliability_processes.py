@@ -453,3 +453,40 @@ def test_a_kill_the_moment_the_database_appears_leaves_a_usable_store(tmp_path):
         assert db.stat().st_size > 0
         connect(results).close()  # raised DatabaseDamaged before
         assert sorted(p.name for p in results.iterdir()) == ["eha.duckdb"]
+
+
+_RACE = """
+import os, sys, time
+from eha.campaigns.store import StoreError, connect
+go = float(sys.argv[2])
+while time.time() < go:
+    pass
+try:
+    connect(sys.argv[1]).close()
+    print('opened')
+except StoreError as exc:
+    print('refused:', exc)
+"""
+
+
+@pytest.mark.skipif(not POSIX, reason="hard links")
+def test_writers_creating_the_database_at_once_share_one_whole_file(tmp_path):
+    # Four writers start together on a folder without a database: each that finds none makes
+    # its own temporary and links it into place; only the first link succeeds (in ad-hoc runs
+    # up to three links failed on the file already there), and every writer opens the one
+    # file (or is told another process holds it). None sees a damaged file or leaves one.
+    results = tmp_path / "r"
+    go = time.time() + 3.0
+    procs = [subprocess.Popen([sys.executable, "-c", _RACE, str(results), str(go)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(4)]
+    outs = [p.communicate(timeout=60) for p in procs]
+    assert all(p.returncode == 0 for p in procs), outs
+    lines = [out.strip() for out, _ in outs]
+    assert all(line == "opened" or "is locked by another process" in line
+               for line in lines), lines
+    assert "opened" in lines
+    from eha.campaigns.store import connect
+
+    connect(results).close()
+    assert sorted(p.name for p in results.iterdir()) == ["eha.duckdb"]
