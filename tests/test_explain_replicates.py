@@ -60,6 +60,30 @@ def test_the_replicate_spread_is_reproducible_and_finite(tmp_path):
     assert first["Kaer"] > 0.01 * loop.current.Kaer
 
 
+def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(tmp_path):
+    """model_level refits the final model to the same HF re-simulations as the replicate term
+    (none simulated again: the refits are shared) and reads their residual-to-noise ratios:
+    the right model at 1 µm of noise leaves 0.9-1.5x; the record is within the one-sided
+    prediction bound (mean + t s sqrt(1 + 1/n)) at its mean, not above it."""
+    from scipy.stats import t as student
+
+    from eha.explain.replicates import model_level
+
+    loop, bounds = _fitted(tmp_path)
+    names = [*loop.bounds, "Kaer"]
+    replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
+    cached = dict(loop._replicate_refits)
+    own = model_level(loop, bounds, names, record_ratio=1.0)
+    assert loop._replicate_refits == cached            # nothing simulated again
+    assert len(own["ratios"]) == 3 and all(0.9 < r < 1.5 for r in own["ratios"])
+    mean, std = own["mean"], own["std"]
+    assert own["bound"] == pytest.approx(
+        mean + student.ppf(1 - loop.settings.alpha, 2) * std * math.sqrt(1 + 1 / 3))
+    assert model_level(loop, bounds, names, mean)["within"] is True
+    assert model_level(loop, bounds, names, own["bound"] + 0.01)["within"] is False
+    assert own["seeds"] == [770000, 770002]
+
+
 def test_the_term_widens_the_floors_and_says_so(tmp_path):
     """with_replicates adds the spread in quadrature to each parameter's absolute floor and
     names the seeds; at 0 replicates the terms are unchanged and nothing is noted."""

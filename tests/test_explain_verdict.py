@@ -63,6 +63,26 @@ def test_above_the_noise_within_the_healthy_band_is_partly_explained():
     assert all(s["tentative"] for s in doc["steps"])
 
 
+@pytest.mark.parametrize("within", [True, False])
+def test_above_the_noise_the_found_models_own_level_says_what_the_rest_is(within):
+    """With what the found model leaves on HF re-simulations of itself (``model_level``), a
+    record above the noise says whether the rest is within that (the LF's own model form) or
+    more; the kind stays "partly explained" and the figures go to the JSON."""
+    from dataclasses import replace
+
+    own = {"record": 1.35, "ratios": [1.2, 1.3, 1.25], "mean": 1.25, "std": 0.05,
+           "bound": 1.4 if within else 1.3, "within": within, "seeds": [770000, 770002]}
+    r = replace(result(1.35e-6, unexplained=True, beyond=False), model_level=own)
+    assert r.verdict.startswith("partly explained: found nothing beyond the healthy band; "
+                                "residual 1.35 µm (1.4× noise), above the noise (1 µm)")
+    assert ("the found model, simulated again on the HF, leaves 1.25 ± 0.05× "
+            f"(3 re-simulations, up to {own['bound']:.2f}×)") in r.verdict
+    assert r.verdict.endswith("the rest is within the model's own model form" if within
+                              else "more than that: an effect that small may be missing")
+    doc = r.to_json()
+    assert doc["verdict_kind"] == "partly explained" and doc["model_level"] == own
+
+
 def test_beyond_the_healthy_band_the_leads_speak():
     r = result(8.0e-6, unexplained=True, beyond=True)
     assert r.verdict.startswith("unexplained residual 8 µm (8× noise)")

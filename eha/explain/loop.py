@@ -323,6 +323,11 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                 c.__dict__.pop("_evaluation", None)
         bounds, notes, level, flagged = self.final_intervals()
         data, s = self.data, self.settings
+        model_level = {}
+        if not flagged and not self.at_noise_level() and s.interval_replicates:
+            # above the noise, within the healthy band: what does the found model itself
+            # leave on the HF? (eha.explain.replicates.model_level)
+            model_level = self.model_level()
         settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, **self.fdi_options}
         facts = RunFacts(
             n_fit=self.n_fit, candidates=[e.name for e in self.pool],
@@ -339,10 +344,25 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
             unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
             beyond_healthy=flagged, not_excluded=self.rivals,
-            rivals_ruled_out=self.rivals_ruled_out,
+            rivals_ruled_out=self.rivals_ruled_out, model_level=model_level,
             interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
             null=self.null_summary())
+
+    def model_level(self) -> dict:
+        """:func:`eha.explain.replicates.model_level` of the final model, on the re-simulations
+        of its intervals' replicate term (the same fitted parameters and HF values)."""
+        from eha.explain.replicates import model_level
+        from eha.identification.intervals import noise_reference
+
+        final_bounds = dict(self.bounds)
+        for step in self.steps:
+            final_bounds.update(EFFECTS[step.effect].bounds)
+        added = [st.effect for st in self.steps
+                 if st.effect not in STRUCTURAL and EFFECTS[st.effect].params]
+        names = [*self.bounds, *(p for e in added for p in EFFECTS[e].params)]
+        ratio = self.cur.rmse_all / noise_reference(self.noise, self.data.xu)
+        return model_level(self, final_bounds, names, ratio)
 
     def null_summary(self) -> dict | None:
         """The null's summary at ``alpha`` (:meth:`eha.explain.null.Null.summary`), with, for

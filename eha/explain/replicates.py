@@ -109,16 +109,9 @@ def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
     seeds : list of int
         The seeds of the re-simulations.
     """
-    overrides = model_overrides(loop, params, hf_names)
     seeds = [REPLICATE_SEED + 1000 * seed + k for k in range(replicates)]
     deviations: dict[str, list[float]] = {n: [] for n in bounds}
-    for s in seeds:
-        try:
-            again = resimulated(loop, overrides, s)
-        except (ParameterError, FloatingPointError, ValueError):
-            continue        # a model the HF refuses (a value beyond its range): no replicate
-        refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
-                            whole=True)
+    for refit, _ in _refits(loop, params, bounds, hf_names, seeds):
         values = {n: float(getattr(refit, n)) - float(getattr(params, n)) for n in bounds}
         if all(math.isfinite(v) for v in values.values()):
             for n, v in values.items():
@@ -126,6 +119,64 @@ def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
     if min((len(v) for v in deviations.values()), default=0) < 2:
         return {}, seeds
     return {n: float(np.sqrt(np.mean(np.square(v)))) for n, v in deviations.items()}, seeds
+
+
+def _refits(loop, params, bounds: Mapping[str, tuple[float, float]], hf_names,
+            seeds: list[int]) -> list[tuple]:
+    """``(refit, residual-to-noise ratio)`` of ``params`` refitted by least squares on the whole
+    of each HF re-simulation of it (one per seed; none where the HF refuses the model). Kept on
+    ``loop``: the intervals' replicate term and :func:`model_level` share them."""
+    from eha.identification.intervals import noise_reference
+
+    key = (tuple(sorted(bounds)), tuple(sorted(hf_names)), tuple(seeds),
+           tuple(float(getattr(params, n)) for n in sorted({*bounds, *hf_names})))
+    cache = loop.__dict__.setdefault("_replicate_refits", {})
+    if key in cache:
+        return cache[key]
+    overrides = model_overrides(loop, params, hf_names)
+    out = []
+    for s in seeds:
+        try:
+            again = resimulated(loop, overrides, s)
+        except (ParameterError, FloatingPointError, ValueError):
+            continue        # a model the HF refuses (a value beyond its range): no replicate
+        refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
+                            whole=True)
+        ev = again.evaluate([refit])[0]
+        out.append((refit, ev.rmse_all / noise_reference(again.noise, again.data.xu)))
+    cache[key] = out
+    return out
+
+
+def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
+                record_ratio: float) -> dict:
+    """What the final model leaves on the HF simulated again with it: its residual-to-noise
+    ratio over ``interval_replicates`` least-squares refits (the replicate term's
+    re-simulations), their mean, standard deviation and one-sided prediction bound at the
+    loop's ``alpha`` (Student t, ``mean + t s sqrt(1 + 1/n)``), beside the record's own
+    ``record_ratio``. A record above the noise but within that bound leaves what an actuator
+    with exactly the found model leaves: the LF's model form at this point, not a missing
+    effect (our HF's model form, not a real actuator's). Empty with fewer than two refits."""
+    from scipy.stats import t as student
+
+    n = loop.settings.interval_replicates
+    seeds = [REPLICATE_SEED + 1000 * loop.settings.seed + k for k in range(n)]
+    phase, loop.phase = loop.phase, f"residual: {n} HF re-simulations of the final model"
+    loop.progress(loop.phase)
+    try:
+        ratios = [r for _, r in _refits(loop, loop.current, bounds, hf_names, seeds)
+                  if math.isfinite(r)]
+    finally:
+        loop.phase = phase
+    if len(ratios) < 2:
+        return {}
+    mean, std = float(np.mean(ratios)), float(np.std(ratios, ddof=1))
+    k = len(ratios)
+    bound = mean + float(student.ppf(1.0 - loop.settings.alpha, k - 1)) * std * math.sqrt(
+        1.0 + 1.0 / k)
+    return {"record": float(record_ratio), "ratios": ratios, "mean": mean, "std": std,
+            "bound": bound, "within": bool(record_ratio <= bound),
+            "seeds": [seeds[0], seeds[-1]]}
 
 
 def with_replicates(loop, terms: Mapping, bounds: Mapping[str, tuple[float, float]],

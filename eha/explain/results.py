@@ -197,6 +197,9 @@ class ExplainResult:
     #: rivals the exclusion check listed that the rival check ruled out
     #: (:func:`eha.explain.rival_check.check_rival`), with its figures
     rivals_ruled_out: list[dict[str, Any]] = field(default_factory=list)
+    #: for a record above the noise within the healthy band, what the found model leaves on
+    #: HF re-simulations of itself (:func:`eha.explain.replicates.model_level`); else empty
+    model_level: dict[str, Any] = field(default_factory=dict)
     #: with a ``--prior`` that lists rivals: which of the first record's explanations this
     #: record leaves standing (:meth:`eha.explain.settle.Settlement.to_json`), else None
     settled: dict[str, Any] | None = None
@@ -366,6 +369,7 @@ class ExplainResult:
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
             "rivals_ruled_out": [dict(e) for e in self.rivals_ruled_out],
+            "model_level": dict(self.model_level),
             "settled": self.settled,
             **self.verdict_facts.to_json(),
             "units": self.units(),

@@ -142,8 +142,17 @@ def _residual_text(res, at_noise: bool) -> str:
     limit = (res.null or {}).get("residual_limit")
     band = (f"within what healthy actuators leave on this command (up to {limit:.2g}×)"
             if limit is not None else "below the flag ratio")
-    return (f"{head}, above the noise ({noise:.3g} µm) but {band}: an effect that small may "
-            f"be missing")
+    own = getattr(res, "model_level", None) or {}
+    if not own:
+        return (f"{head}, above the noise ({noise:.3g} µm) but {band}: an effect that small "
+                f"may be missing")
+    # what the found model itself leaves on the HF decides what the rest is
+    level = (f"the found model, simulated again on the HF, leaves {own['mean']:.2f} ± "
+             f"{own['std']:.2f}× ({len(own['ratios'])} re-simulations, up to "
+             f"{own['bound']:.2f}×)")
+    rest = ("the rest is within the model's own model form" if own["within"] else
+            "more than that: an effect that small may be missing")
+    return f"{head}, above the noise ({noise:.3g} µm) but {band}; {level}: {rest}"
 
 
 def _rival(e: dict[str, Any]) -> str:
