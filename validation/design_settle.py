@@ -155,6 +155,12 @@ def pair(label: str, args, folder: Path) -> dict:
                             # residual's verdict aside: "partly explained" counts here
                             "truth_alone": sum(r["settled"] == name and not r["found_after"]
                                                and not r["rivals"] for r in loops),
+                            # of those, explained, or above the noise by no more than the
+                            # found model itself leaves on the HF (its model_level)
+                            "truth_alone_at_model_level": sum(
+                                r["settled"] == name and not r["found_after"]
+                                and not r["rivals"] and (r["explained"] or r.get(
+                                    "model_level", {}).get("within", False)) for r in loops),
                             "rows": loops}} if loops else {})}
     if args.healthy:
         # the control: an actuator with neither explanation must settle nothing
@@ -214,7 +220,9 @@ def main() -> None:
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
                           + (f"; explain --prior decisive and right "
                              f"{v['explain']['decisive_and_right']}/{v['explain']['records']}"
-                             f" (the truth alone {v['explain']['truth_alone']})"
+                             f" (the truth alone {v['explain']['truth_alone']}, at the "
+                             f"noise or the model's own level "
+                             f"{v['explain']['truth_alone_at_model_level']})"
                              if "explain" in v else "")
                        for t, v in p.get("truths", {}).items()}
                | ({"healthy": f"{p['healthy']['settled']}/{p['healthy']['records']} settled"}
