@@ -81,6 +81,10 @@ def test_above_the_noise_the_found_models_own_level_says_what_the_rest_is(within
                               else "more than that: an effect that small may be missing")
     doc = r.to_json()
     assert doc["verdict_kind"] == "partly explained" and doc["model_level"] == own
+    # re-simulations that scatter up to the healthy band's limit (3x here) decide nothing
+    wide = replace(r, model_level={**own, "std": 1.8, "bound": 6.4})
+    assert wide.verdict.endswith("no sharper than the healthy band: it does not say whether "
+                                 "an effect is missing")
 
 
 def test_beyond_the_healthy_band_the_leads_speak():

@@ -150,8 +150,13 @@ def _residual_text(res, at_noise: bool) -> str:
     level = (f"the found model, simulated again on the HF, leaves {own['mean']:.2f} ± "
              f"{own['std']:.2f}× ({len(own['ratios'])} re-simulations, up to "
              f"{own['bound']:.2f}×)")
-    rest = ("the rest is within the model's own model form" if own["within"] else
-            "more than that: an effect that small may be missing")
+    if limit is not None and own["bound"] >= limit:
+        # re-simulations that scatter as widely as healthy actuators do decide nothing
+        rest = "no sharper than the healthy band: it does not say whether an effect is missing"
+    elif own["within"]:
+        rest = "the rest is within the model's own model form"
+    else:
+        rest = "more than that: an effect that small may be missing"
     return f"{head}, above the noise ({noise:.3g} µm) but {band}; {level}: {rest}"
 
 
