@@ -176,3 +176,27 @@ def test_an_injected_rival_lies_within_its_bounds():
     assert _side(viscous, -1.0, 2192.0) == 1.0
     assert _side(offset, -1.0, 0.007) == -1.0 and _side(offset, 1.0, 0.007) == 1.0
     assert _side(viscous, 1.0, 1e9) is None
+
+
+@pytest.mark.slow
+def test_a_record_above_the_noise_carries_the_found_models_own_level(tmp_path):
+    """Through the loop: a healthy HF record with the stop rule's factor at 0.8 ends above
+    the noise within the healthy band; its result carries model_level (one ratio per
+    replicate, the record's own ratio) and the verdict says what the found model leaves."""
+    from eha.explain import explain
+    from eha.identification.intervals import noise_reference
+
+    path = tmp_path / "healthy.csv"
+    synthetic_record("chirp_1cm", {"BKL": 1e-4, "FDJ": 800.0}, t_end=0.5, noise=1e-6,
+                     seed=4).to_csv(path, index=False)
+    data = load(path)
+    res = explain(data, fit="BKL,FDJ", pop=12, candidates=4, max_gen=20, stall=5, seed=0,
+                  null_actuators=5, interval_replicates=3, rival_replicates=2,
+                  noise_factor=0.8)
+    assert res.unexplained and not res.beyond_healthy, res.verdict
+    own = res.model_level
+    assert len(own["ratios"]) == 3 and own["seeds"] == [770000, 770002]
+    assert own["record"] == pytest.approx(
+        res.rmse_after / noise_reference(res.noise_rmse, data.xu))
+    assert "the found model, simulated again on the HF, leaves" in res.verdict
+    assert res.to_json()["model_level"] == own
