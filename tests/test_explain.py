@@ -93,6 +93,8 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "undetectable", "not_excluded", "rivals_ruled_out",
                         # a --prior's rivals settled on this record (none here)
                         "settled",
+                        # above the noise: what the found model itself leaves on the HF
+                        "model_level",
                         # the verdict's kind, facts and finding (issue 42)
                         "verdict_kind", "at_noise", "within_healthy_band",
                         "unique_explanation", "found", "units"}
