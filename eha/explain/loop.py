@@ -355,14 +355,20 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         from eha.explain.replicates import model_level
         from eha.identification.intervals import noise_reference
 
+        final_bounds, added = self.final_model()
+        names = [*self.bounds, *(p for e in added for p in EFFECTS[e].params)]
+        ratio = self.cur.rmse_all / noise_reference(self.noise, self.data.xu)
+        return model_level(self, final_bounds, names, ratio)
+
+    def final_model(self) -> tuple[dict[str, tuple[float, float]], list[str]]:
+        """The final model's fitted parameters with their bounds (the faults and every step's
+        effect) and the effects the loop added that are not the structure."""
         final_bounds = dict(self.bounds)
         for step in self.steps:
             final_bounds.update(EFFECTS[step.effect].bounds)
         added = [st.effect for st in self.steps
                  if st.effect not in STRUCTURAL and EFFECTS[st.effect].params]
-        names = [*self.bounds, *(p for e in added for p in EFFECTS[e].params)]
-        ratio = self.cur.rmse_all / noise_reference(self.noise, self.data.xu)
-        return model_level(self, final_bounds, names, ratio)
+        return final_bounds, added
 
     def null_summary(self) -> dict | None:
         """The null's summary at ``alpha`` (:meth:`eha.explain.null.Null.summary`), with, for
@@ -396,16 +402,12 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         from eha.identification.intervals import MODEL_FORM, loop_terms
         from eha.explain.replicates import with_replicates
 
-        final_bounds = dict(self.bounds)
-        for step in self.steps:
-            final_bounds.update(EFFECTS[step.effect].bounds)
+        final_bounds, added = self.final_model()
         data = self.data
         # a model the loop built carries its model-form floor (the LF with the right effects
         # is still not the actuator); a model to which nothing was added keeps its base's
         form = model_form_of(self.current)
         terms = loop_terms(MODEL_FORM.get(form, {}), list(final_bounds)) if self.steps else None
-        added = [st.effect for st in self.steps
-                 if st.effect not in STRUCTURAL and EFFECTS[st.effect].params]
         replicated = None
         if terms is not None and added:
             # how far the reading moves on the HF simulated again (eha.explain.replicates)
