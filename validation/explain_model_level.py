@@ -103,7 +103,7 @@ def run(args) -> list[dict]:
                    "beyond_healthy": bool(result.beyond_healthy),
                    "shown": bool(getattr(result, "model_level_shown", False)),
                    "model_level": level, "more": bool(level) and not level["within"],
-                   "verdict": result.verdict(), "seconds": seconds}
+                   "verdict": result.verdict, "seconds": seconds}
             rows.append(row)
             fig = (f"record {level['record']:.2f}x, refits {level['mean']:.2f} ± "
                    f"{level['std']:.2f}x, bound {level['bound']:.2f}x" if level else "no level")

@@ -30,7 +30,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from eha.explain.effects import EFFECTS
 from eha.explain.settings import STRUCTURAL
 from eha.models.units import show, show_interval
 
