@@ -87,6 +87,24 @@ def test_above_the_noise_the_found_models_own_level_says_what_the_rest_is(within
                                  "an effect is missing")
 
 
+def test_the_record_refitted_from_more_starts_is_what_the_level_compares():
+    """When the record refitted from the re-simulations' spread of starts reaches lower than
+    the loop's own fit (a nearby minimum of the same model), the clause says so and compares
+    that level with the bound."""
+    from dataclasses import replace
+
+    own = {"record": 1.68, "record_loop": 1.87, "restarts": [1.75, 1.68, float("nan")],
+           "ratios": [1.65, 1.45, 1.62], "mean": 1.57, "std": 0.11, "bound": 1.84,
+           "within": True, "seeds": [770000, 770002]}
+    r = replace(result(1.87e-6, unexplained=True, beyond=False), model_level=own)
+    assert ("the found model, refitted from 2 more starts, leaves 1.68× here and, simulated "
+            "again on the HF, 1.57 ± 0.11× (3 re-simulations, up to 1.84×): the rest is "
+            "within the model's own model form") in r.verdict
+    # restarts that reach no lower leave the clause as it was
+    same = replace(r, model_level={**own, "record": 1.87, "within": False})
+    assert "more starts" not in same.verdict and same.verdict.endswith("may be missing")
+
+
 def test_beyond_the_healthy_band_the_leads_speak():
     r = result(8.0e-6, unexplained=True, beyond=True)
     assert r.verdict.startswith("unexplained residual 8 µm (8× noise)")

@@ -149,14 +149,25 @@ def _refits(loop, params, bounds: Mapping[str, tuple[float, float]], hf_names,
 
 
 def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
-                record_ratio: float) -> dict:
+                record_ratio: float, restarts: bool = True) -> dict:
     """What the final model leaves on the HF simulated again with it: its residual-to-noise
     ratio over ``interval_replicates`` least-squares refits (the replicate term's
     re-simulations), their mean, standard deviation and one-sided prediction bound at the
     loop's ``alpha`` (Student t, ``mean + t s sqrt(1 + 1/n)``), beside the record's own
-    ``record_ratio``. A record above the noise but within that bound leaves what an actuator
-    with exactly the found model leaves: the LF's model form at this point, not a missing
-    effect (our HF's model form, not a real actuator's). Empty with fewer than two refits."""
+    level. A record above the noise but within that bound leaves what an actuator with
+    exactly the found model leaves: the LF's model form at this point, not a missing effect
+    (our HF's model form, not a real actuator's). Empty with fewer than two refits.
+
+    Each re-simulation is refitted from the values that made it; the record was fitted by the
+    loop's search, which can stop in a nearby minimum of the same model (a clogging and a
+    sensor bias on the 0.6-s test: 1.87x where the right model reaches 1.75x from the truth,
+    above a bound of 1.84x). So that both are read alike, with ``restarts`` the record is
+    refitted (least squares, the whole record) from one more start per re-simulation: the
+    final estimate moved by that re-simulation's refit error, mirrored (``2 x final - refit``,
+    within the bounds), where the best fit may lie if the record's estimate is off by as much;
+    the record's level (``record``) is the lowest of its own ``record_ratio`` (``record_loop``)
+    and those (``restarts``). Those fits are not taken as the final model: its intervals were
+    computed at the loop's estimate."""
     from scipy.stats import t as student
 
     n = loop.settings.interval_replicates
@@ -164,8 +175,9 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
     phase, loop.phase = loop.phase, f"residual: {n} HF re-simulations of the final model"
     loop.progress(loop.phase)
     try:
-        ratios = [r for _, r in _refits(loop, loop.current, bounds, hf_names, seeds)
-                  if math.isfinite(r)]
+        refits = _refits(loop, loop.current, bounds, hf_names, seeds)
+        ratios = [r for _, r in refits if math.isfinite(r)]
+        again = _restarted(loop, bounds, [p for p, _ in refits]) if restarts else []
     finally:
         loop.phase = phase
     if len(ratios) < 2:
@@ -174,9 +186,32 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
     k = len(ratios)
     bound = mean + float(student.ppf(1.0 - loop.settings.alpha, k - 1)) * std * math.sqrt(
         1.0 + 1.0 / k)
-    return {"record": float(record_ratio), "ratios": ratios, "mean": mean, "std": std,
-            "bound": bound, "within": bool(record_ratio <= bound),
-            "seeds": [seeds[0], seeds[-1]]}
+    record = min([float(record_ratio), *(r for r in again if math.isfinite(r))])
+    return {"record": record, "record_loop": float(record_ratio), "restarts": again,
+            "ratios": ratios, "mean": mean, "std": std, "bound": bound,
+            "within": bool(record <= bound), "seeds": [seeds[0], seeds[-1]]}
+
+
+def _restarted(loop, bounds: Mapping[str, tuple[float, float]], refits) -> list[float]:
+    """The record's residual-to-noise ratio refitted (least squares, whole record) from the
+    final estimate moved by each re-simulation's refit error, mirrored and kept within
+    ``bounds`` (see :func:`model_level`); nan where the fit fails."""
+    from eha.explain.settings import ExplainError
+    from eha.identification.intervals import noise_reference
+
+    reference = noise_reference(loop.noise, loop.data.xu)
+    out = []
+    for refit in refits:
+        start = loop.current.replace(**{
+            name: min(max(2.0 * getattr(loop.current, name) - getattr(refit, name), lo), hi)
+            for name, (lo, hi) in bounds.items()})
+        try:
+            fitted = loop.refit(start, dict(bounds), "residual: the record from another start",
+                                method="lm", whole=True)
+            out.append(float(loop.evaluate([fitted])[0].rmse_all / reference))
+        except (ExplainError, ParameterError, FloatingPointError, ValueError):
+            out.append(math.nan)
+    return out
 
 
 def with_replicates(loop, terms: Mapping, bounds: Mapping[str, tuple[float, float]],
