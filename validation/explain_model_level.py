@@ -21,9 +21,10 @@ Score: a record whose final model is the truth (every injected effect found, not
 :func:`explain_multi.score`'s ``success``) and reads "more than that" (record above the bound)
 is a false "more than that". The record's level is the lowest of the loop's fit and the
 restarts from the re-simulations' spread (``model_level``'s ``restarts``); the loop's fit
-alone is scored beside (``more_than_that_loop_fit``). Its rate is reported with the exact (Clopper-Pearson) 95 % upper
-bound, over all such records and over the ``shown`` ones; records with an effect missing or
-spurious are listed beside (what the clause says when the model is wrong).
+alone is scored beside (``more_than_that_loop_fit``). The rate is reported with its exact
+(Clopper-Pearson) 95 % upper bound, over all such records and over the ``shown`` ones;
+records with an effect missing or spurious are listed beside (what the clause says when the
+model is wrong).
 
     python validation/explain_model_level.py --records 0,2,4 --json part0.json
     python validation/explain_model_level.py --merge part0.json part1.json --json
@@ -112,7 +113,8 @@ def run(args, save=None) -> list[dict]:
                    "verdict": result.verdict, "seconds": seconds}
             rows.append(row)
             fig = (f"record {level['record']:.2f}x (loop's fit "
-                   f"{level.get('record_loop', level['record']):.2f}x), refits {level['mean']:.2f} ± "
+                   f"{level.get('record_loop', level['record']):.2f}x), "
+                   f"refits {level['mean']:.2f} ± "
                    f"{level['std']:.2f}x, bound {level['bound']:.2f}x" if level else "no level")
             print(f"{name:34} {seed:5d} {'right model' if sc['success'] else 'model wrong':11} "
                   f"{'shown' if row['shown'] else '     '} {fig}"
