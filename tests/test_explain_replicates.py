@@ -219,7 +219,13 @@ def test_a_record_above_the_noise_carries_the_found_models_own_level(tmp_path):
     assert res.unexplained and not res.beyond_healthy, res.verdict
     own = res.model_level
     assert len(own["ratios"]) == 3 and own["seeds"] == [770000, 770002]
-    assert own["record"] == pytest.approx(
+    assert own["record_loop"] == pytest.approx(
         res.rmse_after / noise_reference(res.noise_rmse, data.xu))
-    assert "the found model, simulated again on the HF, leaves" in res.verdict
+    assert own["record"] == min(own["record_loop"], *own["restarts"])
+    assert len(own["restarts"]) == 3
+    # the restarts reached lower here or they did not: the clause says which
+    assert ("the found model, simulated again on the HF, leaves" in res.verdict
+            if own["record"] >= own["record_loop"] - 0.005 else
+            f"more starts, leaves {own['record']:.2f}× here and, simulated again on the HF,"
+            in res.verdict), res.verdict
     assert res.to_json()["model_level"] == own
