@@ -93,7 +93,7 @@ def test_the_record_refitted_from_more_starts_is_what_the_level_compares():
     that level with the bound."""
     from dataclasses import replace
 
-    own = {"record": 1.68, "record_loop": 1.87, "restarts": [1.75, 1.68, float("nan")],
+    own = {"record": 1.68, "record_loop": 1.87, "restarts": [1.75, 1.68],
            "ratios": [1.65, 1.45, 1.62], "mean": 1.57, "std": 0.11, "bound": 1.84,
            "within": True, "seeds": [770000, 770002]}
     r = replace(result(1.87e-6, unexplained=True, beyond=False), model_level=own)

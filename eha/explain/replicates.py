@@ -186,7 +186,7 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
     k = len(ratios)
     bound = mean + float(student.ppf(1.0 - loop.settings.alpha, k - 1)) * std * math.sqrt(
         1.0 + 1.0 / k)
-    record = min([float(record_ratio), *(r for r in again if math.isfinite(r))])
+    record = min([float(record_ratio), *again])
     return {"record": record, "record_loop": float(record_ratio), "restarts": again,
             "ratios": ratios, "mean": mean, "std": std, "bound": bound,
             "within": bool(record <= bound), "seeds": [seeds[0], seeds[-1]]}
@@ -195,7 +195,8 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
 def _restarted(loop, bounds: Mapping[str, tuple[float, float]], refits) -> list[float]:
     """The record's residual-to-noise ratio refitted (least squares, whole record) from the
     final estimate moved by each re-simulation's refit error, mirrored and kept within
-    ``bounds`` (see :func:`model_level`); nan where the fit fails."""
+    ``bounds`` (see :func:`model_level`); none for a start whose fit fails (the list stays
+    plain JSON)."""
     from eha.explain.settings import ExplainError
     from eha.identification.intervals import noise_reference
 
@@ -208,9 +209,11 @@ def _restarted(loop, bounds: Mapping[str, tuple[float, float]], refits) -> list[
         try:
             fitted = loop.refit(start, dict(bounds), "residual: the record from another start",
                                 method="lm", whole=True)
-            out.append(float(loop.evaluate([fitted])[0].rmse_all / reference))
+            ratio = float(loop.evaluate([fitted])[0].rmse_all / reference)
         except (ExplainError, ParameterError, FloatingPointError, ValueError):
-            out.append(math.nan)
+            continue
+        if math.isfinite(ratio):
+            out.append(ratio)
     return out
 
 

@@ -152,7 +152,7 @@ def _residual_text(res, at_noise: bool) -> str:
     loop_ratio = own.get("record_loop", own["record"])
     if own["record"] < loop_ratio - 0.005:
         # the record refitted from the re-simulations' spread of starts reaches lower
-        starts = sum(math.isfinite(r) for r in own.get("restarts", ()))
+        starts = len(own.get("restarts", ()))
         level = (f"the found model, refitted from {starts} more starts, leaves "
                  f"{own['record']:.2f}× here and, simulated again on the HF, "
                  f"{own['mean']:.2f} ± {own['std']:.2f}× ({len(own['ratios'])} "
