@@ -161,9 +161,10 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     local, _ = loop.local_test(start, free, [rival])
     check = check_rival(loop, rival, [rival], local, detectable=0.01, threshold=0.005)
     assert set(check) == {"record", "without", "with", "size", "threshold", "spread",
-                          "ruled_out", "seeds"}
+                          "shown", "ruled_out", "seeds"}
     (m0, _), (m1, _) = check["without"], check["with"]
     assert check["size"] in (0.01, -0.01) and (m1 - m0) * check["size"] > 0
+    assert check["shown"] == (abs(m1 - m0) >= MIN_SHOWN * 0.01)
     assert check["ruled_out"] == (abs(check["record"] - m0) <= 0.005
                                   and check["spread"] <= 0.005
                                   and abs(m1 - m0) >= MIN_SHOWN * 0.01)

@@ -44,11 +44,37 @@ PRIORS = Path(__file__).resolve().parent / "priors"
 
 
 def prior_of(label: str) -> dict:
-    """The first record's JSON for ``label``, its rivals restricted to the pair's."""
+    """The first record's JSON for ``label`` with its exclusions (:func:`with_exclusions`),
+    its rivals restricted to the pair's."""
     name, rival = FIRST[label]
-    prior = json.loads((PRIORS / f"{name}.json").read_text())
+    prior = with_exclusions(json.loads((PRIORS / f"{name}.json").read_text()))
     prior["not_excluded"] = [r for r in prior["not_excluded"] if r["effect"] == rival]
     return prior
+
+
+def with_exclusions(prior: dict) -> dict:
+    """``prior`` with the ``excluded`` that ``eha explain --json`` now writes (these first
+    records' JSON predate it), derived as the loop derives it: each first record reached the
+    noise, so its exclusion check tested every effect of its null; each one neither found nor
+    listed in its (whole) ``not_excluded`` is excluded beyond
+    :func:`eha.explain.rival_check.excluded_beyond` of its null's threshold and detectable
+    size (the supply pressure's on its PSR shift). These JSON predate the rival check: none
+    was ruled out by it."""
+    from eha.explain.effects import EFFECTS
+    from eha.explain.rival_check import excluded_beyond
+
+    if "excluded" in prior:
+        return prior
+    named = {s["effect"] for s in prior["steps"]} | {r["effect"] for r in prior["not_excluded"]}
+    excluded = {}
+    for name, entry in prior["null"]["effects"].items():
+        effect = EFFECTS[name]
+        bar = entry.get("shift") if effect.footprint else entry
+        if name in named or not bar:
+            continue
+        excluded[name] = {"param": effect.tested, "unit": effect.units()[effect.tested],
+                          "beyond": excluded_beyond(bar["threshold"], bar["detectable"])}
+    return {**prior, "excluded": excluded}
 
 
 def record(command: Path, name: str | None, dev: float, k: int, t_end: float = 2.0) -> Path:

@@ -148,6 +148,15 @@ def _next_test(res, json_out: Optional[Path]) -> None:
     out: the command that designs the test deciding it (docs/design.md)."""
     for e in res.rivals_ruled_out:
         c, unit = e["rival_check"], e.get("value_unit", e["unit"])
+        if "first_record" in e:
+            first = e["first_record"]
+            console.print(f"{e['effect']} beside the model: not shown by this command (with "
+                          f"{c['size']:+.3g} {unit} of it the reading moves from "
+                          f"{c['without'][0]:.3g} to {c['with'][0]:.3g}); the first record "
+                          f"excludes it beyond a change of {first['beyond']:.3g} "
+                          f"{first.get('unit', unit)} in {first.get('param', e['param'])}",
+                          highlight=False)
+            continue
         console.print(f"{e['effect']} beside the model: ruled out by re-simulation (the record "
                       f"reads {e['param']} {c['record']:.3g} {unit}, the model alone "
                       f"{c['without'][0]:.3g} ± {c['without'][1]:.2g}; with "

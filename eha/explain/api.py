@@ -30,6 +30,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
             p12_weight: float | None = None, flow_gain_spread: float | None = None,
             null_actuators: int | None = None, interval_replicates: int | None = None,
             rival_replicates: int | None = None,
+            first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
             on_progress: Callable[[str], None] | None = None,
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -81,6 +82,11 @@ def explain(data: MeasuredData, *, fit: Any = None,
     rival_replicates : int, optional
         HF re-simulations without and with a rival the exclusion check lists, which may rule
         it out (:class:`LoopSettings`, default 6; 0: none).
+    first_excluded : mapping, optional
+        What a first record of this actuator excluded (its ``--json``'s ``excluded``), when
+        this record is the follow-up that settles its rivals (:func:`explain_file` with a
+        prior): a rival this record does not show beside the found model stays excluded
+        (:func:`eha.explain.rival_check.deferred_to_first`).
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
@@ -101,7 +107,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
     null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
                         fdi_options)
     result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
-                     fdi_options, null)
+                     fdi_options, null, first_excluded)
     edge = flow_gain_at_edge(result)
     if edge is None:
         return result
@@ -113,7 +119,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
         on_progress(f"{edge}: the loop again with GQ at its nominal value")
     again = _passes(data, fit, effects, validate, base,
                     replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options,
-                    null)
+                    null, first_excluded)
     again.settings["flow_gain_spread"] = settings.flow_gain_spread
     again.facts.flow_gain_released = edge
     again.seconds += result.seconds
@@ -178,12 +184,13 @@ def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | No
 def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
             validate: MeasuredData | None, base: LFParams | None, settings: LoopSettings,
             fixed: Iterable[str], on_progress: Callable[[str], None] | None,
-            fdi_options: Mapping[str, float], null: Any = None) -> ExplainResult:
+            fdi_options: Mapping[str, float], null: Any = None,
+            first_excluded: Mapping[str, Mapping[str, Any]] | None = None) -> ExplainResult:
     """The loop's first pass and, when it leaves a residual beyond the healthy band
     (``beyond_healthy``), its second pass from
     the structure pinned (:func:`better_pass` picks the result)."""
     first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                         null=null, **fdi_options)
+                         null=null, first_excluded=first_excluded, **fdi_options)
     result = first.run()
     structure = [e for e in first.pool if e.name in STRUCTURAL]
     if not (result.beyond_healthy and SECOND_PASS and structure
@@ -196,7 +203,8 @@ def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
     if on_progress:
         on_progress("second pass: the structure pinned at its physical values")
     second = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                          pin_structure=True, null=null, **fdi_options).run()
+                          pin_structure=True, null=null, first_excluded=first_excluded,
+                          **fdi_options).run()
     chosen = better_pass(result, second, settings)
     chosen.seconds = result.seconds + second.seconds
     chosen.facts.passes = 2

@@ -18,7 +18,7 @@ from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.decide import keeps_effect
 from eha.explain.record import corr
 from eha.explain.results import Dismissal, Evaluation, Step, ranking_score
-from eha.explain.rival_check import check_rival
+from eha.explain.rival_check import check_rival, deferred_to_first, excluded_beyond
 from eha.explain.settings import GLOBAL_RIVALS, STRUCTURAL, SWAP_CANDIDATES
 from eha.explain.tracing import signatures
 from eha.models.params import LFParams
@@ -54,7 +54,7 @@ class FinalCheck:
             return []
         detectable = self.null.detectable(self.settings.alpha)
         in_model = {st.effect for st in self.steps}
-        self.rivals_ruled_out = []
+        self.rivals_ruled_out, self.excluded = [], {}
         out = []
         self.phase = "exclusion check (does another effect fit as well?)"
         try:
@@ -73,17 +73,44 @@ class FinalCheck:
             for st in self.steps:           # every parameter of the final model free
                 free.update(EFFECTS[st.effect].bounds)
             local, _ = self.local_test(start, free, members)
-            if self.past(effect, local, detectable):
-                entry = self.rival_entry(effect, local, detectable)
-                # the found model's own model form may be what pulls the rival's fit; one
-                # listed by its parameter's shift is checked on that shift's bar
-                by_shift = effect.footprint and entry["unit"] != effect.statistic_unit
-                check = check_rival(self, effect, members, local, entry["detectable"],
-                                    entry["threshold"], by_shift)
-                if check:
-                    entry["rival_check"] = check
-                (self.rivals_ruled_out if check.get("ruled_out") else out).append(entry)
+            if not self.past(effect, local, detectable):
+                self.exclude(effect, detectable)
+                continue
+            entry = self.rival_entry(effect, local, detectable)
+            # the found model's own model form may be what pulls the rival's fit; one
+            # listed by its parameter's shift is checked on that shift's bar
+            by_shift = effect.footprint and entry["unit"] != effect.statistic_unit
+            check = check_rival(self, effect, members, local, entry["detectable"],
+                                entry["threshold"], by_shift)
+            if check:
+                entry["rival_check"] = check
+            deferred = deferred_to_first(entry, check, self.first_excluded)
+            if check.get("ruled_out"):
+                self.rivals_ruled_out.append(entry)
+                self.exclude(effect, detectable)
+            elif deferred is not None:
+                # not shown here: the first record's exclusion stands (and is carried on)
+                self.rivals_ruled_out.append(deferred)
+                self.excluded[effect.name] = {**deferred["first_record"],
+                                              "by": "first record"}
+            else:
+                out.append(entry)
         return out
+
+    def exclude(self, effect: Effect, detectable: Mapping[str, float]) -> None:
+        """Note ``effect`` as excluded by this record (:attr:`excluded`): beyond which size of
+        its tested parameter's shift the exclusion check would have listed it with the null's
+        power (:func:`~eha.explain.rival_check.excluded_beyond`); the supply pressure's on
+        its parameter's shift. Nothing for an effect without finite sizes."""
+        key = effect.shift_key if effect.shift_key in detectable else effect.name
+        if effect.footprint and key == effect.name:
+            return          # no parameter's bar: its footprint says nothing of a size
+        size = float(detectable.get(key, math.inf))
+        threshold = float(self.thresholds.get(key, math.nan))
+        if math.isfinite(size) and math.isfinite(threshold):
+            self.excluded[effect.name] = {"param": effect.tested,
+                                          "beyond": excluded_beyond(threshold, size),
+                                          "unit": effect.units()[effect.tested]}
 
     def rival_entry(self, effect: Effect, local: LFParams,
                     detectable: Mapping[str, float]) -> dict:

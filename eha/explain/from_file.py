@@ -15,7 +15,7 @@ from eha.explain.api import explain, settle_prior
 from eha.explain.record import augmented_base
 from eha.explain.results import ExplainResult
 from eha.explain.settings import ExplainError
-from eha.explain.settle import rivals_of
+from eha.explain.settle import excluded_of, rivals_of
 from eha.identification.measured import load
 from eha.models.params import ParameterError, parse_assignments, resolve
 
@@ -70,7 +70,9 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
         The JSON output of an earlier run: its effects start in the model
         (:func:`read_prior`). When it lists rivals it could not rule out, this record first
         settles between them (:mod:`eha.explain.settle`; the result's ``settled``) and the
-        explanation that stands starts the model.
+        explanation that stands starts the model; an effect the first record excluded
+        (its ``excluded``) that this record does not show beside the found model stays
+        excluded (:func:`eha.explain.rival_check.deferred_to_first`).
     known : mapping or list of ``"NAME=VALUE"``, optional
         LF parameters held at known values (test conditions such as a test load
         ``{"FRC": 4000}``), on top of the prior's effects; they are not candidates.
@@ -104,7 +106,11 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
         if settled is not None and settled.winner is not None:
             steps = settled.steps
     base = _known_base(known, augmented_base(steps) if steps is not None else None)
-    result = explain(record, validate=check, base=base, fixed=tuple(known or ()), **keywords)
+    # the follow-up of a first record: what it excluded stays excluded where this record,
+    # designed for the pair, does not show it (eha.explain.rival_check.deferred_to_first)
+    first_excluded = excluded_of(first) if settled is not None else None
+    result = explain(record, validate=check, base=base, fixed=tuple(known or ()),
+                     first_excluded=first_excluded, **keywords)
     result.settled = settled.to_json() if settled is not None else None
     digest = hashlib.sha1(Path(data).read_bytes())
     digest.update(json.dumps([str(validate), str(prior), dict(known or {}), result.settings,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import fields, replace
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Mapping
 
 from eha.explain.effects import EFFECTS, Effect, get as get_effects, missing_requirements
 from eha.explain.facts import RunFacts
@@ -46,7 +46,9 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                  validate: MeasuredData | None = None, base: LFParams | None = None,
                  settings: LoopSettings = LoopSettings(), fixed: Iterable[str] = (),
                  on_progress: Callable[[str], None] | None = None,
-                 pin_structure: bool = False, null: Any = None, **fdi_options: float):
+                 pin_structure: bool = False, null: Any = None,
+                 first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
+                 **fdi_options: float):
         self.started = time.perf_counter()
         self.settings = settings
         #: the healthy null (:class:`eha.explain.null.Null`) and its thresholds at ``alpha``
@@ -66,6 +68,11 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         self.fixed = fixed
         #: rivals of the exclusion check ruled out by the rival check (FinalCheck.not_excluded)
         self.rivals_ruled_out: list[dict] = []
+        #: what the exclusion check excluded: effect -> {param, beyond, unit} (FinalCheck)
+        self.excluded: dict[str, dict] = {}
+        #: what a first record of this actuator excluded (its --json's ``excluded``): a
+        #: rival this record does not show stays excluded (rival_check.deferred_to_first)
+        self.first_excluded = {k: dict(v) for k, v in (first_excluded or {}).items()}
         for name in sorted(fixed):
             if name in self.bounds:
                 raise ExplainError(f"`fixed` {name}: also a fitted fault (`fit`); give it one "
@@ -344,7 +351,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
             unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
             beyond_healthy=flagged, not_excluded=self.rivals,
-            rivals_ruled_out=self.rivals_ruled_out, model_level=model_level,
+            rivals_ruled_out=self.rivals_ruled_out, excluded=self.excluded,
+            model_level=model_level,
             interval_notes=notes, leads=self.leads(),
             dismissed=self.dismissed,
             null=self.null_summary())

@@ -197,6 +197,11 @@ class ExplainResult:
     #: rivals the exclusion check listed that the rival check ruled out
     #: (:func:`eha.explain.rival_check.check_rival`), with its figures
     rivals_ruled_out: list[dict[str, Any]] = field(default_factory=list)
+    #: what the exclusion check excluded (a model at the noise level): effect -> its tested
+    #: ``param``, the shift ``beyond`` which the check would have listed it with the null's
+    #: power, and its ``unit``; ``"by": "first record"`` where a first record's exclusion
+    #: stands for a rival this record does not show. A follow-up's ``--prior`` reads it
+    excluded: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: for a record above the noise within the healthy band, what the found model leaves on
     #: HF re-simulations of itself (:func:`eha.explain.replicates.model_level`); else empty
     model_level: dict[str, Any] = field(default_factory=dict)
@@ -271,6 +276,13 @@ class ExplainResult:
                 continue
             effect = EFFECTS[name]
             param = effect.tested
+            first = self.excluded.get(name, {})
+            if first.get("by") == "first record":
+                # beside the found model this command does not show it (the rival check)
+                lines.append(f"{name}: not shown on this command beside the found model; the "
+                             f"first record excludes a change beyond "
+                             f"{show(first['param'], first['beyond'])} in {first['param']}")
+                continue
             if effect.footprint:
                 sizes = "; ".join(
                     (f"{param} {show(param, a['value'])}" if a["value"] is not None else
@@ -369,6 +381,7 @@ class ExplainResult:
             "undetectable": self.undetectable(),
             "not_excluded": [dict(e) for e in self.not_excluded],
             "rivals_ruled_out": [dict(e) for e in self.rivals_ruled_out],
+            "excluded": {k: dict(v) for k, v in self.excluded.items()},
             "model_level": dict(self.model_level),
             "settled": self.settled,
             **self.verdict_facts.to_json(),

@@ -103,7 +103,9 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
     dict
         ``record`` (the record's reading), ``without`` and ``with`` ([mean, std] of the
         readings, the parameter's unit), ``size`` (the rival put on the HF), ``threshold``,
-        ``spread`` (the Student-t half-width of the readings without it), ``ruled_out`` and
+        ``spread`` (the Student-t half-width of the readings without it), ``shown`` (the
+        injected rival moved the reading by at least :data:`MIN_SHOWN` of its size),
+        ``ruled_out`` and
         ``seeds`` (first and last); empty when ``rival_replicates`` is 0, the effect is
         tested by its footprint (and not ``by_shift``) or the sizes are not finite.
     """
@@ -140,8 +142,34 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
     m1, s1 = float(np.mean(r1)), float(np.std(r1, ddof=1))
     spread = float(student.ppf(1.0 - loop.settings.alpha / 2.0, n - 1)) * s0
     finite = all(math.isfinite(v) for v in (*r0, *r1, record))
-    ruled_out = (finite and abs(record - m0) <= threshold and spread <= threshold
-                 and abs(m1 - m0) >= MIN_SHOWN * detectable)
+    shown = finite and abs(m1 - m0) >= MIN_SHOWN * detectable
+    ruled_out = finite and abs(record - m0) <= threshold and spread <= threshold and shown
     return {"record": record, "without": [m0, s0], "with": [m1, s1],
             "size": side * detectable, "threshold": threshold, "spread": spread,
-            "ruled_out": bool(ruled_out), "seeds": [seeds[0][0], seeds[1][-1]]}
+            "shown": bool(shown), "ruled_out": bool(ruled_out),
+            "seeds": [seeds[0][0], seeds[1][-1]]}
+
+
+def excluded_beyond(threshold: float, detectable: float) -> float:
+    """The size beyond which the exclusion check would have listed an effect with the null's
+    power, had the record held it: the check lists a fit past the ``detectable`` size (the
+    threshold plus ``z(power)`` healthy scales), so a true shift of ``detectable`` plus one
+    more such margin is listed with that power: ``2 detectable - threshold`` [its unit]."""
+    return 2.0 * detectable - threshold
+
+
+def deferred_to_first(entry: dict, check: dict, first_excluded: dict) -> dict | None:
+    """A rival this record cannot show, left where a first record of the same actuator put it.
+
+    The follow-up of ``eha explain --prior`` was designed to tell the first record's pair
+    apart, not to show everything: beside the found model an effect it does not show (the
+    rival check's injected rival moves the reading by less than :data:`MIN_SHOWN` of its
+    size, ``check["shown"]`` false) reads whatever the fit wanders to, and that reading says
+    nothing of the actuator. When the first record's exclusion check excluded the effect
+    (``first_excluded``: its ``--json``'s ``excluded``), that exclusion stands: the entry,
+    with the first record's figures under ``first_record``; else None (the rival stays: this
+    record and the first leave it open alike)."""
+    first = first_excluded.get(entry["effect"])
+    if not check or check.get("shown", True) or check.get("ruled_out") or not first:
+        return None
+    return {**entry, "first_record": dict(first)}

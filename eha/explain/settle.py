@@ -276,6 +276,29 @@ def _winner_steps(standing: Mapping[str, Any]) -> list[dict[str, Any]]:
             for n in names]
 
 
+def excluded_of(prior: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """What the first record's exclusion check excluded (its ``--json``'s ``excluded``:
+    effect -> ``{"param", "beyond", "unit"}``), the effects of the library only; empty for a
+    JSON without it (an older run, or a first record whose model was not at the noise).
+
+    Raises
+    ------
+    ExplainError
+        ``excluded`` present but not of that shape (one line naming it).
+    """
+    out = {}
+    try:
+        for name, entry in (prior.get("excluded") or {}).items():
+            if name in EFFECTS:
+                beyond = float(entry["beyond"])
+                if math.isfinite(beyond):
+                    out[name] = {**dict(entry), "beyond": beyond}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ExplainError(f"`prior`: 'excluded' must map each effect to its param, a numeric "
+                           f"'beyond' and a unit ({exc})") from None
+    return out
+
+
 def rivals_of(prior: Mapping[str, Any] | Sequence[Any]) -> bool:
     """Does an earlier run's JSON list rivals a second record can settle?"""
     return isinstance(prior, Mapping) and bool(hypotheses(prior))
