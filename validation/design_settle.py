@@ -30,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))   # _results: the shared helper
-from _results import ROOT, _git, write_result  # noqa: E402
+from _results import ROOT, _git, result_path, write_result  # noqa: E402
 
 from design import AMBIGUITIES  # noqa: E402
 
@@ -221,6 +221,9 @@ def main() -> None:
                     help="settle and explain every record again (default: reuse the calls "
                          "kept beside the records)")
     ap.add_argument("--json", action="store_true", help="write the result file")
+    ap.add_argument("--keep-other-pairs", action="store_true",
+                    help="with --pairs and --json: keep the pairs not run from the current "
+                         "result file, each marked with the run it comes from")
     args = ap.parse_args()
     load = os.getloadavg()
     folder = Path(args.out).resolve() / "ambiguities"
@@ -242,6 +245,12 @@ def main() -> None:
         "explain": sum(r["seconds"] for p in doc["pairs"].values()
                        for v in p.get("truths", {}).values()
                        for r in v.get("explain", {}).get("rows", []))}
+    if args.keep_other_pairs and wanted:
+        # the other pairs as their last run left them (their kept calls may be gone), named
+        old = json.loads(result_path("design_settle").read_text())
+        run = {k: old["provenance"].get(k) for k in ("commit", "date")}
+        doc["pairs"] = {label: doc["pairs"].get(label) or {**entry, "run": entry.get("run", run)}
+                        for label, entry in old["pairs"].items()} | doc["pairs"]
     summary = {label: {t: f"{v['settled_right']}/{v['records']} right, "
                           f"{v['settled_wrong']} wrong, {v['not_settled']} not settled"
                           + (f"; explain --prior decisive and right "
