@@ -48,8 +48,12 @@ class FinalCheck:
         HF re-simulations of the final model (:func:`eha.explain.rival_check.check_rival`):
         when the record reads only what the final model's own model form makes it read, and
         a rival of the detectable size would read otherwise, it is ruled out
-        (:attr:`rivals_ruled_out`, with the check's figures). Returns one dict per effect
-        not ruled out (empty without a null)."""
+        (:attr:`rivals_ruled_out`, with the check's figures). On the follow-up of a first
+        record (``eha explain --prior``), a rival this record does not show beside the final
+        model and the first record excluded stays excluded
+        (:func:`~eha.explain.rival_check.deferred_to_first`). What is excluded, and beyond
+        which size, is kept in :attr:`excluded`. Returns one dict per effect not ruled out
+        (empty without a null)."""
         if not self.thresholds or self.null is None:
             return []
         detectable = self.null.detectable(self.settings.alpha)
