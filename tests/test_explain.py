@@ -91,6 +91,9 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "unexplained_rmse", "leads", "command_hold", "dismissed",
                         "p12_in_fit", "interval_notes", "flow_gain_released", "null",
                         "undetectable", "not_excluded", "rivals_ruled_out",
+                        # what the exclusion check excluded, and beyond which size (a
+                        # follow-up's --prior reads it)
+                        "excluded",
                         # a --prior's rivals settled on this record (none here)
                         "settled",
                         # above the noise: what the found model itself leaves on the HF
@@ -105,6 +108,13 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
     assert doc["null"]["source"].startswith("simulated healthy fleet (5 actuators")
     added = {st["effect"] for st in doc["steps"]}
     assert len(doc["undetectable"]) == len(set(doc["null"]["effects"]) - added)
+    # at the noise the exclusion check ran: each effect it did not list is excluded, beyond
+    # a size past the one this command shows (a follow-up's --prior reads it)
+    listed = {e["effect"] for e in doc["not_excluded"]}
+    assert set(doc["excluded"]) == set(doc["null"]["effects"]) - added - listed
+    for name, e in doc["excluded"].items():
+        bar = doc["null"]["effects"][name]
+        assert e["beyond"] > bar.get("shift", bar)["detectable"]
     assert all(0 < e["threshold"] < e["detectable"] for e in doc["null"]["effects"].values())
     assert doc["interval_notes"] == []          # explained: nothing to note
     assert doc["flow_gain_released"] is None    # the flow gain stayed inside its spread

@@ -126,6 +126,9 @@ def explain_one(path: Path, prior_path: Path, k: int, truth: str) -> dict:
             "decisive_and_right": winner == truth and explained and not found and not rivals,
             # each rival with its figures (and its rival check's: why it stayed)
             "not_excluded": [dict(e) for e in res.not_excluded],
+            # rivals ruled out, by re-simulation or left to the first record's exclusion
+            # (``first_record``: this record does not show them)
+            "rivals_ruled_out": [dict(e) for e in res.rivals_ruled_out],
             # above the noise: what the found model itself leaves on the HF (model_level)
             "model_level": dict(res.model_level),
             "seconds": time.perf_counter() - start,
