@@ -164,10 +164,9 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
                           "shown", "ruled_out", "seeds"}
     (m0, _), (m1, _) = check["without"], check["with"]
     assert check["size"] in (0.01, -0.01) and (m1 - m0) * check["size"] > 0
-    assert check["shown"] == (abs(m1 - m0) >= MIN_SHOWN * 0.01)
+    assert check["shown"] == ((m1 - m0) * check["size"] >= MIN_SHOWN * 0.01 ** 2)
     assert check["ruled_out"] == (abs(check["record"] - m0) <= 0.005
-                                  and check["spread"] <= 0.005
-                                  and abs(m1 - m0) >= MIN_SHOWN * 0.01)
+                                  and check["spread"] <= 0.005 and check["shown"])
     names = [*loop.bounds, *(p for st in loop.steps for p in EFFECTS[st.effect].params)]
     model = hf_overrides(loop.current, names)
     seed = check["seeds"][0]
@@ -187,7 +186,7 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     (m0, _), (m1, _) = check["without"], check["with"]
     assert 1e7 < m0 < 3e7 and (m1 - m0) * check["size"] > 0      # Pa, moved by the injection
     assert check["ruled_out"] == (abs(check["record"] - m0) <= 5e5 and check["spread"] <= 5e5
-                                  and abs(m1 - m0) >= MIN_SHOWN * 2e6)
+                                  and (m1 - m0) * check["size"] >= MIN_SHOWN * 2e6 ** 2)
 
 
 def test_an_injected_rival_lies_within_its_bounds():
@@ -230,3 +229,16 @@ def test_a_record_above_the_noise_carries_the_found_models_own_level(tmp_path):
             f"more starts, leaves {own['record']:.2f}× here and, simulated again on the HF,"
             in res.verdict), res.verdict
     assert res.to_json()["model_level"] == own
+
+
+def test_an_injected_rival_shows_only_when_the_reading_moves_towards_it():
+    """Rule 3 of the rival check is signed: a supply lowered by 7.6 MPa beside a sensor bias
+    read 5.1 MPa *higher* on the bias / offset design (record 7 of validation/design_settle.py)
+    does not follow the rival; read 5.1 MPa lower it does; less than half the size does not."""
+    from eha.explain.rival_check import MIN_SHOWN, shows
+
+    m0, size = 1.55e7, 7.6e6
+    assert not shows(m0, m0 + 5.1e6, -1.0, size)
+    assert shows(m0, m0 - 5.1e6, -1.0, size)
+    assert not shows(m0, m0 - 0.9 * MIN_SHOWN * size, -1.0, size)
+    assert shows(0.0, MIN_SHOWN * 0.01, 1.0, 0.01)
