@@ -29,8 +29,7 @@ def explain(data: MeasuredData, *, fit: Any = None,
             noise_factor: float | None = None, joint: bool | None = None,
             p12_weight: float | None = None, flow_gain_spread: float | None = None,
             null_actuators: int | None = None, interval_replicates: int | None = None,
-            rival_replicates: int | None = None,
-            first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
+            rival_replicates: int | None = None, first_excluded: Mapping | None = None,
             on_progress: Callable[[str], None] | None = None,
             **fdi_options: float) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
@@ -83,16 +82,12 @@ def explain(data: MeasuredData, *, fit: Any = None,
         HF re-simulations without and with a rival the exclusion check lists, which may rule
         it out (:class:`LoopSettings`, default 6; 0: none).
     first_excluded : mapping, optional
-        What a first record of this actuator excluded (its ``--json``'s ``excluded``), when
-        this record is the follow-up that settles its rivals (:func:`explain_file` with a
-        prior): a rival this record does not show beside the found model stays excluded
-        (:func:`eha.explain.rival_check.deferred_to_first`).
+        A first record's ``excluded``: :func:`eha.explain.rival_check.deferred_to_first`.
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
     Every setting is a keyword, checked in one place (:meth:`LoopSettings.problems`): a value
-    outside its range raises :class:`ExplainError` naming the keyword (`` `holdout` ``),
-    before any fit.
+    outside its range raises :class:`ExplainError` naming the keyword (`` `holdout` ``).
 
     Returns
     -------
