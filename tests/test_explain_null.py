@@ -232,7 +232,7 @@ def test_undetectable_lines_name_each_effect_not_added():
     null = _null({"external_load": [10.0, 20.0, 15.0, 12.0, 18.0],
                   "viscous_friction": [50.0, 80.0, 60.0, 70.0, 65.0]})
     res = ExplainResult.__new__(ExplainResult)
-    res.steps, res.null = [], null.summary(0.05)
+    res.steps, res.null, res.excluded = [], null.summary(0.05), {}
     lines = res.undetectable()
     assert len(lines) == 2 and lines[1].startswith("viscous_friction: not detectable on this "
                                                    "command below a change of")
