@@ -105,9 +105,8 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         ``record`` (the record's reading), ``without`` and ``with`` ([mean, std] of the
         readings, the parameter's unit), ``size`` (the rival put on the HF), ``threshold``,
         ``spread`` (the Student-t half-width of the readings without it), ``shown`` (the
-        injected rival moved the reading by at least :data:`MIN_SHOWN` of its size),
-        ``ruled_out`` and
-        ``seeds`` (first and last); empty when ``rival_replicates`` is 0, the effect is
+        injected rival moved the reading towards it by at least :data:`MIN_SHOWN` of its
+        size, :func:`shows`), ``ruled_out`` and ``seeds`` (first and last); empty when ``rival_replicates`` is 0, the effect is
         tested by its footprint (and not ``by_shift``) or the sizes are not finite.
     """
     from scipy.stats import t as student
@@ -172,8 +171,8 @@ def deferred_to_first(entry: dict, check: dict, first_excluded: dict) -> dict | 
 
     The follow-up of ``eha explain --prior`` was designed to tell the first record's pair
     apart, not to show everything: beside the found model an effect it does not show (the
-    rival check's injected rival moves the reading by less than :data:`MIN_SHOWN` of its
-    size, ``check["shown"]`` false) reads whatever the fit wanders to, and that reading says
+    rival check's injected rival does not move the reading towards it by :data:`MIN_SHOWN`
+    of its size, ``check["shown"]`` false) reads whatever the fit wanders to, and that reading says
     nothing of the actuator. When the first record's exclusion check excluded the effect
     (``first_excluded``: its ``--json``'s ``excluded``), that exclusion stands: the entry,
     with the first record's figures under ``first_record``; else None (the rival stays: this
