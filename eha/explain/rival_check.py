@@ -106,8 +106,9 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
         readings, the parameter's unit), ``size`` (the rival put on the HF), ``threshold``,
         ``spread`` (the Student-t half-width of the readings without it), ``shown`` (the
         injected rival moved the reading towards it by at least :data:`MIN_SHOWN` of its
-        size, :func:`shows`), ``ruled_out`` and ``seeds`` (first and last); empty when ``rival_replicates`` is 0, the effect is
-        tested by its footprint (and not ``by_shift``) or the sizes are not finite.
+        size, :func:`shows`), ``ruled_out`` and ``seeds`` (first and last); empty when
+        ``rival_replicates`` is 0, the effect is tested by its footprint (and not
+        ``by_shift``) or the sizes are not finite.
     """
     from scipy.stats import t as student
 
