@@ -207,6 +207,7 @@ def test_a_record_above_the_noise_carries_the_found_models_own_level(tmp_path):
     the noise within the healthy band; its result carries model_level (one ratio per
     replicate, the record's own ratio) and the verdict says what the found model leaves."""
     from eha.explain import explain
+    from eha.explain.replicates import explains
     from eha.identification.intervals import noise_reference
 
     path = tmp_path / "healthy.csv"
@@ -216,8 +217,11 @@ def test_a_record_above_the_noise_carries_the_found_models_own_level(tmp_path):
     res = explain(data, fit="BKL,FDJ", pop=12, candidates=4, max_gen=20, stall=5, seed=0,
                   null_actuators=5, interval_replicates=3, rival_replicates=2,
                   noise_factor=0.8)
-    assert res.unexplained and not res.beyond_healthy, res.verdict
+    assert not res.beyond_healthy and not res.to_json()["at_noise"], res.verdict
     own = res.model_level
+    # within the found model's own level and unique, the record is explained at it
+    assert own["explains"] == explains(own, res.null["residual_limit"])
+    assert res.unexplained == (not own["explains"] or bool(res.not_excluded))
     assert len(own["ratios"]) == 3 and own["seeds"] == [770000, 770002]
     assert own["record_loop"] == pytest.approx(
         res.rmse_after / noise_reference(res.noise_rmse, data.xu))

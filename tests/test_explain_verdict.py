@@ -1,8 +1,8 @@
 """The residual loop's verdict (:mod:`eha.explain.verdict`), on results built by hand: no
 simulation.
 
-Four kinds from three facts (docs/explain.md, "The verdict"): "explained" (at the noise,
-unique), "explained, ambiguous" (at the noise, a rival the record cannot rule out), "partly
+Four kinds from four facts (docs/explain.md, "The verdict"): "explained" (at the noise or
+the found model's own level, unique), "explained, ambiguous" (at the noise, a rival the record cannot rule out), "partly
 explained" (above the noise, within what healthy actuators leave on the command: ``unexplained``
 True, ``beyond_healthy`` False, the added effects tentative, the intervals not widened) and
 "unexplained" (beyond the healthy band: the leads speak). Every verdict opens with what was
@@ -67,7 +67,8 @@ def test_above_the_noise_within_the_healthy_band_is_partly_explained():
 def test_above_the_noise_the_found_models_own_level_says_what_the_rest_is(within):
     """With what the found model leaves on HF re-simulations of itself (``model_level``), a
     record above the noise says whether the rest is within that (the LF's own model form) or
-    more; the kind stays "partly explained" and the figures go to the JSON."""
+    more; a level without ``explains`` (a result from before it) leaves the kind "partly
+    explained", and the figures go to the JSON."""
     from dataclasses import replace
 
     own = {"record": 1.35, "ratios": [1.2, 1.3, 1.25], "mean": 1.25, "std": 0.05,
@@ -85,6 +86,90 @@ def test_above_the_noise_the_found_models_own_level_says_what_the_rest_is(within
     wide = replace(r, model_level={**own, "std": 1.8, "bound": 6.4})
     assert wide.verdict.endswith("no sharper than the healthy band: it does not say whether "
                                  "an effect is missing")
+
+
+def test_within_the_found_models_own_level_the_record_is_explained():
+    """A record above the noise whose rest is no more than the found model itself leaves on HF
+    re-simulations (``model_level`` with ``explains``: within their bound, the bound below
+    the healthy band's limit) and that the exclusion check leaves unique is "explained" at
+    that level; a rival makes it "explained, ambiguous"; beyond the healthy band nothing
+    changes."""
+    from dataclasses import replace
+
+    from eha.reports.html.sections import _explain_state
+
+    own = {"record": 1.26, "ratios": [1.38, 1.79, 1.42], "mean": 1.48, "std": 0.16,
+           "bound": 1.83, "within": True, "explains": True, "seeds": [770000, 770002]}
+    r = replace(result(1.26e-6, unexplained=False, beyond=False), model_level=own)
+    assert r.verdict == ("explained: found nothing beyond the healthy band; residual 1.26 µm "
+                         "(1.3× noise), at the found model's own level (the found model, "
+                         "simulated again on the HF, leaves 1.48 ± 0.16× (3 re-simulations, up "
+                         "to 1.83×); the noise 1 µm)")
+    doc = r.to_json()
+    assert doc["verdict_kind"] == "explained" and doc["unexplained"] is False
+    assert (doc["at_noise"], doc["at_model_level"]) == (False, True)
+    row = r.run_row("id", "x.csv", None)
+    assert row["at_model_level"] is True and row["verdict_kind"] == "explained"
+    assert _explain_state(row) == "explained"
+    # an effect found at that level is not tentative
+    found = replace(r, steps=[step("external_load", {"FRC": 813.0})])
+    assert found.verdict.startswith("explained: found external load 0 N; residual")
+    rival = {"effect": "offset", "param": "Ofs", "value": -0.00905, "shift": 0.00905,
+             "threshold": 0.005, "detectable": 0.00734, "unit": "mA"}
+    ambiguous = replace(r, unexplained=True, not_excluded=[rival])
+    assert ambiguous.to_json()["verdict_kind"] == "explained, ambiguous"
+    assert "cannot be told apart on this command from a motor offset" in ambiguous.verdict
+    leak = {"effect": "leakage", "param": "Clk", "value": 1.75e-12, "shift": 1.75e-12,
+            "threshold": 1.6e-13, "detectable": 2.25e-13, "unit": "m³/(Pa·s)"}
+    assert "from an internal leakage of" in replace(r, unexplained=True,
+                                                    not_excluded=[leak]).verdict
+    beyond = replace(r, unexplained=True, beyond_healthy=True)
+    assert beyond.to_json()["verdict_kind"] == "unexplained"
+    assert beyond.to_json()["at_model_level"] is False
+    # a level that does not explain (or a result from before `explains`) stays partly
+    for level in ({**own, "explains": False}, {k: v for k, v in own.items() if k != "explains"}):
+        partly = replace(r, unexplained=True, model_level=level)
+        assert partly.to_json()["verdict_kind"] == "partly explained", level
+        assert _explain_state(partly.run_row("id", "x.csv", None)) == "above noise"
+
+
+def test_the_found_models_level_explains_only_below_the_healthy_bands_limit():
+    """:func:`eha.explain.replicates.explains`: the record within the prediction bound and the
+    bound below the ratio healthy actuators reach; a bound at or beyond that limit decides
+    nothing, and no level (fewer than two refits) explains nothing."""
+    from eha.explain.replicates import explains
+
+    own = {"record": 1.3, "bound": 1.5, "within": True}
+    assert explains(own, 3.0)
+    assert not explains(own, 1.5) and not explains(own, 1.4)
+    assert not explains({**own, "record": 1.6, "within": False}, 3.0)
+    assert not explains({}, 3.0)
+
+
+def test_a_model_pinned_at_a_bound_of_its_range_is_not_tested_by_its_own_level():
+    """An added effect's estimate at a bound of its range other than its off value (f10 of the
+    foreign set: a motor offset at 1.998 of ±2 mA beside a sensor gain and the bias) is not
+    tested by re-simulations refitted within the same range (the bootstrap at a boundary):
+    the level does not explain, the kind stays "partly explained" and the clause says why.
+    The off side of a range is not such a bound (a delay of 20 µs, off at 0)."""
+    from dataclasses import replace
+
+    from eha.explain.replicates import at_a_bound, explains
+
+    pinned = LFParams().replace(Ofs=1.99835, sensor_gain=0.979, sensor_bias=-8.6e-5)
+    assert at_a_bound(pinned, ["offset", "sensor_gain", "sensor_bias"]) == ["Ofs"]
+    assert at_a_bound(LFParams().replace(sensor_delay=2e-5, CJ=10.0),
+                      ["delay", "viscous_friction"]) == []
+    assert at_a_bound(LFParams().replace(Ofs=-1.97), ["offset"]) == ["Ofs"]
+    own = {"record": 1.81, "ratios": [1.5, 2.4, 1.9], "mean": 1.95, "std": 0.42,
+           "bound": 2.85, "within": True, "seeds": [770000, 770002], "at_bound": ["Ofs"]}
+    assert not explains(own, 3.0)
+    assert explains({k: v for k, v in own.items() if k != "at_bound"}, 3.0)
+    r = replace(result(1.81e-6, unexplained=True, beyond=False),
+                model_level={**own, "explains": False})
+    assert r.to_json()["verdict_kind"] == "partly explained"
+    assert r.verdict.endswith("within it, but Ofs at the bound of its range: the "
+                              "re-simulations do not test a model pinned there"), r.verdict
 
 
 def test_the_record_refitted_from_more_starts_is_what_the_level_compares():

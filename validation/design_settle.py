@@ -167,7 +167,9 @@ def pair(label: str, args, folder: Path) -> dict:
         for k in range(max(args.loop, args.records)):
             path = record(command, name, dev, k)
             kept = path.with_suffix(".explain-prior.json")
-            if (k >= args.loop or k < args.loop_from) and not kept.exists():
+            skip = k >= args.loop or k < args.loop_from or (args.truths and name not in
+                                                             args.truths.split(","))
+            if skip and not kept.exists():
                 continue        # beyond --loop: only the explain calls an earlier run kept
             loops.append(_kept(kept, args.fresh and k < args.loop,
                                lambda: explain_one(path, prior_path, k, name)))
@@ -220,6 +222,9 @@ def main() -> None:
                     help="only these ambiguities, by folder name (A-B, comma-separated)")
     ap.add_argument("--loop-from", type=int, default=0,
                     help="the first record the whole explain runs on (a second worker)")
+    ap.add_argument("--truths", default="",
+                    help="the whole explain only on records of these truths (comma-separated; "
+                         "default both)")
     ap.add_argument("--fresh", action="store_true",
                     help="settle and explain every record again (default: reuse the calls "
                          "kept beside the records)")

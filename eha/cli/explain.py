@@ -239,7 +239,9 @@ def _warn(res) -> None:
                           "above the noise: unexplained; the fault intervals are widened, "
                           "do not read the estimates as numbers", highlight=False)
     elif res.not_excluded:
-        err_console.print("warning: the model leaves only noise, but the record cannot rule "
+        leaves = ("only what it leaves on HF re-simulations of itself"
+                  if (res.model_level or {}).get("explains") else "only noise")
+        err_console.print(f"warning: the model leaves {leaves}, but the record cannot rule "
                           "out " + ", ".join(e["effect"] for e in res.not_excluded) +
                           ": an alternative explanation, not a confident one", highlight=False)
     elif res.unexplained:

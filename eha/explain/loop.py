@@ -18,6 +18,7 @@ from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitting
 from eha.explain.leads import LeadReport, residual_leads
 from eha.explain.record import Record, initial_position, p12_objective_weight
+from eha.explain.replicates import at_a_bound, explains
 from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
 from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
@@ -254,9 +255,10 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
 
     def at_noise_level(self) -> bool:
         """Is the current model's position residual at the record's noise level (at most
-        ``noise_factor`` times it, the stop rule's factor)? Above it the record is not
-        explained, whatever healthy actuators leave on the command: a residual of 1.6× the
-        noise over a thousand samples is not noise (ExplainResult.verdict)."""
+        ``noise_factor`` times it, the stop rule's factor)? Above it the record is explained
+        only at the found model's own level (:func:`eha.explain.replicates.explains`), not by
+        what healthy actuators leave on the command: a residual of 1.6× the noise over a
+        thousand samples is not noise (ExplainResult.verdict)."""
         from eha.identification.intervals import noise_reference
 
         return self.cur.rmse_all <= self.settings.noise_factor * noise_reference(
@@ -335,6 +337,15 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             # above the noise, within the healthy band: what does the found model itself
             # leave on the HF? (eha.explain.replicates.model_level)
             model_level = self.model_level()
+            if model_level:
+                pinned = at_a_bound(self.current, self.final_model()[1])
+                if pinned:
+                    model_level["at_bound"] = pinned
+                model_level["explains"] = explains(model_level, self.residual_limit)
+            if model_level.get("explains"):
+                # the rest is the found model's own: explained, as a record at the noise
+                # is, when nothing outside the model fits as well (the exclusion check)
+                self.rivals = self.not_excluded()
         settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, **self.fdi_options}
         facts = RunFacts(
             n_fit=self.n_fit, candidates=[e.name for e in self.pool],
@@ -349,7 +360,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
             measured=data.xu.copy(), settings=settings, facts=facts,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
-            unexplained=flagged or not self.at_noise_level() or bool(self.rivals),
+            unexplained=flagged or not (self.at_noise_level() or model_level.get("explains"))
+            or bool(self.rivals),
             beyond_healthy=flagged, not_excluded=self.rivals,
             rivals_ruled_out=self.rivals_ruled_out, excluded=self.excluded,
             model_level=model_level,

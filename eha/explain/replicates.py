@@ -24,7 +24,7 @@ actuator without dither it widens intervals that did not need it.
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -190,6 +190,42 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
     return {"record": record, "record_loop": float(record_ratio), "restarts": again,
             "ratios": ratios, "mean": mean, "std": std, "bound": bound,
             "within": bool(record <= bound), "seeds": [seeds[0], seeds[-1]]}
+
+
+def explains(level: Mapping[str, Any], residual_limit: float) -> bool:
+    """Does a record's :func:`model_level` explain its rest: the record within the found
+    model's own prediction bound, that bound below ``residual_limit`` (the ratio healthy
+    actuators reach on the command), and no added effect at a bound of its range
+    (``at_bound``, :func:`at_a_bound`)? A bound at or beyond the healthy band's limit decides
+    nothing: re-simulations that scatter as widely as healthy actuators do would call any
+    record within the band explained."""
+    return (bool(level) and bool(level.get("within")) and not level.get("at_bound")
+            and float(level["bound"]) < residual_limit)
+
+
+def at_a_bound(params, effects: Iterable[str]) -> list[str]:
+    """The parameters of the added ``effects`` whose value in ``params`` sits at a bound of
+    the effect's range other than its off value: within
+    :data:`~eha.explain.settings.FLOW_GAIN_EDGE` of the range's width, the margin at which the
+    flow gain is at the edge of its spread. The bootstrap of an estimate on the boundary of its
+    parameter space is not consistent (D. W. K. Andrews, "Inconsistency of the bootstrap when
+    a parameter is on the boundary of the parameter space", Econometrica 68, 2000): the
+    re-simulations are refitted within the same range and cannot show what the record's fit
+    would do beyond it, so a model pinned at a bound is not tested by its own level (a motor
+    offset at 2.0 mA of ±2 beside a sensor gain and the bias of f10, a held-step record)."""
+    from eha.explain.effects import EFFECTS
+    from eha.explain.settings import FLOW_GAIN_EDGE
+
+    out = []
+    for name in effects:
+        effect = EFFECTS[name]
+        for param, (lo, hi) in effect.bounds.items():
+            value, margin = float(getattr(params, param)), FLOW_GAIN_EDGE * (hi - lo)
+            off = effect.off.get(param)
+            if any(abs(value - b) <= margin and (off is None or abs(off - b) > margin)
+                   for b in (lo, hi)):
+                out.append(param)
+    return out
 
 
 def _restarted(loop, bounds: Mapping[str, tuple[float, float]], refits) -> list[float]:

@@ -173,8 +173,9 @@ class ExplainResult:
     #: intervals of the final model's fitted parameters (faults and effect parameters)
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     level: float | None = None
-    #: the residual is above the noise level (``noise_factor`` times the noise): the model
-    #: does not explain the record to its noise, and any effect added is tentative
+    #: the residual is above the noise level (``noise_factor`` times the noise) and above
+    #: the found model's own level (:attr:`model_level`), or a rival fits as well: the
+    #: model does not explain the record alone, and any effect added is tentative
     unexplained: bool = False
     #: the residual is also beyond what faults and structure leave on *healthy* actuators of
     #: this command (the null's residual limit, or the intervals' flag): the faults'
@@ -191,19 +192,22 @@ class ExplainResult:
     #: effects outside the final model that the record cannot rule out (the loop's exclusion
     #: check, :meth:`eha.explain.final_check.FinalCheck.not_excluded`): per effect its
     #: parameter, the value its test fit reached (beyond the null's detectable size), that
-    #: size and the threshold; non-empty only for a model at the noise level, then
-    #: ``unexplained``
+    #: size and the threshold; non-empty only for a model at the noise level (or at its own
+    #: level, :attr:`model_level`), then ``unexplained``
     not_excluded: list[dict[str, Any]] = field(default_factory=list)
     #: rivals the exclusion check listed that the rival check ruled out
     #: (:func:`eha.explain.rival_check.check_rival`), with its figures
     rivals_ruled_out: list[dict[str, Any]] = field(default_factory=list)
-    #: what the exclusion check excluded (a model at the noise level): effect -> its tested
-    #: ``param``, the shift ``beyond`` which the check would have listed it with the null's
-    #: power, and its ``unit``; ``"by": "first record"`` where a first record's exclusion
-    #: stands for a rival this record does not show. A follow-up's ``--prior`` reads it
+    #: what the exclusion check excluded (a model at the noise or its own level): effect ->
+    #: its tested ``param``, the shift ``beyond`` which the check would have listed it with
+    #: the null's power, and its ``unit``; ``"by": "first record"`` where a first record's
+    #: exclusion stands for a rival this record does not show. A follow-up's ``--prior``
+    #: reads it
     excluded: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: for a record above the noise within the healthy band, what the found model leaves on
-    #: HF re-simulations of itself (:func:`eha.explain.replicates.model_level`); else empty
+    #: HF re-simulations of itself (:func:`eha.explain.replicates.model_level`), with
+    #: ``explains`` (:func:`eha.explain.replicates.explains`: the record is then explained at
+    #: that level when nothing outside the model fits as well); else empty
     model_level: dict[str, Any] = field(default_factory=dict)
     #: with a ``--prior`` that lists rivals: which of the first record's explanations this
     #: record leaves standing (:meth:`eha.explain.settle.Settlement.to_json`), else None

@@ -56,7 +56,9 @@ register_table("explain_runs", EXPLAIN_RUNS,
                       ("verdict_kind", "VARCHAR"), ("at_noise", "BOOLEAN"),
                       ("within_healthy_band", "BOOLEAN"), ("unique_explanation", "BOOLEAN"),
                       # how the run went, apart from its settings (issue 40)
-                      ("facts", "JSON")))
+                      ("facts", "JSON"),
+                      # above the noise, at the found model's own level (issue 41)
+                      ("at_model_level", "BOOLEAN")))
 register_table("explain_steps", EXPLAIN_STEPS)
 
 

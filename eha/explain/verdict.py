@@ -1,22 +1,25 @@
 """The residual loop's verdict as a finding (docs/explain.md, "The verdict").
 
-Three facts of a run, each its own boolean, make the verdict's kind (:data:`KINDS`):
+Four facts of a run, each its own boolean, make the verdict's kind (:data:`KINDS`):
 
 - ``at_noise``: the final model's position residual is at the record's noise (at most the stop
   rule's ``noise_factor`` times it);
+- ``at_model_level``: above the noise, but no more than the found model itself leaves on HF
+  re-simulations of it (:func:`eha.explain.replicates.explains`: within their prediction
+  bound, that bound below the healthy band's limit, no added effect at a bound of its range);
 - ``within_healthy_band``: the residual is no more than what faults and structure leave on
   healthy actuators of the record's command (the null's residual limit);
 - ``unique_explanation``: no effect outside the model fits the record as well with a size this
   command shows (the exclusion check found no rival).
 
-=======================  ==========  ===================  ====================
-kind                     at_noise    within_healthy_band  unique_explanation
-=======================  ==========  ===================  ====================
-explained                yes         yes                  yes
-explained, ambiguous     yes         yes                  no
-partly explained         no          yes                  (not checked)
-unexplained              no          no                   (not checked)
-=======================  ==========  ===================  ====================
+=======================  ===============================  ===================  ==================
+kind                     at_noise or at_model_level       within_healthy_band  unique_explanation
+=======================  ===============================  ===================  ==================
+explained                yes                              yes                  yes
+explained, ambiguous     yes                              yes                  no
+partly explained         no                               yes                  (not checked)
+unexplained              no                               no                   (not checked)
+=======================  ===============================  ===================  ==================
 
 Every output (console, ``--json``, the database, the HTML report) is made from
 :class:`Verdict`, so they agree. Its first line says what was found, with values, display units
@@ -52,18 +55,19 @@ def label(effect: str) -> str:
     return LABELS.get(effect, effect.replace("_", " "))
 
 
-def kind_of(at_noise: bool, within_healthy_band: bool, unique_explanation: bool) -> str:
-    """The verdict's kind (:data:`KINDS`) from its three facts."""
+def kind_of(at_noise: bool, within_healthy_band: bool, unique_explanation: bool,
+            at_model_level: bool = False) -> str:
+    """The verdict's kind (:data:`KINDS`) from its facts."""
     if not within_healthy_band:
         return "unexplained"
-    if not at_noise:
+    if not (at_noise or at_model_level):
         return "partly explained"
     return "explained" if unique_explanation else "explained, ambiguous"
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """A run's verdict: its three facts, its kind and its lines."""
+    """A run's verdict: its facts, its kind and its lines."""
 
     at_noise: bool
     within_healthy_band: bool
@@ -75,10 +79,13 @@ class Verdict:
     rivals: tuple[str, ...]
     #: the effects found, with value, display unit and interval (``--json`` ``found``)
     found: tuple[dict[str, Any], ...]
+    #: above the noise by no more than the found model itself leaves on the HF
+    at_model_level: bool = False
 
     @property
     def kind(self) -> str:
-        return kind_of(self.at_noise, self.within_healthy_band, self.unique_explanation)
+        return kind_of(self.at_noise, self.within_healthy_band, self.unique_explanation,
+                       self.at_model_level)
 
     @property
     def text(self) -> str:
@@ -92,6 +99,7 @@ class Verdict:
 
     def to_json(self) -> dict[str, Any]:
         return {"verdict_kind": self.kind, "at_noise": self.at_noise,
+                "at_model_level": self.at_model_level,
                 "within_healthy_band": self.within_healthy_band,
                 "unique_explanation": self.unique_explanation, "found": list(self.found)}
 
@@ -131,8 +139,9 @@ def _effects_text(found: list[dict[str, Any]], level: float | None) -> str:
 
 
 def _residual_text(res, at_noise: bool) -> str:
-    """``residual 1.03 µm (0.9× noise), at the noise (1.09 µm)``, or above it within the
-    healthy band."""
+    """``residual 1.03 µm (0.9× noise), at the noise (1.09 µm)``, at the found model's own
+    level (what it leaves on HF re-simulations of itself), or above it within the healthy
+    band."""
     noise = 1e6 * res.noise_rmse
     ratio = res.rmse_after / res.noise_rmse if res.noise_rmse > 0 else math.inf
     head = f"residual {1e6 * res.rmse_after:.3g} µm ({ratio:.1f}× noise)"
@@ -157,9 +166,16 @@ def _residual_text(res, at_noise: bool) -> str:
                  f"{own['record']:.2f}× here and, simulated again on the HF, "
                  f"{own['mean']:.2f} ± {own['std']:.2f}× ({len(own['ratios'])} "
                  f"re-simulations, up to {own['bound']:.2f}×)")
+    if own.get("explains"):
+        # explained at the model's own level (eha.explain.replicates.explains)
+        return f"{head}, at the found model's own level ({level}; the noise {noise:.3g} µm)"
     if limit is not None and own["bound"] >= limit:
         # re-simulations that scatter as widely as healthy actuators do decide nothing
         rest = "no sharper than the healthy band: it does not say whether an effect is missing"
+    elif own["within"] and own.get("at_bound"):
+        # re-simulations refitted within the same range do not test a model pinned at it
+        rest = (f"within it, but {', '.join(own['at_bound'])} at the bound of its range: the "
+                f"re-simulations do not test a model pinned there")
     elif own["within"]:
         rest = "the rest is within the model's own model form"
     else:
@@ -175,7 +191,9 @@ def _rival(e: dict[str, Any]) -> str:
                   f"{1e6 * e['detectable']:.3g} µm this command shows")
     else:
         beyond = f"beyond the {show(param, e['detectable'])} change this command shows"
-    return f"a {label(e['effect'])} of {show(param, value)} ({beyond})"
+    name = label(e["effect"])
+    article = "an" if name[0] in "aeiou" else "a"
+    return f"{article} {name} of {show(param, value)} ({beyond})"
 
 
 def _settled_text(res) -> str:
@@ -194,7 +212,9 @@ def _settled_text(res) -> str:
 def verdict_of(res) -> Verdict:
     """The verdict of an :class:`eha.explain.results.ExplainResult`."""
     within = not res.beyond_healthy
-    at_noise = within and (bool(res.not_excluded) or not res.unexplained)
+    own = getattr(res, "model_level", None) or {}
+    at_level = within and bool(own.get("explains"))
+    at_noise = within and not at_level and (bool(res.not_excluded) or not res.unexplained)
     unique = not res.not_excluded
     found = _found(res)
     effects = _effects_text(found, res.level)
@@ -211,13 +231,14 @@ def verdict_of(res) -> Verdict:
                    + (f"; tentative: {effects}" if effects else ""))
     else:
         what = effects or ("nothing further" if settled else "nothing beyond the healthy band")
-        finding = (f"found {what}" + ("" if at_noise or not effects else " (tentative)")
+        finding = (f"found {what}" + ("" if at_noise or at_level or not effects
+                                      else " (tentative)")
                    + "; " + _residual_text(res, at_noise))
     if settled:
         finding = f"{settled}; {finding}"
     return Verdict(at_noise=at_noise, within_healthy_band=within, unique_explanation=unique,
                    finding=finding, rivals=tuple(_rival(e) for e in res.not_excluded),
-                   found=tuple(found))
+                   found=tuple(found), at_model_level=at_level)
 
 
 def unseen_summary(lines: list[str], limit: int = 4) -> str:

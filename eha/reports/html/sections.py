@@ -174,7 +174,8 @@ def identification_section(page: Page, ident: Identification) -> str:
 # =========================================================================== residual loop
 def _explain_state(run: dict[str, Any]) -> str:
     """The tag of the residual (:mod:`eha.explain.verdict`'s facts): "explained" (at the
-    noise, whether or not a rival fits as well: the verdict kind says that), "above noise"
+    noise or the found model's own level, whether or not a rival fits as well: the verdict
+    kind says that), "above noise"
     (within what healthy actuators leave on the command) or "unexplained" (beyond it). A
     database from before the facts: ``unexplained`` then meant "not at the noise or not
     unique", and one from before the healthy band (no ``beyond_healthy``) called only the
@@ -183,7 +184,8 @@ def _explain_state(run: dict[str, Any]) -> str:
         return value is not None and not (isinstance(value, float) and value != value)
 
     if known(run.get("at_noise")):
-        if bool(run["at_noise"]):
+        at_level = run.get("at_model_level")
+        if bool(run["at_noise"]) or (known(at_level) and bool(at_level)):
             return "explained"
         return "above noise" if bool(run.get("within_healthy_band")) else "unexplained"
     if not run.get("unexplained"):
