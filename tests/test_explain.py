@@ -100,7 +100,9 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
                         "model_level",
                         # the verdict's kind, facts and finding (issue 42)
                         "verdict_kind", "at_noise", "within_healthy_band",
-                        "unique_explanation", "found", "units"}
+                        "unique_explanation", "found", "units",
+                        # above the noise, at the found model's own level (issue 41)
+                        "at_model_level"}
     assert doc["settled"] is None
     assert all(e["shift"] > e["detectable"] > e["threshold"] for e in doc["not_excluded"])
     assert doc["unexplained"] or not doc["not_excluded"]
