@@ -309,3 +309,7 @@ def test_a_pair_not_told_apart_says_what_would_tell_it_apart(tmp_path):
         assert set(sizes) == {"motor_gain", "supply_pressure"}
         assert 0 < sizes["motor_gain"] < 0.01      # the motor gain is told from the drop
     assert "with a 2000 N test load: motor_gain from" in proc.stdout
+    # how closely the check's LF follows the design, against the limit, as the JSON has it
+    follows = "follows" if doc["model_form_rms_in_noise"] <= 3.0 else "does not follow"
+    assert (f"the check's LF {follows} it: {doc['model_form_rms_in_noise']:.1f} noise stds of "
+            "model-form residual on healthy actuators (not followed beyond 3)") in proc.stdout

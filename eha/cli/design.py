@@ -172,6 +172,7 @@ def _show(result) -> None:
         on_library = f"{t.shown(ref)} ({lib})" if ref < t.limit else "not detectable"
         table.add_row(t.name, shown, on_library, f"{result.ratio(t.name):.2f}")
     console.print(table)
+    console.print(_followed_line(result.prediction), highlight=False)
     for t in result.targets:
         if not result.prediction.detectable(t):
             console.print(f"{t.name}: {result.verdict(t)}", highlight=False)
@@ -186,6 +187,18 @@ def _show(result) -> None:
             shown = [f"{n} from {by[n].shown(v)}" if v is not None else f"{n} never"
                      for n, v in sizes.items()]
             console.print(f"  with {how}: {', '.join(shown)}", highlight=False)
+
+
+def _followed_line(prediction) -> str:
+    """How closely the check's LF model follows the design: its healthy model-form residual
+    against the ratio beyond which a command counts as not followed. A design near that
+    limit is one whose promise rests on an LF that barely follows it (docs/design.md: the
+    sensor gain / hinge moment separation lives there)."""
+    from eha.design.predict import FOLLOW_RATIO
+
+    state = "follows" if prediction.followed else "does not follow"
+    return (f"the check's LF {state} it: {prediction.model_form:.1f} noise stds of model-form "
+            f"residual on healthy actuators (not followed beyond {FOLLOW_RATIO:g})")
 
 
 @design_app.command("verify")
