@@ -45,23 +45,6 @@ def recorded_segments() -> list[dict]:
     return doc["ambiguities"][LABEL]["segments"]
 
 
-def rebuilt(segments: list[dict], limits) -> tuple[np.ndarray, np.ndarray]:
-    """A design's samples from its decoded segments (start, length [s], centre, amplitude
-    [m], frequency [Hz]), as :func:`eha.design.family.command_samples` builds them."""
-    from eha.design.family import COMMAND_DT, _segment, slew_limit
-
-    t = np.round(np.arange(0.0, limits.duration + COMMAND_DT / 2, COMMAND_DT), 9)
-    raw = np.zeros_like(t)
-    for seg in segments:
-        if seg["length"] <= 0:
-            continue
-        mask = (t >= seg["start"]) & (t < seg["start"] + seg["length"])
-        raw[mask] = _segment(seg["shape"], t[mask] - seg["start"], seg["length"], seg["centre"],
-                             seg["amplitude"], seg["frequency"])
-    raw = np.clip(raw, -limits.max_stroke, limits.max_stroke)
-    return t, slew_limit(raw, limits.max_rate * COMMAND_DT)
-
-
 def sine(amplitude: float, frequency: float, limits) -> tuple[np.ndarray, np.ndarray]:
     """A full-length sine of the family (``amplitude`` a fraction of the stroke)."""
     from eha.design.family import command_samples, genes
@@ -129,12 +112,13 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="write the result file")
     args = ap.parse_args()
     from eha.design import Limits
+    from eha.design.family import segment_samples
 
     load = os.getloadavg()
     limits = Limits(2.0, 0.01, 0.1).check()
     scorer = Scorer(limits)
-    rows = {"recorded design (design.json's segments)": scorer(*rebuilt(recorded_segments(),
-                                                                         limits))}
+    recorded = segment_samples(recorded_segments(), limits)
+    rows = {"recorded design (design.json's segments)": scorer(*recorded)}
     t, com, what = searched(limits, args.design)
     rows["eha design now"] = {**scorer(t, com), "what": what}
     for amp, freq in ((0.80, 2.39), (0.75, 2.36), (1.0, 2.36), (0.80, 2.2), (0.80, 2.6)):

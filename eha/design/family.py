@@ -155,9 +155,16 @@ def decode(x: np.ndarray, limits: Limits) -> list[dict[str, float | str]]:
 def command_samples(x: np.ndarray, limits: Limits) -> tuple[np.ndarray, np.ndarray]:
     """``(t, com)`` at 1 kHz of the family member ``x`` within ``limits``: the segments, held
     within the stroke, slew-limited from rest and ending at rest at zero."""
+    return segment_samples(decode(x, limits), limits)
+
+
+def segment_samples(segments: list[dict[str, float | str]], limits: Limits
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, com)`` at 1 kHz of decoded ``segments`` (:func:`decode`'s, or a design JSON's
+    ``segments``) within ``limits``: held within the stroke and slew-limited from rest."""
     t = np.round(np.arange(0.0, limits.duration + COMMAND_DT / 2, COMMAND_DT), 9)
     raw = np.zeros_like(t)
-    for seg in decode(x, limits):
+    for seg in segments:
         if seg["length"] <= 0:
             continue
         mask = (t >= seg["start"]) & (t < seg["start"] + seg["length"])
@@ -193,4 +200,5 @@ def outside_limits(com: np.ndarray, limits: Limits) -> str | None:
 
 
 __all__ = ["Limits", "DesignError", "N_SEGMENTS", "GENES", "SHAPES", "n_genes", "decode", "genes",
-           "command_samples", "slew_limit", "at_rest_at_the_end", "outside_limits"]
+           "command_samples", "segment_samples", "slew_limit", "at_rest_at_the_end",
+           "outside_limits"]
