@@ -27,6 +27,13 @@ detectable size).
 
 Robust to the actuator's own scatter: every number is the worst over the design's actuators
 (the nominal one and scattered ones).
+
+For the baseline-referenced check (``check="baseline"``, :mod:`eha.health.baseline`: a record
+against the same actuator's own earlier record on the same command) the actuator's scatter
+and the LF's model-form error on the command are common to both records and drop out; the
+statistic is the difference of two checks, so the noise and the dither count twice:
+
+    sigma = sqrt(2 (1 + sum (u'd_dither)^2)) / |v|,   MDS_f = (z(1 - alpha/m) + z(P_D)) sigma / gain.
 """
 
 from __future__ import annotations
@@ -58,6 +65,9 @@ DESIGN_SEED0 = 1_000_000
 FOLLOW_RATIO = FLAG_RATIO
 #: Relative step of the flow gain's secant.
 GQ_STEP = 0.02
+#: The health checks a prediction can be for: against the healthy fleet, or against the
+#: actuator's own baseline record (:mod:`eha.health.baseline`).
+CHECKS = ("fleet", "baseline")
 
 
 @dataclass
@@ -126,10 +136,11 @@ def actuators(count: int) -> list[dict[str, float]]:
     return [{}] + [draw_actuator(DESIGN_SEED0 + k) for k in range(1, count)]
 
 
-def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int):
+def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int,
+            scatter: bool = True):
     """The HF runs of one actuator: ``(role, name, step, params, seed)``; the truth of each
-    target, the healthy scatter of each scattered parameter (one std) and two dither
-    reruns."""
+    target, the healthy scatter of each scattered parameter (one std; without ``scatter``
+    none: a baseline check's records share it) and two dither reruns."""
     base = dict(actuator)
 
     def moved(param: str, step: float) -> dict[str, float]:
@@ -137,7 +148,8 @@ def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int
 
     runs = [("base", "", 1.0, base, seed)]
     runs += [("target", t.name, t.probe, moved(t.param, t.probe), seed) for t in targets]
-    runs += [("scatter", p, std, moved(p, std), seed) for p, std in scatter_columns()]
+    runs += [("scatter", p, std, moved(p, std), seed)
+             for p, std in (scatter_columns() if scatter else [])]
     runs += [("dither", str(k), 1.0, base, seed + 7919 * k) for k in (1, 2)]
     return runs
 
@@ -240,7 +252,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
             alpha: float = 0.01, n_actuators: int = 3, decimate: int = 1,
             pairs: Sequence[tuple[str, str]] | None = None,
             lf_base: Mapping[str, float] | None = None,
-            setting: Mapping[str, float] | None = None) -> Prediction:
+            setting: Mapping[str, float] | None = None, check: str = "fleet") -> Prediction:
     """Predicted minimum detectable sizes and separable sizes of ``targets`` on ``command``.
 
     Parameters
@@ -267,11 +279,17 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
     setting : mapping, optional
         Parameters of the test set-up on every actuator and in the check's LF model, e.g. a
         test load ``{"FRC": 2000.0}`` [N].
+    check : {"fleet", "baseline"}
+        The health check the sizes are for: against the healthy fleet, or against the
+        actuator's own baseline record on the same command (see the module doc).
     """
+    if check not in CHECKS:
+        raise ValueError(f"check={check!r}: allowed {', '.join(CHECKS)}")
     noise = {s: SIGNALS[s][1] for s in signals} | dict(noise or {})
     setting = dict(setting or {})
     acts = [{**a, **setting} for a in actuators(n_actuators)]
-    plan = [(k, r) for k, a in enumerate(acts) for r in _hf_runs(targets, a, DESIGN_SEED0 + k)]
+    plan = [(k, r) for k, a in enumerate(acts)
+            for r in _hf_runs(targets, a, DESIGN_SEED0 + k, scatter=check == "fleet")]
     out = simulate_hf_batch([r[3] for _, r in plan], command, t_end, [r[4] for _, r in plan])
     y = whiten(out, signals, noise, decimate)
     y_lf, lf = _lf_columns(command, targets, t_end,
@@ -294,7 +312,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
             if r[0] == "target":
                 foot = float(np.sqrt(np.mean((xu[i] - xu[i0]) ** 2)))
                 found.footprint[r[1]] = max(found.footprint[r[1]], foot)
-        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha)
+        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha, check)
     found.separable_at = {f: dict(row) for f, row in found.separable.items()}
     found.separable = {f: {g: (v / found.mds[f] if 0 < found.mds[f] < math.inf else math.inf)
                            for g, v in row.items()} for f, row in found.separable.items()}
@@ -302,7 +320,8 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
 
 
 def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mapping,
-              lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float) -> None:
+              lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float,
+              check: str = "fleet") -> None:
     """Fold one actuator's detectable and separable sizes into ``found`` (the worst)."""
     z = NormalDist().inv_cdf
     m = {"fault": len(FAULTS), "effect": max(1, len(targets))}
@@ -313,9 +332,13 @@ def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mappin
     for t in targets:
         hyp = _best_fitting(_hypotheses(t), lf, spread)
         basis = _orth([lf[p] for p in hyp])
-        size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,
-                               _model_form_variance(model_form, basis), _floor(t),
-                               z(1.0 - alpha / m[t.kind]), z(P_DETECT))
+        if check == "baseline":  # two records: noise and dither twice, scatter and form out
+            size, sd = _detectable(lf[t.param], truth[t.name], basis, math.sqrt(2.0) * spread,
+                                   1.0, 0.0, z(1.0 - alpha / m[t.kind]), z(P_DETECT))
+        else:
+            size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,
+                                   _model_form_variance(model_form, basis), _floor(t),
+                                   z(1.0 - alpha / m[t.kind]), z(P_DETECT))
         found.mds[t.name] = max(found.mds[t.name], size)
         found.sigma[t.name] = max(found.sigma[t.name], sd)
     c = z(1.0 - alpha / m["fault"]) + z(P_DETECT)
@@ -373,4 +396,5 @@ def _separable(truth: np.ndarray, own, rival, spread, model_form, c: float) -> f
     return c * math.sqrt(var) / math.sqrt(excess)
 
 
-__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT"]
+__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT",
+           "CHECKS"]

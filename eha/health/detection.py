@@ -38,6 +38,7 @@ from eha.campaigns.jobs import register_job, register_section
 from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
 from eha.health.assessment import FAULTS
+from eha.health.baseline import BASELINE_GROUP, baseline_record_seed, pair_with_baselines
 from eha.models.faults import core_faults, detection_levels
 from eha.models.simulate import MODEL_VERSION
 
@@ -58,7 +59,7 @@ MAX_ACTUATORS = 10000
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
-                 "noise", "faults", "base_model", "level", "signals", "noise_p12"}
+                 "noise", "faults", "base_model", "level", "signals", "noise_p12", "baseline"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -79,10 +80,13 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         level = 0.9
         signals = ["xu", "p12"]              # optional: the check fits the load pressure too
         noise_p12 = 5e4                      # Pa, white noise of the recorded p12
+        baseline = true                      # optional: each actuator's own healthy record
 
     Without ``faults`` every actuator is healthy (a calibration fleet); with it, each fault
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
-    added.
+    added. With ``baseline`` every actuator also gets a healthy record of its own on the same
+    command (other noise and dither: :mod:`eha.health.baseline`), and the campaign's
+    figures are those of the baseline-referenced check.
     """
     from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
@@ -127,32 +131,47 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
     signals, noise_p12 = _signals(section, problems)
     groups = _fault_groups(section.get("faults", {}), problems)
+    baseline = section.get("baseline", False)
+    if not isinstance(baseline, bool):
+        problems.append(f"health.baseline={baseline!r}: allowed true or false")
     if problems:
         return []
     # only a check that fits p12 says so: the position-only runs keep their keys
     recorded = {"signals": list(signals), "noise_p12": noise_p12} if "p12" in signals else {}
-    tag = " (xu,p12)" if recorded else ""
+    common = {"t_end": float(t_end), "noise": float(noise), "base_model": base_model,
+              "level": float(level), **recorded}
     jobs = []
     for command in commands:
-        shown = command_label(command)
         first = seed
         for label, injected in groups:
             size = n_healthy if label == "healthy" else n
             for k in range(size):
-                s = first + k
-                hf = {**draw_actuator(s), **injected}
-                truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
-                spec = {"command": command, "t_end": float(t_end), "hf": hf, "noise": float(noise),
-                        "seed": s, "base_model": base_model, "level": float(level),
-                        "group": label, "truth": truth, **recorded}
-                jobs.append({"kind": "health_assessment", "spec": spec, "identity": {},
-                             "columns": {"model": "hf", "command": shown, "faults": injected,
-                                         "seed": s, "t_end": float(t_end),
-                                         "fault_label": label,
-                                         "label": f"{shown} {label} actuator {s}{tag}",
-                                         "estimated_s": 10.0 * float(t_end)}})
+                jobs.append(_health_job(command, first + k, label, injected, common))
+                if baseline:
+                    jobs.append(_health_job(command, first + k, BASELINE_GROUP, {}, common))
             first += size
     return jobs
+
+
+def _health_job(command: str, seed: int, label: str, injected: Mapping[str, float],
+                common: Mapping[str, Any]) -> dict[str, Any]:
+    """One assessment job: actuator ``seed`` with ``injected`` faults on ``command``; a
+    baseline job records the healthy actuator again with its own noise and dither."""
+    from eha.models.commands import command_label
+
+    shown = command_label(command)
+    hf = {**draw_actuator(seed), **injected}
+    truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
+    spec = {"command": command, "hf": hf, "seed": seed, "group": label, "truth": truth,
+            **common}
+    if label == BASELINE_GROUP:
+        spec["record_seed"] = baseline_record_seed(seed)
+    tag = " (xu,p12)" if "signals" in common else ""
+    return {"kind": "health_assessment", "spec": spec, "identity": {},
+            "columns": {"model": "hf", "command": shown, "faults": dict(injected), "seed": seed,
+                        "t_end": common["t_end"], "fault_label": label,
+                        "label": f"{shown} {label} actuator {seed}{tag}",
+                        "estimated_s": 10.0 * common["t_end"]}}
 
 
 def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:
@@ -222,14 +241,16 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.models.simulate import Trace
 
     signals = tuple(spec.get("signals", ("xu",)))
+    # a baseline record: the same actuator (seed) recorded with other noise and dither
+    record_seed = int(spec.get("record_seed", spec["seed"]))
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
-                          noise=float(spec["noise"]), seed=int(spec["seed"]),
+                          noise=float(spec["noise"]), seed=record_seed,
                           noise_p12=float(spec.get("noise_p12", 0.0)))
     rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
                       p12=df["p12"].to_numpy() if "p12" in signals else None,
                       source=f"{spec['command']} {spec['group']} {spec['seed']}")
     a = assess_record(rec, base=BASE_MODELS[spec["base_model"]], level=float(spec["level"]),
-                      seed=int(spec["seed"]), signals=signals)
+                      seed=record_seed, signals=signals)
     row = {"command": command_label(spec["command"]), "grp": spec["group"], "seed": int(spec["seed"]),
            "t_end": float(spec["t_end"]), "noise": float(spec["noise"]),
            "base_model": spec["base_model"], "level": a.level, "truth": dict(spec["truth"]),
@@ -482,6 +503,7 @@ def performance(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,
     (rows: injected fault, columns: declared fault).
     """
     out: dict[str, Any] = {}
+    rows = pair_with_baselines(rows)   # a baseline campaign: each record against its own
     for command in sorted({r["command"] for r in rows}):
         mine = [r for r in rows if r["command"] == command]
         healthy = [r for r in mine if r["grp"] == "healthy"]

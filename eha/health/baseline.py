@@ -1,0 +1,87 @@
+"""The baseline-referenced health check: a record judged against the same actuator's own
+earlier record on the same command (its acceptance test), not against the fleet.
+
+Why: a fleet check cannot see a fault smaller than the healthy fleet's manufacturing scatter
+in the estimate (measured, docs/design.md: the jack friction's 20 N spread, the motor gain's
+confusion with the +-3 % flow gain, the LF's model-form floor on the backlash), whatever the
+command. Two records of one actuator on one command share its scatter and the LF model's
+model-form error on that command; what differs between them is the sensor noise, the HF
+dither and the fault. The check's statistic of a fault is then the change of the bank's
+posterior mean from the baseline record to the new one, in the direction of degradation, and
+its thresholds come from pairs of records of healthy actuators
+(:func:`eha.health.detection.calibrate_thresholds` on :func:`referenced` rows).
+
+A referenced row is an assessment row whose means are ``healthy + (new - baseline)``: every
+function that reads a fleet check's rows (thresholds, false alarms, detection, isolation)
+reads a baseline check's unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+from eha.identification.healthy import DetectionError
+from eha.models.faults import FAULTS
+
+#: Group label of the baseline records in a health campaign.
+BASELINE_GROUP = "baseline"
+#: The baseline record of actuator ``s`` is recorded with noise and dither seed
+#: ``(s + BASELINE_SEED_SHIFT) % 2**31`` (another record of the same actuator).
+BASELINE_SEED_SHIFT = 2**30
+
+
+def baseline_record_seed(seed: int) -> int:
+    """Noise and dither seed of the baseline record of the actuator of ``seed``."""
+    return (int(seed) + BASELINE_SEED_SHIFT) % 2**31
+
+
+def referenced_means(new: Mapping[str, float], baseline: Mapping[str, float]
+                     ) -> dict[str, float]:
+    """Per fault, ``healthy + (new - baseline)``: the new record's estimate as a change from
+    the actuator's own baseline (faults missing from either mapping are left out)."""
+    return {n: FAULTS[n].healthy + (float(new[n]) - float(baseline[n]))
+            for n in new if n in baseline and n in FAULTS}
+
+
+def referenced(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str, Any]:
+    """An assessment row (``health_assessments``) referenced to its actuator's baseline row:
+    means and estimates as changes from the baseline's, the spread of one check combined
+    with the baseline's in quadrature; weights and the rest are the new record's."""
+    out = dict(row)
+    out["means"] = referenced_means(row["means"], baseline["means"])
+    if "estimates" in row and "estimates" in baseline:
+        out["estimates"] = referenced_means(row["estimates"], baseline["estimates"])
+    sp, sb = row.get("spread") or {}, baseline.get("spread") or {}
+    out["spread"] = {n: math.hypot(float(sp[n]), float(sb[n])) for n in sp if n in sb}
+    out["baseline_seed"] = baseline.get("seed")
+    return out
+
+
+def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of a campaign with baseline records, each referenced to the baseline of its
+    actuator (same command, same actuator seed); the baseline rows themselves are dropped.
+    Rows of a campaign without baselines come back unchanged.
+
+    Raises
+    ------
+    DetectionError
+        A record whose actuator has no baseline record.
+    """
+    base = {(r["command"], int(r["seed"])): r for r in rows if r["grp"] == BASELINE_GROUP}
+    if not base:
+        return [dict(r) for r in rows]
+    out = []
+    for r in rows:
+        if r["grp"] == BASELINE_GROUP:
+            continue
+        key = (r["command"], int(r["seed"]))
+        if key not in base:
+            raise DetectionError(f"baseline: no baseline record of actuator {key[1]} on "
+                                 f"{key[0]} (the campaign is not finished?)")
+        out.append(referenced(r, base[key]))
+    return out
+
+
+__all__ = ["BASELINE_GROUP", "baseline_record_seed", "referenced", "referenced_means",
+           "pair_with_baselines"]

@@ -1,0 +1,94 @@
+"""The baseline-referenced health check (eha.health.baseline): campaign jobs, pairing, and a
+real record pair of one actuator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eha.health.baseline import (BASELINE_GROUP, baseline_record_seed, pair_with_baselines,
+                                 referenced)
+from eha.health.detection import health_jobs, performance, run_health_job
+from eha.health.assessment import FAULTS
+from eha.identification.healthy import DetectionError, draw_actuator
+from eha.models import O_XU
+
+
+def _row(means, seed, grp="healthy", command="chirp_1cm", spread=0.0):
+    full = {n: FAULTS[n].healthy for n in FAULTS}
+    full.update(means)
+    return {"command": command, "grp": grp, "seed": seed, "means": full, "estimates": full,
+            "spread": {n: spread for n in FAULTS}, "weights": {"none": 1.0}}
+
+
+def test_a_baseline_section_adds_one_healthy_record_of_every_actuator():
+    """``baseline = true``: each actuator of every group gets a healthy job of its own seed,
+    recorded with another noise and dither seed; the jobs without it keep their specs."""
+    ok: list[str] = []
+    plain = health_jobs({"command": "chirp_1cm", "actuators": 2, "faults": {"GM": [0.009]}}, ok)
+    jobs = health_jobs({"command": "chirp_1cm", "actuators": 2, "faults": {"GM": [0.009]},
+                        "baseline": True}, ok)
+    assert ok == [] and len(jobs) == 2 * len(plain)
+    assert [j for j in jobs if j["spec"]["group"] != BASELINE_GROUP] == plain
+    base = [j["spec"] for j in jobs if j["spec"]["group"] == BASELINE_GROUP]
+    assert sorted(s["seed"] for s in base) == sorted(j["spec"]["seed"] for j in plain)
+    for b in base:
+        own = next(j["spec"] for j in plain if j["spec"]["seed"] == b["seed"])
+        assert b["record_seed"] == baseline_record_seed(b["seed"]) != b["seed"]
+        assert b["hf"] == draw_actuator(b["seed"])
+        assert {k: v for k, v in b["hf"].items() if k != "GM"} == \
+            {k: v for k, v in own["hf"].items() if k != "GM"}
+        assert b["truth"]["GM"] == b["hf"]["GM"] != 0.009   # healthy, its own scatter
+    problems: list[str] = []
+    health_jobs({"command": "chirp_1cm", "baseline": "yes"}, problems)
+    assert problems == ["health.baseline='yes': allowed true or false"]
+
+
+def test_referenced_rows_are_changes_from_the_actuators_own_baseline():
+    """A record's means become healthy + (new - baseline); spreads add in quadrature; the
+    baseline rows are dropped; a record without its baseline is one line."""
+    gm0 = FAULTS["GM"].healthy
+    rows = [_row({"GM": gm0 - 3e-4, "FDJ": 260.0}, 1, spread=1.0),
+            _row({"GM": gm0 - 2e-4, "FDJ": 250.0}, 1, grp=BASELINE_GROUP, spread=1.0)]
+    out = pair_with_baselines(rows)
+    assert len(out) == 1
+    assert out[0]["means"]["GM"] == pytest.approx(gm0 - 1e-4)
+    assert out[0]["means"]["FDJ"] == pytest.approx(FAULTS["FDJ"].healthy + 10.0)
+    assert out[0]["spread"]["GM"] == pytest.approx(np.sqrt(2.0))
+    assert referenced(rows[0], rows[1])["baseline_seed"] == 1
+    plain = [_row({}, 3)]
+    assert pair_with_baselines(plain) == plain
+    with pytest.raises(DetectionError, match="no baseline record of actuator 2"):
+        pair_with_baselines(rows + [_row({}, 2, grp="GM=0.009")])
+
+
+def test_performance_of_a_baseline_campaign_removes_the_fleet_scatter():
+    """Twenty healthy actuators whose GM scatters by 2e-4 between them but repeats within
+    1e-6 on their own: against the fleet a 1e-4 loss hides in the scatter; against each
+    actuator's baseline it is detected in every record."""
+    rng = np.random.default_rng(3)
+    gm0 = FAULTS["GM"].healthy
+    own = gm0 + rng.normal(0, 2e-4, 40)
+    rows = []
+    for s in range(40):
+        grp = "healthy" if s < 20 else "GM=0.0099"
+        loss = 0.0 if s < 20 else 1e-4
+        rows.append(_row({"GM": own[s] - loss + rng.normal(0, 1e-6)}, s, grp=grp))
+        rows.append(_row({"GM": own[s] + rng.normal(0, 1e-6)}, s, grp=BASELINE_GROUP))
+    fleet = performance([r for r in rows if r["grp"] != BASELINE_GROUP])["chirp_1cm"]
+    mine = performance(rows)["chirp_1cm"]
+    assert fleet["faults"]["GM"]["levels"][0]["p_detect"] < 0.5
+    assert mine["faults"]["GM"]["levels"][0]["p_detect"] == 1.0
+    assert mine["false_alarms"]["any"] == 0.0
+
+
+def test_a_baseline_record_is_the_same_actuator_with_other_noise_and_dither():
+    """The worker: a baseline job records the same HF actuator with its record seed; the
+    estimates of the two records agree far better than the fleet scatters."""
+    ok: list[str] = []
+    jobs = health_jobs({"command": "chirp_1cm", "actuators": 1, "t_end": 0.3,
+                        "baseline": True}, ok)
+    (row, rec), (brow, brec) = (run_health_job(j["spec"]) for j in jobs)
+    assert row["hf"] == brow["hf"] and brow["grp"] == BASELINE_GROUP
+    assert not np.allclose(rec.data[:, O_XU], brec.data[:, O_XU])
+    assert abs(row["means"]["FDJ"] - brow["means"]["FDJ"]) < 20.0   # the fleet's std: 20 N
