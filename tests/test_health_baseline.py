@@ -92,3 +92,16 @@ def test_a_baseline_record_is_the_same_actuator_with_other_noise_and_dither():
     assert row["hf"] == brow["hf"] and brow["grp"] == BASELINE_GROUP
     assert not np.allclose(rec.data[:, O_XU], brec.data[:, O_XU])
     assert abs(row["means"]["FDJ"] - brow["means"]["FDJ"]) < 20.0   # the fleet's std: 20 N
+
+
+def test_the_shared_model_form_floor_leaves_the_spread_of_a_difference():
+    """Two records of one actuator share the check's model-form floor (Kintas: 0.05 absolute
+    on the calibrated LF): the referenced spread is the noise parts in quadrature."""
+    from eha.identification.intervals import MODEL_FORM
+
+    floor = MODEL_FORM["calibrated"]["Kintas"].abs
+    new = _row({}, 1, spread=0.0)
+    new["spread"]["Kintas"] = float(np.hypot(0.003, floor))
+    old = _row({}, 1, grp=BASELINE_GROUP, spread=0.0)
+    old["spread"]["Kintas"] = float(np.hypot(0.004, floor))
+    assert referenced(new, old)["spread"]["Kintas"] == pytest.approx(0.005)

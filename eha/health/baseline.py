@@ -44,15 +44,34 @@ def referenced_means(new: Mapping[str, float], baseline: Mapping[str, float]
             for n in new if n in baseline and n in FAULTS}
 
 
+def without_model_form(row: Mapping[str, Any]) -> dict[str, float]:
+    """Per fault, the measurement std of one check (its ``spread``) without the check's
+    model-form floor (:data:`eha.identification.intervals.MODEL_FORM` of its base model), which
+    two records of one actuator on one command share: ``sqrt(spread^2 - floor^2)``, the
+    noise part (at least; the widening of a poor fit stays in it)."""
+    from eha.identification.intervals import MODEL_FORM
+
+    terms = MODEL_FORM.get(row.get("base_model", "calibrated"), {})
+    values = row.get("estimates") or row.get("means") or {}
+    out = {}
+    for name, sd in (row.get("spread") or {}).items():
+        term = terms.get(name)
+        floor2 = 0.0 if term is None else \
+            (term.rel * float(values.get(name, 0.0))) ** 2 + term.abs ** 2
+        out[name] = math.sqrt(max(float(sd) ** 2 - floor2, 0.0)) if math.isfinite(sd) else sd
+    return out
+
+
 def referenced(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str, Any]:
     """An assessment row (``health_assessments``) referenced to its actuator's baseline row:
-    means and estimates as changes from the baseline's, the spread of one check combined
-    with the baseline's in quadrature; weights and the rest are the new record's."""
+    means and estimates as changes from the baseline's; the spread, the noise parts of both
+    checks in quadrature (:func:`without_model_form`); weights and the rest are the new
+    record's."""
     out = dict(row)
     out["means"] = referenced_means(row["means"], baseline["means"])
     if "estimates" in row and "estimates" in baseline:
         out["estimates"] = referenced_means(row["estimates"], baseline["estimates"])
-    sp, sb = row.get("spread") or {}, baseline.get("spread") or {}
+    sp, sb = without_model_form(row), without_model_form(baseline)
     out["spread"] = {n: math.hypot(float(sp[n]), float(sb[n])) for n in sp if n in sb}
     out["baseline_seed"] = baseline.get("seed")
     return out
@@ -84,4 +103,4 @@ def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any
 
 
 __all__ = ["BASELINE_GROUP", "baseline_record_seed", "referenced", "referenced_means",
-           "pair_with_baselines"]
+           "pair_with_baselines", "without_model_form"]
