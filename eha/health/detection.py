@@ -38,7 +38,8 @@ from eha.campaigns.jobs import register_job, register_section
 from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
 from eha.health.assessment import FAULTS
-from eha.health.baseline import BASELINE_GROUP, baseline_record_seed, pair_with_baselines
+from eha.health.baseline import (BASELINE_GROUP, baseline_record_seed, pair_with_baselines,
+                                 referenced_means)
 from eha.models.faults import core_faults, detection_levels
 from eha.models.simulate import MODEL_VERSION
 
@@ -308,14 +309,17 @@ def statistic(name: str, estimate: float) -> float:
     return abs(d) if spec.direction == 0 else spec.direction * d
 
 
-def alarm_value(name: str, threshold: float, scale: float = 1.0) -> str:
+def alarm_value(name: str, threshold: float, scale: float = 1.0,
+                reference: float | None = None) -> str:
     """The fault value at which ``threshold`` raises an alarm, as text (``>= 250``,
     ``<= 0.0097``, ``|x - 0| >= 0.004``), in the parameter's unit times ``scale`` (its
-    display unit's factor, :func:`eha.models.units.display_unit`)."""
+    display unit's factor, :func:`eha.models.units.display_unit`), from ``reference`` (the
+    baseline record's estimate in the baseline check; default the healthy value)."""
     spec = FAULTS[name]
+    ref = spec.healthy if reference is None else reference
     if spec.direction == 0:
-        return f"|x - {scale * spec.healthy:g}| > {scale * threshold:.4g}"
-    value = spec.healthy + spec.direction * threshold
+        return f"|x - {scale * ref:g}| > {scale * threshold:.4g}"
+    value = ref + spec.direction * threshold
     return f"{'>' if spec.direction > 0 else '<'} {scale * value:.4g}"
 
 
@@ -339,6 +343,9 @@ class Calibration:
     #: What the checks fit: the position (files made before this field), or with the load
     #: pressure; a check assesses its record on the same signals.
     signals: list[str] = field(default_factory=lambda: ["xu"])
+    #: What a record is judged against: the healthy fleet (files made before this field), or
+    #: the same actuator's own baseline record (:mod:`eha.health.baseline`).
+    reference: str = "fleet"
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -448,17 +455,23 @@ class Verdict:
         return d
 
 
-def verdicts(assessment, calibration: Calibration | None) -> tuple[list[Verdict], list[str]]:
-    """Per-fault verdicts of an assessment and the isolated faults (see the module doc)."""
+def verdicts(assessment, calibration: Calibration | None, baseline=None
+             ) -> tuple[list[Verdict], list[str]]:
+    """Per-fault verdicts of an assessment and the isolated faults (see the module doc); with
+    the ``baseline`` record's assessment, each fault's statistic is its change from that
+    record's (:mod:`eha.health.baseline`) and the healthy value shown is the baseline's."""
     weights = assessment.weights()
+    means = assessment.means if baseline is None else \
+        referenced_means(assessment.means, baseline.means)
     out, isolated = [], []
     for name, est in assessment.estimates.items():
-        stat = statistic(name, assessment.means[name])
+        stat = statistic(name, means[name])
         thr = calibration.thresholds.get(name) if calibration else None
         degraded = None if thr is None else bool(stat > thr)
         w = weights.get(name)
+        healthy = FAULTS[name].healthy if baseline is None else float(baseline.means[name])
         out.append(Verdict(name, float(est), tuple(assessment.intervals[name]),
-                           FAULTS[name].healthy, thr, float(stat), degraded, w))
+                           healthy, thr, float(stat), degraded, w))
         supported = name in core_faults() or (w is not None and w >= ISOLATION_WEIGHT)
         if degraded and supported:
             isolated.append(name)
