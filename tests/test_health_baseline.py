@@ -179,3 +179,27 @@ def test_calibrate_and_check_against_the_actuators_own_baseline(tmp_path):
     gm_row = check["faults"]["GM"]
     assert gm_row["statistic"] == pytest.approx(0.05 * gm, rel=0.3)
     assert "GM" in check["isolated"]
+
+
+def test_baseline_thresholds_are_a_prediction_bound_on_the_pairs_own_spread():
+    """Referenced rows: the threshold is mean + t(1 - alpha/7; n - 1) std sqrt(1 + 1/n) of the
+    pairs' changes, whatever one check's (model-form laden) measurement std says; plain rows
+    keep the fleet rule with that std as a floor."""
+    from scipy.stats import t as student
+
+    from eha.health.detection import calibrate_thresholds
+
+    rng = np.random.default_rng(0)
+    gm0 = FAULTS["GM"].healthy
+    rows = []
+    for s in range(30):
+        base = _row({"GM": gm0}, s, grp=BASELINE_GROUP, spread=1e-3)
+        rows.append(referenced(_row({"GM": gm0 + rng.normal(0, 1e-5)}, s, spread=1e-3), base))
+    thr, healthy = calibrate_thresholds(rows, 0.01)
+    d = np.array([gm0 - r["means"]["GM"] for r in rows])   # GM degrades downwards
+    want = d.mean() + student.ppf(1 - 0.01 / 7, 29) * d.std(ddof=1) * np.sqrt(1 + 1 / 30)
+    assert thr["GM"] == pytest.approx(want) and thr["GM"] < 1e-4
+    assert healthy["GM"]["spread"] == 0.0
+    plain, _ = calibrate_thresholds([{k: v for k, v in r.items() if k != "baseline_seed"}
+                                     for r in rows], 0.01)
+    assert plain["GM"] > 2e-3      # the 1e-3 std of one check as the floor

@@ -93,7 +93,7 @@ def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
                   "alarms in fleet")
     for name, thr in cal.thresholds.items():
         h = cal.healthy[name]
-        sign = {1: "+", -1: "-"}.get(FAULTS[name].direction, "+-")
+        sign = {1: "+", -1: "-"}.get(FAULTS[name].direction, "±")
         table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}",
                       f"{sign}{thr:.4g}" if own else alarm_value(name, thr),
                       f"{cal.false_alarms['per_fault'][name]:.3f}")

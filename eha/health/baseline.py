@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping, Sequence
 
+import numpy as np
+
 from eha.identification.healthy import DetectionError
 from eha.models.faults import FAULTS
 
@@ -77,6 +79,34 @@ def referenced(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str,
     return out
 
 
+def pair_threshold(values: Sequence[float], alpha: float) -> tuple[float, dict[str, float]]:
+    """The baseline check's threshold of a statistic from its values on healthy pairs: the
+    one-sided normal prediction bound of probability ``alpha`` for one more pair,
+    ``mean + t(1 - alpha; n - 1) * std * sqrt(1 + 1/n)`` (Student's t: the std is estimated
+    from ``n`` pairs).
+
+    Why not the fleet check's floor (:func:`eha.identification.healthy.tail_threshold` with the
+    median measurement std of one check): that std is the HAC std of one fit, whose residual
+    carries the LF's model-form error, common to both records of a pair; measured on a 0.3-s
+    design record it is 6 to 8 times the spread of the pairs' differences."""
+    from scipy.stats import t as student
+
+    d = np.asarray(values, dtype=np.float64)
+    d = d[np.isfinite(d)]
+    if d.size < 3:
+        raise DetectionError(f"{d.size} healthy pairs; a baseline threshold needs at least 3")
+    mean, std, n = float(d.mean()), float(d.std(ddof=1)), int(d.size)
+    scale = std * math.sqrt(1.0 + 1.0 / n)
+    q = float(student.ppf(1.0 - alpha, n - 1))
+    return mean + q * scale, {"mean": mean, "std": std, "spread": 0.0, "scale": scale,
+                              "n": n, "max": float(d.max())}
+
+
+def is_referenced(rows: Sequence[Mapping[str, Any]]) -> bool:
+    """Are these rows a baseline check's (:func:`referenced`)?"""
+    return bool(rows) and all("baseline_seed" in r for r in rows)
+
+
 def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """The rows of a campaign with baseline records, each referenced to the baseline of its
     actuator (same command, same actuator seed); the baseline rows themselves are dropped.
@@ -103,4 +133,4 @@ def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any
 
 
 __all__ = ["BASELINE_GROUP", "baseline_record_seed", "referenced", "referenced_means",
-           "pair_with_baselines", "without_model_form"]
+           "pair_with_baselines", "without_model_form", "pair_threshold", "is_referenced"]

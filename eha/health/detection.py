@@ -38,8 +38,8 @@ from eha.campaigns.jobs import register_job, register_section
 from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
 from eha.health.assessment import FAULTS
-from eha.health.baseline import (BASELINE_GROUP, baseline_record_seed, pair_with_baselines,
-                                 referenced_means)
+from eha.health.baseline import (BASELINE_GROUP, baseline_record_seed, is_referenced,
+                                 pair_threshold, pair_with_baselines, referenced_means)
 from eha.models.faults import core_faults, detection_levels
 from eha.models.simulate import MODEL_VERSION
 
@@ -391,12 +391,17 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
     fleet can under-sample — a fault that the bank keeps at its healthy value in every healthy
     record would otherwise get a zero threshold.
 
+    Rows referenced to their actuators' baselines (the baseline check,
+    :func:`eha.health.baseline.referenced`) get :func:`eha.health.baseline.pair_threshold`
+    instead: the pairs' own spread, a prediction bound for one more pair.
+
     Returns ``(thresholds, healthy)``: ``thresholds[name]`` of the statistic, and per fault
     the fleet's mean, std, spread and count of the statistic.
     """
     if not 0 < alpha < 1:
         raise DetectionError(f"alpha={alpha!r}: allowed range (0, 1)")
     names = list(faults or FAULTS)
+    paired = is_referenced(rows)
     thresholds, healthy = {}, {}
     for name in names:
         d = np.array([statistic(name, r["means"][name]) for r in rows if name in r["means"]])
@@ -406,7 +411,8 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
             raise DetectionError(f"calibration: {d.size} healthy assessments of {name}; "
                                  f"at least {MIN_HEALTHY} are needed (use more actuators)")
         spread = float(np.median(sp)) if sp.size else 0.0
-        thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
+        thresholds[name], summary = (pair_threshold(d, alpha / len(names)) if paired else
+                                     tail_threshold(d, alpha / len(names), spread))
         healthy[name] = {k: summary[k] for k in ("mean", "std", "spread", "n", "max")}
     return thresholds, healthy
 

@@ -68,7 +68,8 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     the same actuator's own earlier record, without the fleet's scatter.
 
     Returns ``{"calibration": Calibration, "path": file, "summary": RunSummary,
-    "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
+    "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``
+    (``-baseline.json`` for the baseline check).
     """
     from eha.campaigns.files import build_campaign, CampaignError
     from eha.campaigns.runner import run_campaign
@@ -117,7 +118,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                       reference="baseline" if baseline else "fleet",
                       created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     path = Path(out) if out is not None else Path(results) / "health" / \
-        f"calibration-{label}.json"
+        f"calibration-{label}{'-baseline' if baseline else ''}.json"
     cal.save(path)
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     replace_rows(results, "health_thresholds",
