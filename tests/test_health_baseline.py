@@ -29,7 +29,14 @@ def test_a_baseline_section_adds_one_healthy_record_of_every_actuator():
     jobs = health_jobs({"command": "chirp_1cm", "actuators": 2, "faults": {"GM": [0.009]},
                         "baseline": True}, ok)
     assert ok == [] and len(jobs) == 2 * len(plain)
-    assert [j for j in jobs if j["spec"]["group"] != BASELINE_GROUP] == plain
+    mine = [j for j in jobs if j["spec"]["group"] != BASELINE_GROUP]
+    assert [j for j in mine if j["spec"]["group"] == "healthy"] == \
+        [j for j in plain if j["spec"]["group"] == "healthy"]
+    for j in mine:            # a fault's level: a change from the actuator's own value
+        if j["spec"]["group"] == "GM=0.009":
+            own_gm = draw_actuator(j["spec"]["seed"])["GM"]
+            assert j["spec"]["hf"]["GM"] == pytest.approx(own_gm + 0.009 - FAULTS["GM"].healthy)
+            assert j["spec"]["truth"]["GM"] == j["spec"]["hf"]["GM"]
     base = [j["spec"] for j in jobs if j["spec"]["group"] == BASELINE_GROUP]
     assert sorted(s["seed"] for s in base) == sorted(j["spec"]["seed"] for j in plain)
     for b in base:
@@ -145,6 +152,9 @@ def test_a_baseline_check_needs_its_record_and_its_calibration(tmp_path):
                       "--results", tmp_path / "res", cwd=tmp_path)
     assert "a baseline record needs a calibration made for the baseline check" in \
         error_line(proc, 2)
+    proc = invoke_eha("health", "check", rec, "--calibration", own, "--baseline", rec,
+                      "--results", tmp_path / "res", cwd=tmp_path)
+    assert "the same samples as the record" in error_line(proc, 2)
     assert files_under(tmp_path) == before
 
 
@@ -203,3 +213,52 @@ def test_baseline_thresholds_are_a_prediction_bound_on_the_pairs_own_spread():
     plain, _ = calibrate_thresholds([{k: v for k, v in r.items() if k != "baseline_seed"}
                                      for r in rows], 0.01)
     assert plain["GM"] > 2e-3      # the 1e-3 std of one check as the floor
+
+
+def test_verdicts_refuse_a_check_against_the_wrong_reference(tmp_path):
+    """The library guards what the CLI guards: a baseline calibration judges only with a
+    baseline assessment, a fleet one only without; an unknown reference is one line."""
+    import json
+
+    from eha.health.detection import load_calibration, verdicts
+
+    own = load_calibration(_cal_file(tmp_path, "baseline"))
+    fleet = load_calibration(_cal_file(tmp_path, "fleet"))
+
+    class _A:     # what verdicts reads of an assessment
+        estimates = means = {n: FAULTS[n].healthy for n in FAULTS}
+        intervals = {n: (0.0, 1.0) for n in FAULTS}
+
+        def weights(self):
+            return {"none": 1.0}
+
+    a = _A()
+    with pytest.raises(DetectionError, match="baseline record"):
+        verdicts(a, own)
+    with pytest.raises(DetectionError, match="baseline record"):
+        verdicts(a, fleet, a)
+    vs, isolated = verdicts(a, own, a)
+    assert not any(v.degraded for v in vs) and isolated == []
+    bad = json.loads((tmp_path / "cal-fleet.json").read_text()) | {"reference": "mine"}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(DetectionError, match="reference 'mine'; allowed fleet or baseline"):
+        load_calibration(tmp_path / "bad.json")
+
+
+def test_the_offset_degrades_either_way_so_its_baseline_bound_is_two_sided():
+    """The offset's statistic is |change|: its threshold is the larger end of the two-sided
+    prediction bound of the signed changes (a one-sided bound on |change| would alarm about
+    6 times too often, measured on normal samples by the review)."""
+    from scipy.stats import t as student
+
+    from eha.health.detection import calibrate_thresholds
+
+    rng = np.random.default_rng(4)
+    rows = []
+    for s in range(30):
+        base = _row({}, s, grp=BASELINE_GROUP)
+        rows.append(referenced(_row({"Ofs": rng.normal(0, 1e-3)}, s), base))
+    thr, _ = calibrate_thresholds(rows, 0.01)
+    d = np.array([r["means"]["Ofs"] for r in rows])
+    half = student.ppf(1 - 0.01 / 14, 29) * d.std(ddof=1) * np.sqrt(1 + 1 / 30)
+    assert thr["Ofs"] == pytest.approx(max(abs(d.mean() + half), abs(d.mean() - half)))

@@ -50,7 +50,8 @@ def health_calibrate(
                                   "against its own actuator's earlier record (eha health "
                                   "check --baseline)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
-                                       "RESULTS/health/calibration-COMMAND.json)."),
+                                       "RESULTS/health/calibration-COMMAND.json, "
+                                       "...-baseline.json with --baseline)."),
     results: ResultsOption = RESULTS,
     workers: WorkersOption = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),

@@ -245,7 +245,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
     """
     limits = (limits or Limits()).check()
     options = _check(signals, sampling, noise, alpha, actuators, population, generations, seed,
-                     check)
+                     check, bool(effects or separate or around))
     pairs = _pairs(separate)
     targets = resolve_targets(faults, effects, pairs)
     if around:
@@ -322,9 +322,12 @@ def _better_library_command(t, com, targets, limits, reference, pairs, at_size, 
 
 
 def _check(signals, sampling, noise, alpha, actuators, population, generations, seed,
-           check: str = "fleet") -> dict:
+           check: str = "fleet", beyond_faults: bool = False) -> dict:
     if check not in CHECKS:
         raise DesignError(f"check={check!r}: allowed {', '.join(CHECKS)}")
+    if check == "baseline" and beyond_faults:
+        raise DesignError("check=baseline: the baseline check is a health check of the "
+                          "faults; it takes no effects, pairs or around")
     for s in signals:
         if s not in SIGNALS:
             raise DesignError(f"signals: {s!r}; allowed {', '.join(SIGNALS)}")

@@ -30,10 +30,13 @@ Robust to the actuator's own scatter: every number is the worst over the design'
 
 For the baseline-referenced check (``check="baseline"``, :mod:`eha.health.baseline`: a record
 against the same actuator's own earlier record on the same command) the actuator's scatter
-and the LF's model-form error on the command are common to both records and drop out; the
-statistic is the difference of two checks, so the noise and the dither count twice:
+and the LF's model-form error on the command are common to both records and drop out of the
+spread (the hypothesis a target is read under is still chosen with the scatter present, as
+each record's check chooses it); the statistic is the difference of two checks, so the
+noise and the dither count twice:
 
-    sigma = sqrt(2 (1 + sum (u'd_dither)^2)) / |v|,   MDS_f = (z(1 - alpha/m) + z(P_D)) sigma / gain.
+    sigma = sqrt(2 (1 + sum (u'd_dither)^2)) / |v|,
+    MDS_f = (z(1 - alpha/m) + z(P_D)) * sigma / gain.
 """
 
 from __future__ import annotations
@@ -136,11 +139,10 @@ def actuators(count: int) -> list[dict[str, float]]:
     return [{}] + [draw_actuator(DESIGN_SEED0 + k) for k in range(1, count)]
 
 
-def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int,
-            scatter: bool = True):
+def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int):
     """The HF runs of one actuator: ``(role, name, step, params, seed)``; the truth of each
-    target, the healthy scatter of each scattered parameter (one std; without ``scatter``
-    none: a baseline check's records share it) and two dither reruns."""
+    target, the healthy scatter of each scattered parameter (one std) and two dither
+    reruns."""
     base = dict(actuator)
 
     def moved(param: str, step: float) -> dict[str, float]:
@@ -148,8 +150,7 @@ def _hf_runs(targets: Sequence[Target], actuator: Mapping[str, float], seed: int
 
     runs = [("base", "", 1.0, base, seed)]
     runs += [("target", t.name, t.probe, moved(t.param, t.probe), seed) for t in targets]
-    runs += [("scatter", p, std, moved(p, std), seed)
-             for p, std in (scatter_columns() if scatter else [])]
+    runs += [("scatter", p, std, moved(p, std), seed) for p, std in scatter_columns()]
     runs += [("dither", str(k), 1.0, base, seed + 7919 * k) for k in (1, 2)]
     return runs
 
@@ -288,8 +289,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
     noise = {s: SIGNALS[s][1] for s in signals} | dict(noise or {})
     setting = dict(setting or {})
     acts = [{**a, **setting} for a in actuators(n_actuators)]
-    plan = [(k, r) for k, a in enumerate(acts)
-            for r in _hf_runs(targets, a, DESIGN_SEED0 + k, scatter=check == "fleet")]
+    plan = [(k, r) for k, a in enumerate(acts) for r in _hf_runs(targets, a, DESIGN_SEED0 + k)]
     out = simulate_hf_batch([r[3] for _, r in plan], command, t_end, [r[4] for _, r in plan])
     y = whiten(out, signals, noise, decimate)
     y_lf, lf = _lf_columns(command, targets, t_end,
@@ -305,14 +305,15 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
         rows = [(i, r) for i, (kk, r) in enumerate(plan) if kk == k]
         i0 = rows[0][0]
         truth = {r[1]: (y[i] - y[i0]) / r[2] for i, r in rows if r[0] == "target"}
-        spread = np.stack([y[i] - y[i0] for i, r in rows if r[0] == "scatter"] +
-                          # two draws of one random departure: their mean square
-                          [(y[i] - y[i0]) / 2.0 for i, r in rows if r[0] == "dither"], axis=1)
+        # two draws of one random departure: their mean square
+        dither = [(y[i] - y[i0]) / 2.0 for i, r in rows if r[0] == "dither"]
+        spread = np.stack([y[i] - y[i0] for i, r in rows if r[0] == "scatter"] + dither, axis=1)
         for i, r in rows:
             if r[0] == "target":
                 foot = float(np.sqrt(np.mean((xu[i] - xu[i0]) ** 2)))
                 found.footprint[r[1]] = max(found.footprint[r[1]], foot)
-        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha, check)
+        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha,
+                  np.stack(dither, axis=1) if check == "baseline" else None)
     found.separable_at = {f: dict(row) for f, row in found.separable.items()}
     found.separable = {f: {g: (v / found.mds[f] if 0 < found.mds[f] < math.inf else math.inf)
                            for g, v in row.items()} for f, row in found.separable.items()}
@@ -321,8 +322,11 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
 
 def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mapping,
               lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float,
-              check: str = "fleet") -> None:
-    """Fold one actuator's detectable and separable sizes into ``found`` (the worst)."""
+              dither: np.ndarray | None = None) -> None:
+    """Fold one actuator's detectable and separable sizes into ``found`` (the worst). With
+    ``dither`` (the baseline check) a target's spread is the dither's alone, noise and dither
+    counted twice; the hypothesis it is read under is still the one that absorbs the
+    actuator's whole departure (scatter included), as each record's check chooses it."""
     z = NormalDist().inv_cdf
     m = {"fault": len(FAULTS), "effect": max(1, len(targets))}
     core = _orth([lf[p] for p in core_faults() if p in lf])
@@ -332,8 +336,8 @@ def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mappin
     for t in targets:
         hyp = _best_fitting(_hypotheses(t), lf, spread)
         basis = _orth([lf[p] for p in hyp])
-        if check == "baseline":  # two records: noise and dither twice, scatter and form out
-            size, sd = _detectable(lf[t.param], truth[t.name], basis, math.sqrt(2.0) * spread,
+        if dither is not None:  # two records: noise and dither twice, scatter and form out
+            size, sd = _detectable(lf[t.param], truth[t.name], basis, math.sqrt(2.0) * dither,
                                    1.0, 0.0, z(1.0 - alpha / m[t.kind]), z(P_DETECT))
         else:
             size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,

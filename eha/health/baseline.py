@@ -79,16 +79,19 @@ def referenced(row: Mapping[str, Any], baseline: Mapping[str, Any]) -> dict[str,
     return out
 
 
-def pair_threshold(values: Sequence[float], alpha: float) -> tuple[float, dict[str, float]]:
+def pair_threshold(values: Sequence[float], alpha: float, two_sided: bool = False
+                   ) -> tuple[float, dict[str, float]]:
     """The baseline check's threshold of a statistic from its values on healthy pairs: the
     one-sided normal prediction bound of probability ``alpha`` for one more pair,
     ``mean + t(1 - alpha; n - 1) * std * sqrt(1 + 1/n)`` (Student's t: the std is estimated
-    from ``n`` pairs).
+    from ``n`` pairs). ``two_sided``: ``values`` are signed changes of a fault that degrades
+    either way (its statistic is their absolute value), and the threshold is the larger
+    ``|mean +- t(1 - alpha/2; n - 1) * std * sqrt(1 + 1/n)|``.
 
     Why not the fleet check's floor (:func:`eha.identification.healthy.tail_threshold` with the
     median measurement std of one check): that std is the HAC std of one fit, whose residual
-    carries the LF's model-form error, common to both records of a pair; measured on a 0.3-s
-    design record it is 6 to 8 times the spread of the pairs' differences."""
+    carries the LF's model-form error, common to both records of a pair (docs/decisions.md:
+    8 to 100 times the pairs' own std on a small fleet)."""
     from scipy.stats import t as student
 
     d = np.asarray(values, dtype=np.float64)
@@ -97,9 +100,12 @@ def pair_threshold(values: Sequence[float], alpha: float) -> tuple[float, dict[s
         raise DetectionError(f"{d.size} healthy pairs; a baseline threshold needs at least 3")
     mean, std, n = float(d.mean()), float(d.std(ddof=1)), int(d.size)
     scale = std * math.sqrt(1.0 + 1.0 / n)
-    q = float(student.ppf(1.0 - alpha, n - 1))
-    return mean + q * scale, {"mean": mean, "std": std, "spread": 0.0, "scale": scale,
-                              "n": n, "max": float(d.max())}
+    q = float(student.ppf(1.0 - (alpha / 2.0 if two_sided else alpha), n - 1))
+    summary = {"mean": mean, "std": std, "spread": 0.0, "scale": scale, "n": n,
+               "max": float(np.max(np.abs(d)) if two_sided else d.max())}
+    if two_sided:
+        return max(abs(mean + q * scale), abs(mean - q * scale)), summary
+    return mean + q * scale, summary
 
 
 def is_referenced(rows: Sequence[Mapping[str, Any]]) -> bool:
@@ -107,15 +113,17 @@ def is_referenced(rows: Sequence[Mapping[str, Any]]) -> bool:
     return bool(rows) and all("baseline_seed" in r for r in rows)
 
 
-def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def pair_with_baselines(rows: Sequence[Mapping[str, Any]], strict: bool = True
+                        ) -> list[dict[str, Any]]:
     """The rows of a campaign with baseline records, each referenced to the baseline of its
     actuator (same command, same actuator seed); the baseline rows themselves are dropped.
-    Rows of a campaign without baselines come back unchanged.
+    Rows of a campaign without baselines come back unchanged. Without ``strict`` a record
+    whose baseline is not (yet) there is left out (a report of a running campaign).
 
     Raises
     ------
     DetectionError
-        A record whose actuator has no baseline record.
+        With ``strict``, a record whose actuator has no baseline record.
     """
     base = {(r["command"], int(r["seed"])): r for r in rows if r["grp"] == BASELINE_GROUP}
     if not base:
@@ -125,6 +133,8 @@ def pair_with_baselines(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any
         if r["grp"] == BASELINE_GROUP:
             continue
         key = (r["command"], int(r["seed"]))
+        if key not in base and not strict:
+            continue
         if key not in base:
             raise DetectionError(f"baseline: no baseline record of actuator {key[1]} on "
                                  f"{key[0]} (the campaign is not finished?)")

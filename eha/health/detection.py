@@ -147,7 +147,8 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         for label, injected in groups:
             size = n_healthy if label == "healthy" else n
             for k in range(size):
-                jobs.append(_health_job(command, first + k, label, injected, common))
+                jobs.append(_health_job(command, first + k, label, injected, common,
+                                        relative=baseline))
                 if baseline:
                     jobs.append(_health_job(command, first + k, BASELINE_GROUP, {}, common))
             first += size
@@ -155,13 +156,22 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
 
 
 def _health_job(command: str, seed: int, label: str, injected: Mapping[str, float],
-                common: Mapping[str, Any]) -> dict[str, Any]:
+                common: Mapping[str, Any], relative: bool = False) -> dict[str, Any]:
     """One assessment job: actuator ``seed`` with ``injected`` faults on ``command``; a
-    baseline job records the healthy actuator again with its own noise and dither."""
+    baseline job records the healthy actuator again with its own noise and dither. With
+    ``relative`` (a baseline campaign) a fault's level is a change from the actuator's own
+    drawn value (``level - healthy`` added to it, within the fault's bounds): the change the
+    baseline check sees is the level's deviation from healthy, whatever the actuator's
+    scatter."""
     from eha.models.commands import command_label
 
     shown = command_label(command)
-    hf = {**draw_actuator(seed), **injected}
+    drawn = draw_actuator(seed)
+    if relative:
+        injected = {n: min(max(drawn.get(n, FAULTS[n].healthy) + v - FAULTS[n].healthy,
+                               FAULTS[n].bounds[0]), FAULTS[n].bounds[1])
+                    for n, v in injected.items()}
+    hf = {**drawn, **injected}
     truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
     spec = {"command": command, "hf": hf, "seed": seed, "group": label, "truth": truth,
             **common}
@@ -266,7 +276,7 @@ def run_health_job(spec: Mapping[str, Any]):
     if rec.p12 is not None:
         data[:, O_P12] = rec.p12
     return row, Trace(data, {"model": "hf+noise", "command": spec["command"],
-                             "params": dict(spec["hf"]), "seed": int(spec["seed"])})
+                             "params": dict(spec["hf"]), "seed": record_seed})
 
 
 def run_health_assessment_job(spec: Mapping[str, Any], run_key: str, campaign: str,
@@ -371,6 +381,9 @@ def load_calibration(path: str | Path) -> Calibration:
             not required <= set(data):
         raise DetectionError(f"`calibration` {path}: not a calibration file of format "
                              f"{CALIBRATION_FORMAT} (make one with eha health calibrate)")
+    if data.get("reference", "fleet") not in ("fleet", "baseline"):
+        raise DetectionError(f"`calibration` {path}: reference {data.get('reference')!r}; "
+                             "allowed fleet or baseline")
     if data.get("model_version") != MODEL_VERSION:
         raise DetectionError(f"`calibration` {path}: made for model version "
                              f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
@@ -411,8 +424,13 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
             raise DetectionError(f"calibration: {d.size} healthy assessments of {name}; "
                                  f"at least {MIN_HEALTHY} are needed (use more actuators)")
         spread = float(np.median(sp)) if sp.size else 0.0
-        thresholds[name], summary = (pair_threshold(d, alpha / len(names)) if paired else
-                                     tail_threshold(d, alpha / len(names), spread))
+        if paired and FAULTS[name].direction == 0:   # |change|: a two-sided bound
+            signed = [r["means"][name] - FAULTS[name].healthy for r in rows if name in r["means"]]
+            thresholds[name], summary = pair_threshold(signed, alpha / len(names), True)
+        elif paired:
+            thresholds[name], summary = pair_threshold(d, alpha / len(names))
+        else:
+            thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
         healthy[name] = {k: summary[k] for k in ("mean", "std", "spread", "n", "max")}
     return thresholds, healthy
 
@@ -466,6 +484,9 @@ def verdicts(assessment, calibration: Calibration | None, baseline=None
     """Per-fault verdicts of an assessment and the isolated faults (see the module doc); with
     the ``baseline`` record's assessment, each fault's statistic is its change from that
     record's (:mod:`eha.health.baseline`) and the healthy value shown is the baseline's."""
+    if calibration is not None and (calibration.reference == "baseline") != (baseline is not None):
+        raise DetectionError("baseline: a calibration for the baseline check judges a record "
+                             "with its actuator's baseline record, a fleet calibration without")
     weights = assessment.weights()
     means = assessment.means if baseline is None else \
         referenced_means(assessment.means, baseline.means)
@@ -522,7 +543,8 @@ def performance(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,
     (rows: injected fault, columns: declared fault).
     """
     out: dict[str, Any] = {}
-    rows = pair_with_baselines(rows)   # a baseline campaign: each record against its own
+    # a baseline campaign: each record against its own (a running one: the pairs so far)
+    rows = pair_with_baselines(rows, strict=False)
     for command in sorted({r["command"] for r in rows}):
         mine = [r for r in rows if r["command"] == command]
         healthy = [r for r in mine if r["grp"] == "healthy"]

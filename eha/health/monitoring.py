@@ -223,6 +223,9 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         raise DetectionError(f"`baseline` {baseline}: a baseline record needs a calibration "
                              "made for the baseline check (eha health calibrate --baseline)")
     old = _checked_record(baseline, cal, calibration) if baseline is not None else None
+    if old is not None and np.array_equal(old.xu, data.xu):
+        raise DetectionError(f"`baseline` {baseline}: the same samples as the record {record}; "
+                             "give the actuator's earlier record")
     base = BASE_MODELS[cal.base_model if cal else "calibrated"]
     signals = tuple(cal.signals) if cal else ("xu",)
     for rec, d in ((record, data), (baseline, old)):
