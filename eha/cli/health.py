@@ -184,6 +184,6 @@ def _render_check(run, record: Path) -> None:
     console.print(f"status: {status_text}; isolated: {', '.join(run.isolated) or 'none'}; "
                   f"residual {1e6 * a.residual_rmse:.3g} µm, noise {1e6 * a.noise_rmse:.3g} µm, "
                   f"{a.seconds:.1f} s (seed {a.seed})")
-    for note in a.notes:
+    for note in (*a.notes, *run.baseline_notes):
         warn(note)
     print_paths(run.paths)

@@ -163,6 +163,8 @@ class CheckResult:
     db_error: str | None = None
     #: The actuator's own earlier record the check was referenced to (the baseline check).
     baseline: str | None = None
+    #: What the baseline record's assessment noted (a poor fit of it, for one).
+    baseline_notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         a = self.assessment
@@ -176,7 +178,8 @@ class CheckResult:
                            "degraded" if any(v.degraded for v in self.verdicts) else "healthy"),
                 "flagged": a.flagged, "noise_rmse": a.noise_rmse,
                 "residual_rmse": a.residual_rmse, "seed": a.seed, "seconds": a.seconds,
-                "hypotheses": a.to_dict()["hypotheses"], "notes": list(a.notes)}
+                "hypotheses": a.to_dict()["hypotheses"],
+                "notes": [*a.notes, *self.baseline_notes]}
 
 
 def check_record(record: str | Path, calibration: str | Path | None = None,
@@ -242,7 +245,9 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         key.append(str(Path(baseline).resolve()))
     check_id = hashlib.sha256(json.dumps(key).encode()).hexdigest()[:16]
     out = CheckResult(str(record), a, vs, isolated, str(calibration) if calibration else None,
-                      check_id, baseline=None if baseline is None else str(baseline))
+                      check_id, baseline=None if baseline is None else str(baseline),
+                      baseline_notes=[] if ref is None else
+                      [f"baseline record {baseline}: {n}" for n in ref.notes])
     if json_path is not None:
         p = Path(json_path)
         p.parent.mkdir(parents=True, exist_ok=True)
