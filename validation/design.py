@@ -10,8 +10,7 @@ Parts:
 
 1. **Seven-fault design** (1 s, +-1 cm, 0.1 m/s, alpha 0.01, position only; with
    ``--signals xu,p12`` also the design with the load pressure and its verification by
-   checks that fit it; with ``--baseline`` also the design for the check against each
-   actuator's own baseline record and its verification by such checks): predicted minimum
+   checks that fit it): predicted minimum
    detectable sizes against chirp_1cm, mixed, test and sine; its wall time.
 2. **Verification** (``eha design verify``): a health-detection campaign on the design and the
    ``--library`` commands with the same fleets (``--healthy`` actuators, the first
@@ -81,17 +80,6 @@ def seven_faults(args) -> tuple[dict, Path]:
             with_p12.save(folder, "design-p12")
             out["design_p12"] = {**with_p12.to_dict(),
                                  "seconds": time.perf_counter() - start}
-    if args.baseline:
-        # the same limits for the check against the actuator's own baseline record
-        saved = folder / "design-baseline.json"
-        if args.design and saved.exists():
-            out["design_baseline"] = json.loads(saved.read_text())
-        else:
-            start = time.perf_counter()
-            own = design(limits=Limits(1.0, 0.01, 0.1), seed=args.seed, check="baseline",
-                         on_progress=lambda m: print(m, flush=True))
-            own.save(folder, "design-baseline")
-            out["design_baseline"] = {**own.to_dict(), "seconds": time.perf_counter() - start}
     return out, folder
 
 
@@ -343,11 +331,8 @@ def main() -> None:
     ap.add_argument("--reuse-designs", action="store_true",
                     help="take each ambiguity's design from its folder when it has one "
                          "(OUT/ambiguities/A-B/design.json) instead of searching again")
-    ap.add_argument("--baseline", action="store_true",
-                    help="also the design for the check against each actuator's own baseline "
-                         "record (eha design --check baseline) and its verification")
     ap.add_argument("--skip", default="", help="parts to skip: verify, verify-p12, "
-                    "verify-baseline, ambiguities, wider, test-loads")
+                    "ambiguities, wider, test-loads")
     ap.add_argument("--json", action="store_true", help="write the result file")
     ap.add_argument("--merge", action="store_true",
                     help="keep the result file's parts not rerun (each part has its seconds)")
@@ -363,8 +348,6 @@ def main() -> None:
         doc["verification"] = verification(args, folder)
     if "verify-p12" not in skip and "design_p12" in doc:
         doc["verification_p12"] = verification(args, folder, "design-p12")
-    if "verify-baseline" not in skip and "design_baseline" in doc:
-        doc["verification_baseline"] = verification(args, folder, "design-baseline")
     if "ambiguities" not in skip:
         doc["ambiguities"] = ambiguities(args)
     if "wider" not in skip:

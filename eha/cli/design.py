@@ -29,7 +29,7 @@ _FLAGS = {"duration=": "--duration ", "max_stroke=": "--max-stroke ",
           "population=": "--population ", "generations=": "--generations ",
           "faults:": "--faults:", "effects:": "--effects:", "separate:": "--separate:",
           "signals:": "--signals:", "around:": "--around:", "noise.xu=": "--noise ",
-          "noise.p12=": "--noise-p12 ", "calibration=": "--calibration ", "check=": "--check "}
+          "noise.p12=": "--noise-p12 ", "calibration=": "--calibration "}
 
 
 def _flags(message: str) -> str:
@@ -72,9 +72,6 @@ _ACTUATORS = typer.Option(3, "--actuators", help="Actuators the design must work
 _GENERATIONS = typer.Option(30, "--generations", help="Search generations, 1 to "
                             "500.")
 _POPULATION = typer.Option(32, "--population", help="Search population, 4 to 500.")
-_CHECK = typer.Option("fleet", "--check", help="The health check the test is for: "
-                      "fleet (against the healthy fleet) or baseline (against the "
-                      "actuator's own earlier record on this command).")
 _OUT = typer.Option(Path("results/design"), "--out", help="Folder of the command "
                     "file, JSON report and figure.")
 _NAME = typer.Option("design", "--name", help="Base name of the files written.")
@@ -100,7 +97,6 @@ def design(
     actuators: int = _ACTUATORS,
     generations: int = _GENERATIONS,
     population: int = _POPULATION,
-    check: str = _CHECK,
     out: Path = _OUT,
     name: str = _NAME,
 ):
@@ -135,7 +131,7 @@ def design(
             signals=split_names(signals), sampling=sampling,
             noise={"xu": noise, "p12": noise_p12} if "p12" in signals else {"xu": noise},
             alpha=alpha, seed=seed, actuators=actuators, population=population,
-            generations=generations, check=check,
+            generations=generations,
             on_progress=lambda m: console.print(m, highlight=False))
     except DesignError as exc:
         fail(_flags(str(exc)))

@@ -45,13 +45,8 @@ def health_calibrate(
                                     "of the records in Pa (with --signals xu,p12)."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
                              "noise, optimizer)."),
-    baseline: bool = typer.Option(False, "--baseline", help="Thresholds for the baseline "
-                                  "check: each actuator recorded twice, a record judged "
-                                  "against its own actuator's earlier record (eha health "
-                                  "check --baseline)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
-                                       "RESULTS/health/calibration-COMMAND.json, "
-                                       "...-baseline.json with --baseline)."),
+                                       "RESULTS/health/calibration-COMMAND.json)."),
     results: ResultsOption = RESULTS,
     workers: WorkersOption = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
@@ -77,26 +72,20 @@ def health_calibrate(
         res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
                               noise=noise, alpha=alpha, out=out, results=results,
                               workers=workers, progress=progress,
-                              signals=tuple(signals.split(",")), noise_p12=noise_p12,
-                              baseline=baseline)
+                              signals=tuple(signals.split(",")), noise_p12=noise_p12)
     _render_calibration(res, actuators, command, alpha, results)
 
 
 def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
                         results: Path) -> None:
-    from eha.health.assessment import FAULTS
     from eha.health.detection import alarm_value
 
     cal = res["calibration"]
-    own = cal.reference == "baseline"
-    table = Table("fault", "statistic: healthy mean", "healthy std",
-                  "alarm at a change from the baseline of" if own else "alarm at",
+    table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
                   "alarms in fleet")
     for name, thr in cal.thresholds.items():
         h = cal.healthy[name]
-        sign = {1: "+", -1: "-"}.get(FAULTS[name].direction, "±")
-        table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}",
-                      f"{sign}{thr:.4g}" if own else alarm_value(name, thr),
+        table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}", alarm_value(name, thr),
                       f"{cal.false_alarms['per_fault'][name]:.3f}")
     console.print(table)
     console.print(f"{actuators} healthy actuators on {command}; any-fault alarms in the fleet "
@@ -117,9 +106,6 @@ def health_check(
                                           "else 0.9)."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the check as JSON."),
-    baseline: Optional[Path] = typer.Option(None, "--baseline", help="The same actuator's "
-                                            "earlier record on the same command (with a "
-                                            "calibration made with --baseline)."),
     results: ResultsOption = RESULTS,
     columns: ColumnsOption = None,
     units: UnitsOption = None,
@@ -146,9 +132,7 @@ def health_check(
         run = check_record(record_file(record, columns, units), calibration, level=level,
                            seed=seed, json_path=json_out, results=results,
                            on_progress=(lambda m: status.update(f"assessing: {m}"))
-                           if progress else None,
-                           baseline=None if baseline is None else
-                           record_file(baseline, columns, units))
+                           if progress else None)
     _render_check(run, record)
     if run.db_error:
         fail(f"results database not written: {run.db_error}", code=1)
@@ -164,8 +148,8 @@ def _render_check(run, record: Path) -> None:
     from eha.models.units import display_unit, number
 
     a = run.assessment
-    table = Table("fault", "unit", "estimate", f"{100 * a.level:g} % interval",
-                  "baseline" if run.baseline else "healthy", "alarm at", "verdict", "weight")
+    table = Table("fault", "unit", "estimate", f"{100 * a.level:g} % interval", "healthy",
+                  "alarm at", "verdict", "weight")
     for v in run.verdicts:
         verdict = "-" if v.degraded is None else ("DEGRADED" if v.degraded else "healthy")
         if v.name in run.isolated:
@@ -174,16 +158,15 @@ def _render_check(run, record: Path) -> None:
         table.add_row(v.name, unit or "-", number(v.name, v.estimate, 4),
                       f"[{number(v.name, v.interval[0])}, {number(v.name, v.interval[1])}]",
                       number(v.name, v.healthy, 4), "-" if v.threshold is None else
-                      alarm_value(v.name, v.threshold, scale, v.healthy),
+                      alarm_value(v.name, v.threshold, scale),
                       verdict, "-" if v.weight is None else f"{v.weight:.2f}")
-    console.print(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}"
-                  + (f"; against its baseline record {run.baseline}" if run.baseline else ""),
+    console.print(f"record: {record}; calibration: {run.calibration or _NO_CALIBRATION}",
                   highlight=False)
     console.print(table)
     status_text = run.to_dict()["status"]
     console.print(f"status: {status_text}; isolated: {', '.join(run.isolated) or 'none'}; "
                   f"residual {1e6 * a.residual_rmse:.3g} µm, noise {1e6 * a.noise_rmse:.3g} µm, "
                   f"{a.seconds:.1f} s (seed {a.seed})")
-    for note in (*a.notes, *run.baseline_notes):
+    for note in a.notes:
         warn(note)
     print_paths(run.paths)

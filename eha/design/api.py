@@ -19,7 +19,7 @@ import numpy as np
 
 from eha.design.family import (COMMAND_DT, DesignError, Limits, command_samples, decode,
                                outside_limits)
-from eha.design.predict import CHECKS, FOLLOW_RATIO, Prediction, predict
+from eha.design.predict import FOLLOW_RATIO, Prediction, predict
 from eha.design.search import LIBRARY, best_library, library_predictions, score, search
 from eha.design.targets import SIGNALS, Target, resolve_targets, with_probes
 from eha.models.faults import FAULTS
@@ -202,7 +202,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
            limits: Limits | None = None, signals: Sequence[str] = ("xu",),
            sampling: float = 1000.0, noise: Mapping[str, float] | None = None,
            alpha: float = 0.01, seed: int = 0, actuators: int = 3, population: int = 32,
-           generations: int = 30, check: str = "fleet",
+           generations: int = 30,
            on_progress: Callable[[str], None] | None = None) -> DesignResult:
     """Design a test command (docs/design.md).
 
@@ -234,9 +234,6 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
         Actuators the design must work on (the nominal and scattered ones), 1 to 10.
     population, generations : int
         Search budget.
-    check : {"fleet", "baseline"}
-        The health check the test is for: against the healthy fleet, or against the same
-        actuator's own baseline record on this command (:mod:`eha.health.baseline`).
 
     Raises
     ------
@@ -244,8 +241,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
         Bad limits, an unknown fault, effect or signal, a pair of one.
     """
     limits = (limits or Limits()).check()
-    options = _check(signals, sampling, noise, alpha, actuators, population, generations, seed,
-                     check, bool(effects or separate or around))
+    options = _check(signals, sampling, noise, alpha, actuators, population, generations, seed)
     pairs = _pairs(separate)
     targets = resolve_targets(faults, effects, pairs)
     if around:
@@ -291,7 +287,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                 **limits.to_dict(), "signals": list(signals), "sampling": sampling,
                 "noise": options["noise"], "alpha": alpha, "seed": seed,
                 "actuators": actuators, "population": population, "generations": generations,
-                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO, "check": check,
+                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO,
                 "chosen": (f"library command {incumbent[0]}" if incumbent is not None
                            else "searched")}
     return DesignResult(t, com, refined, prediction, library, settings, segments,
@@ -321,13 +317,7 @@ def _better_library_command(t, com, targets, limits, reference, pairs, at_size, 
     return chosen
 
 
-def _check(signals, sampling, noise, alpha, actuators, population, generations, seed,
-           check: str = "fleet", beyond_faults: bool = False) -> dict:
-    if check not in CHECKS:
-        raise DesignError(f"check={check!r}: allowed {', '.join(CHECKS)}")
-    if check == "baseline" and beyond_faults:
-        raise DesignError("check=baseline: the baseline check is a health check of the "
-                          "faults; it takes no effects, pairs or around")
+def _check(signals, sampling, noise, alpha, actuators, population, generations, seed) -> dict:
     for s in signals:
         if s not in SIGNALS:
             raise DesignError(f"signals: {s!r}; allowed {', '.join(SIGNALS)}")
@@ -351,7 +341,7 @@ def _check(signals, sampling, noise, alpha, actuators, population, generations, 
         if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
             raise DesignError(f"{name}={value!r}: allowed range [{lo}, {hi}]")
     return {"signals": tuple(signals), "noise": noise, "alpha": float(alpha),
-            "n_actuators": actuators, "decimate": int(round(1000.0 / sampling)), "check": check}
+            "n_actuators": actuators, "decimate": int(round(1000.0 / sampling))}
 
 
 def _told_apart(prediction: Prediction, targets, f: str, g: str) -> bool:

@@ -27,16 +27,6 @@ detectable size).
 
 Robust to the actuator's own scatter: every number is the worst over the design's actuators
 (the nominal one and scattered ones).
-
-For the baseline-referenced check (``check="baseline"``, :mod:`eha.health.baseline`: a record
-against the same actuator's own earlier record on the same command) the actuator's scatter
-and the LF's model-form error on the command are common to both records and drop out of the
-spread (the hypothesis a target is read under is still chosen with the scatter present, as
-each record's check chooses it); the statistic is the difference of two checks, so the
-noise and the dither count twice:
-
-    sigma = sqrt(2 (1 + sum (u'd_dither)^2)) / |v|,
-    MDS_f = (z(1 - alpha/m) + z(P_D)) * sigma / gain.
 """
 
 from __future__ import annotations
@@ -68,9 +58,6 @@ DESIGN_SEED0 = 1_000_000
 FOLLOW_RATIO = FLAG_RATIO
 #: Relative step of the flow gain's secant.
 GQ_STEP = 0.02
-#: The health checks a prediction can be for: against the healthy fleet, or against the
-#: actuator's own baseline record (:mod:`eha.health.baseline`).
-CHECKS = ("fleet", "baseline")
 
 
 @dataclass
@@ -253,7 +240,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
             alpha: float = 0.01, n_actuators: int = 3, decimate: int = 1,
             pairs: Sequence[tuple[str, str]] | None = None,
             lf_base: Mapping[str, float] | None = None,
-            setting: Mapping[str, float] | None = None, check: str = "fleet") -> Prediction:
+            setting: Mapping[str, float] | None = None) -> Prediction:
     """Predicted minimum detectable sizes and separable sizes of ``targets`` on ``command``.
 
     Parameters
@@ -280,12 +267,7 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
     setting : mapping, optional
         Parameters of the test set-up on every actuator and in the check's LF model, e.g. a
         test load ``{"FRC": 2000.0}`` [N].
-    check : {"fleet", "baseline"}
-        The health check the sizes are for: against the healthy fleet, or against the
-        actuator's own baseline record on the same command (see the module doc).
     """
-    if check not in CHECKS:
-        raise ValueError(f"check={check!r}: allowed {', '.join(CHECKS)}")
     noise = {s: SIGNALS[s][1] for s in signals} | dict(noise or {})
     setting = dict(setting or {})
     acts = [{**a, **setting} for a in actuators(n_actuators)]
@@ -305,15 +287,14 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
         rows = [(i, r) for i, (kk, r) in enumerate(plan) if kk == k]
         i0 = rows[0][0]
         truth = {r[1]: (y[i] - y[i0]) / r[2] for i, r in rows if r[0] == "target"}
-        # two draws of one random departure: their mean square
-        dither = [(y[i] - y[i0]) / 2.0 for i, r in rows if r[0] == "dither"]
-        spread = np.stack([y[i] - y[i0] for i, r in rows if r[0] == "scatter"] + dither, axis=1)
+        spread = np.stack([y[i] - y[i0] for i, r in rows if r[0] == "scatter"] +
+                          # two draws of one random departure: their mean square
+                          [(y[i] - y[i0]) / 2.0 for i, r in rows if r[0] == "dither"], axis=1)
         for i, r in rows:
             if r[0] == "target":
                 foot = float(np.sqrt(np.mean((xu[i] - xu[i0]) ** 2)))
                 found.footprint[r[1]] = max(found.footprint[r[1]], foot)
-        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha,
-                  np.stack(dither, axis=1) if check == "baseline" else None)
+        _actuator(found, targets, pairs, truth, lf, spread, y[i0] - y_lf, alpha)
     found.separable_at = {f: dict(row) for f, row in found.separable.items()}
     found.separable = {f: {g: (v / found.mds[f] if 0 < found.mds[f] < math.inf else math.inf)
                            for g, v in row.items()} for f, row in found.separable.items()}
@@ -321,12 +302,8 @@ def predict(command: Command, targets: Sequence[Target], t_end: float,
 
 
 def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mapping,
-              lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float,
-              dither: np.ndarray | None = None) -> None:
-    """Fold one actuator's detectable and separable sizes into ``found`` (the worst). With
-    ``dither`` (the baseline check) a target's spread is the dither's alone, noise and dither
-    counted twice; the hypothesis it is read under is still the one that absorbs the
-    actuator's whole departure (scatter included), as each record's check chooses it."""
+              lf: Mapping, spread: np.ndarray, model_form: np.ndarray, alpha: float) -> None:
+    """Fold one actuator's detectable and separable sizes into ``found`` (the worst)."""
     z = NormalDist().inv_cdf
     m = {"fault": len(FAULTS), "effect": max(1, len(targets))}
     core = _orth([lf[p] for p in core_faults() if p in lf])
@@ -336,13 +313,9 @@ def _actuator(found: Prediction, targets: Sequence[Target], pairs, truth: Mappin
     for t in targets:
         hyp = _best_fitting(_hypotheses(t), lf, spread)
         basis = _orth([lf[p] for p in hyp])
-        if dither is not None:  # two records: noise and dither twice, scatter and form out
-            size, sd = _detectable(lf[t.param], truth[t.name], basis, math.sqrt(2.0) * dither,
-                                   1.0, 0.0, z(1.0 - alpha / m[t.kind]), z(P_DETECT))
-        else:
-            size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,
-                                   _model_form_variance(model_form, basis), _floor(t),
-                                   z(1.0 - alpha / m[t.kind]), z(P_DETECT))
+        size, sd = _detectable(lf[t.param], truth[t.name], basis, spread,
+                               _model_form_variance(model_form, basis), _floor(t),
+                               z(1.0 - alpha / m[t.kind]), z(P_DETECT))
         found.mds[t.name] = max(found.mds[t.name], size)
         found.sigma[t.name] = max(found.sigma[t.name], sd)
     c = z(1.0 - alpha / m["fault"]) + z(P_DETECT)
@@ -400,5 +373,4 @@ def _separable(truth: np.ndarray, own, rival, spread, model_form, c: float) -> f
     return c * math.sqrt(var) / math.sqrt(excess)
 
 
-__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT",
-           "CHECKS"]
+__all__ = ["Prediction", "predict", "scatter_columns", "actuators", "whiten", "P_DETECT"]

@@ -21,7 +21,6 @@ from typing import Any, Mapping, Sequence
 
 from eha.design.family import DesignError
 from eha.health.assessment import DEFAULT_NOISE_P12
-from eha.health.baseline import pair_with_baselines
 from eha.health.detection import calibrate_thresholds, isolate_row, statistic
 from eha.health.monitoring import _assessments
 from eha.models.faults import FAULTS
@@ -55,20 +54,15 @@ def levels_around(mds: Mapping[str, float], names: Sequence[str] | None = None
 def verification_table(name: str, commands: Sequence[str], levels: Mapping[str, list[float]],
                        healthy: int, per_level: int, t_end: float, noise: float = 1e-6,
                        seed: int = 0, signals: Sequence[str] = ("xu",),
-                       noise_p12: float | None = None, baseline: bool = False
-                       ) -> dict[str, Any]:
+                       noise_p12: float | None = None) -> dict[str, Any]:
     """The campaign table (a ``[health]`` campaign) of a verification; with ``p12`` among
-    ``signals`` the checks fit the load pressure too (recorded with ``noise_p12`` [Pa]); with
-    ``baseline`` every actuator also records its own healthy baseline and the checks are
-    baseline-referenced (:mod:`eha.health.baseline`)."""
+    ``signals`` the checks fit the load pressure too (recorded with ``noise_p12`` [Pa])."""
     health = {"commands": list(commands), "t_end": float(t_end),
               "healthy_actuators": int(healthy), "actuators": int(per_level),
               "seed": int(seed), "noise": float(noise), "base_model": "calibrated",
               "level": 0.9, "faults": {k: list(v) for k, v in levels.items()}}
     if "p12" in signals:
         health |= {"signals": ["xu", "p12"], "noise_p12": float(noise_p12 or DEFAULT_NOISE_P12)}
-    if baseline:
-        health["baseline"] = True
     return {"name": name, "kind": "health",
             "description": "verification of a designed test command (eha design verify)",
             "health": health}
@@ -83,10 +77,8 @@ def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
 
 def measured(rows: Sequence[Mapping[str, Any]], calibration: int, alpha: float
              ) -> dict[str, Any]:
-    """Measured figures per command of a verification campaign's assessments (of a
-    baseline campaign: each record referenced to its actuator's baseline record)."""
+    """Measured figures per command of a verification campaign's assessments."""
     out: dict[str, Any] = {}
-    rows = pair_with_baselines(rows)
     for command in sorted({r["command"] for r in rows}):
         mine = [r for r in rows if r["command"] == command]
         healthy = sorted((r for r in mine if r["grp"] == "healthy"), key=lambda r: r["seed"])
@@ -216,17 +208,15 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
                           "command)")
     signals = tuple(settings.get("signals", ["xu"]))
     noise = settings.get("noise", {})
-    baseline = settings.get("check", "fleet") == "baseline"
-    # a position-only fleet design keeps the campaign name it always had
+    # a position-only design keeps the campaign name it always had
     tag = hashlib.sha256(json.dumps([commands, healthy, per_level, seed]
-                                    + ([list(signals)] if "p12" in signals else [])
-                                    + (["baseline"] if baseline else []))
+                                    + ([list(signals)] if "p12" in signals else []))
                          .encode()).hexdigest()
     name = f"verify-{command_label(command)}-{tag[:6]}"
     table = verification_table(name, commands, levels, healthy, per_level,
                                float(settings.get("duration", 1.0)),
                                float(noise.get("xu", 1e-6)), seed, signals,
-                               noise.get("p12"), baseline)
+                               noise.get("p12"))
     try:
         camp = build_campaign(table)
     except CampaignError as exc:
@@ -239,8 +229,7 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
     return Verification(figures, predicted, {"healthy": healthy, "calibration": calibration,
                                              "per_level": per_level, "levels": levels,
                                              "library": list(library), "seed": seed,
-                                             "signals": list(signals),
-                                             "check": "baseline" if baseline else "fleet"},
+                                             "signals": list(signals)},
                         name, str(results))
 
 

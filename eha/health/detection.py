@@ -38,8 +38,6 @@ from eha.campaigns.jobs import register_job, register_section
 from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
 from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
 from eha.health.assessment import FAULTS
-from eha.health.baseline import (BASELINE_GROUP, baseline_record_seed, is_referenced,
-                                 pair_threshold, pair_with_baselines, referenced_means)
 from eha.models.faults import core_faults, detection_levels
 from eha.models.simulate import MODEL_VERSION
 
@@ -60,7 +58,7 @@ MAX_ACTUATORS = 10000
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
-                 "noise", "faults", "base_model", "level", "signals", "noise_p12", "baseline"}
+                 "noise", "faults", "base_model", "level", "signals", "noise_p12"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -81,13 +79,10 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         level = 0.9
         signals = ["xu", "p12"]              # optional: the check fits the load pressure too
         noise_p12 = 5e4                      # Pa, white noise of the recorded p12
-        baseline = true                      # optional: each actuator's own healthy record
 
     Without ``faults`` every actuator is healthy (a calibration fleet); with it, each fault
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
-    added. With ``baseline`` every actuator also gets a healthy record of its own on the same
-    command (other noise and dither: :mod:`eha.health.baseline`), and the campaign's
-    figures are those of the baseline-referenced check.
+    added.
     """
     from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
@@ -132,57 +127,32 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
     signals, noise_p12 = _signals(section, problems)
     groups = _fault_groups(section.get("faults", {}), problems)
-    baseline = section.get("baseline", False)
-    if not isinstance(baseline, bool):
-        problems.append(f"health.baseline={baseline!r}: allowed true or false")
     if problems:
         return []
     # only a check that fits p12 says so: the position-only runs keep their keys
     recorded = {"signals": list(signals), "noise_p12": noise_p12} if "p12" in signals else {}
-    common = {"t_end": float(t_end), "noise": float(noise), "base_model": base_model,
-              "level": float(level), **recorded}
+    tag = " (xu,p12)" if recorded else ""
     jobs = []
     for command in commands:
+        shown = command_label(command)
         first = seed
         for label, injected in groups:
             size = n_healthy if label == "healthy" else n
             for k in range(size):
-                jobs.append(_health_job(command, first + k, label, injected, common,
-                                        relative=baseline))
-                if baseline:
-                    jobs.append(_health_job(command, first + k, BASELINE_GROUP, {}, common))
+                s = first + k
+                hf = {**draw_actuator(s), **injected}
+                truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
+                spec = {"command": command, "t_end": float(t_end), "hf": hf, "noise": float(noise),
+                        "seed": s, "base_model": base_model, "level": float(level),
+                        "group": label, "truth": truth, **recorded}
+                jobs.append({"kind": "health_assessment", "spec": spec, "identity": {},
+                             "columns": {"model": "hf", "command": shown, "faults": injected,
+                                         "seed": s, "t_end": float(t_end),
+                                         "fault_label": label,
+                                         "label": f"{shown} {label} actuator {s}{tag}",
+                                         "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
-
-
-def _health_job(command: str, seed: int, label: str, injected: Mapping[str, float],
-                common: Mapping[str, Any], relative: bool = False) -> dict[str, Any]:
-    """One assessment job: actuator ``seed`` with ``injected`` faults on ``command``; a
-    baseline job records the healthy actuator again with its own noise and dither. With
-    ``relative`` (a baseline campaign) a fault's level is a change from the actuator's own
-    drawn value (``level - healthy`` added to it, within the fault's bounds): the change the
-    baseline check sees is the level's deviation from healthy, whatever the actuator's
-    scatter."""
-    from eha.models.commands import command_label
-
-    shown = command_label(command)
-    drawn = draw_actuator(seed)
-    if relative:
-        injected = {n: min(max(drawn.get(n, FAULTS[n].healthy) + v - FAULTS[n].healthy,
-                               FAULTS[n].bounds[0]), FAULTS[n].bounds[1])
-                    for n, v in injected.items()}
-    hf = {**drawn, **injected}
-    truth = {name: float(hf.get(name, FAULTS[name].healthy)) for name in FAULTS}
-    spec = {"command": command, "hf": hf, "seed": seed, "group": label, "truth": truth,
-            **common}
-    if label == BASELINE_GROUP:
-        spec["record_seed"] = baseline_record_seed(seed)
-    tag = " (xu,p12)" if "signals" in common else ""
-    return {"kind": "health_assessment", "spec": spec, "identity": {},
-            "columns": {"model": "hf", "command": shown, "faults": dict(injected), "seed": seed,
-                        "t_end": common["t_end"], "fault_label": label,
-                        "label": f"{shown} {label} actuator {seed}{tag}",
-                        "estimated_s": 10.0 * common["t_end"]}}
 
 
 def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:
@@ -252,16 +222,14 @@ def run_health_job(spec: Mapping[str, Any]):
     from eha.models.simulate import Trace
 
     signals = tuple(spec.get("signals", ("xu",)))
-    # a baseline record: the same actuator (seed) recorded with other noise and dither
-    record_seed = int(spec.get("record_seed", spec["seed"]))
     df = synthetic_record(spec["command"], dict(spec["hf"]), t_end=float(spec["t_end"]),
-                          noise=float(spec["noise"]), seed=record_seed,
+                          noise=float(spec["noise"]), seed=int(spec["seed"]),
                           noise_p12=float(spec.get("noise_p12", 0.0)))
     rec = from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
                       p12=df["p12"].to_numpy() if "p12" in signals else None,
                       source=f"{spec['command']} {spec['group']} {spec['seed']}")
     a = assess_record(rec, base=BASE_MODELS[spec["base_model"]], level=float(spec["level"]),
-                      seed=record_seed, signals=signals)
+                      seed=int(spec["seed"]), signals=signals)
     row = {"command": command_label(spec["command"]), "grp": spec["group"], "seed": int(spec["seed"]),
            "t_end": float(spec["t_end"]), "noise": float(spec["noise"]),
            "base_model": spec["base_model"], "level": a.level, "truth": dict(spec["truth"]),
@@ -276,7 +244,7 @@ def run_health_job(spec: Mapping[str, Any]):
     if rec.p12 is not None:
         data[:, O_P12] = rec.p12
     return row, Trace(data, {"model": "hf+noise", "command": spec["command"],
-                             "params": dict(spec["hf"]), "seed": record_seed})
+                             "params": dict(spec["hf"]), "seed": int(spec["seed"])})
 
 
 def run_health_assessment_job(spec: Mapping[str, Any], run_key: str, campaign: str,
@@ -319,17 +287,14 @@ def statistic(name: str, estimate: float) -> float:
     return abs(d) if spec.direction == 0 else spec.direction * d
 
 
-def alarm_value(name: str, threshold: float, scale: float = 1.0,
-                reference: float | None = None) -> str:
+def alarm_value(name: str, threshold: float, scale: float = 1.0) -> str:
     """The fault value at which ``threshold`` raises an alarm, as text (``>= 250``,
     ``<= 0.0097``, ``|x - 0| >= 0.004``), in the parameter's unit times ``scale`` (its
-    display unit's factor, :func:`eha.models.units.display_unit`), from ``reference`` (the
-    baseline record's estimate in the baseline check; default the healthy value)."""
+    display unit's factor, :func:`eha.models.units.display_unit`)."""
     spec = FAULTS[name]
-    ref = spec.healthy if reference is None else reference
     if spec.direction == 0:
-        return f"|x - {scale * ref:g}| > {scale * threshold:.4g}"
-    value = ref + spec.direction * threshold
+        return f"|x - {scale * spec.healthy:g}| > {scale * threshold:.4g}"
+    value = spec.healthy + spec.direction * threshold
     return f"{'>' if spec.direction > 0 else '<'} {scale * value:.4g}"
 
 
@@ -353,9 +318,6 @@ class Calibration:
     #: What the checks fit: the position (files made before this field), or with the load
     #: pressure; a check assesses its record on the same signals.
     signals: list[str] = field(default_factory=lambda: ["xu"])
-    #: What a record is judged against: the healthy fleet (files made before this field), or
-    #: the same actuator's own baseline record (:mod:`eha.health.baseline`).
-    reference: str = "fleet"
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -381,9 +343,6 @@ def load_calibration(path: str | Path) -> Calibration:
             not required <= set(data):
         raise DetectionError(f"`calibration` {path}: not a calibration file of format "
                              f"{CALIBRATION_FORMAT} (make one with eha health calibrate)")
-    if data.get("reference", "fleet") not in ("fleet", "baseline"):
-        raise DetectionError(f"`calibration` {path}: reference {data.get('reference')!r}; "
-                             "allowed fleet or baseline")
     if data.get("model_version") != MODEL_VERSION:
         raise DetectionError(f"`calibration` {path}: made for model version "
                              f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
@@ -404,17 +363,12 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
     fleet can under-sample — a fault that the bank keeps at its healthy value in every healthy
     record would otherwise get a zero threshold.
 
-    Rows referenced to their actuators' baselines (the baseline check,
-    :func:`eha.health.baseline.referenced`) get :func:`eha.health.baseline.pair_threshold`
-    instead: the pairs' own spread, a prediction bound for one more pair.
-
     Returns ``(thresholds, healthy)``: ``thresholds[name]`` of the statistic, and per fault
     the fleet's mean, std, spread and count of the statistic.
     """
     if not 0 < alpha < 1:
         raise DetectionError(f"alpha={alpha!r}: allowed range (0, 1)")
     names = list(faults or FAULTS)
-    paired = is_referenced(rows)
     thresholds, healthy = {}, {}
     for name in names:
         d = np.array([statistic(name, r["means"][name]) for r in rows if name in r["means"]])
@@ -424,13 +378,7 @@ def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAU
             raise DetectionError(f"calibration: {d.size} healthy assessments of {name}; "
                                  f"at least {MIN_HEALTHY} are needed (use more actuators)")
         spread = float(np.median(sp)) if sp.size else 0.0
-        if paired and FAULTS[name].direction == 0:   # |change|: a two-sided bound
-            signed = [r["means"][name] - FAULTS[name].healthy for r in rows if name in r["means"]]
-            thresholds[name], summary = pair_threshold(signed, alpha / len(names), True)
-        elif paired:
-            thresholds[name], summary = pair_threshold(d, alpha / len(names))
-        else:
-            thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
+        thresholds[name], summary = tail_threshold(d, alpha / len(names), spread)
         healthy[name] = {k: summary[k] for k in ("mean", "std", "spread", "n", "max")}
     return thresholds, healthy
 
@@ -479,26 +427,17 @@ class Verdict:
         return d
 
 
-def verdicts(assessment, calibration: Calibration | None, baseline=None
-             ) -> tuple[list[Verdict], list[str]]:
-    """Per-fault verdicts of an assessment and the isolated faults (see the module doc); with
-    the ``baseline`` record's assessment, each fault's statistic is its change from that
-    record's (:mod:`eha.health.baseline`) and the healthy value shown is the baseline's."""
-    if calibration is not None and (calibration.reference == "baseline") != (baseline is not None):
-        raise DetectionError("baseline: a calibration for the baseline check judges a record "
-                             "with its actuator's baseline record, a fleet calibration without")
+def verdicts(assessment, calibration: Calibration | None) -> tuple[list[Verdict], list[str]]:
+    """Per-fault verdicts of an assessment and the isolated faults (see the module doc)."""
     weights = assessment.weights()
-    means = assessment.means if baseline is None else \
-        referenced_means(assessment.means, baseline.means)
     out, isolated = [], []
     for name, est in assessment.estimates.items():
-        stat = statistic(name, means[name])
+        stat = statistic(name, assessment.means[name])
         thr = calibration.thresholds.get(name) if calibration else None
         degraded = None if thr is None else bool(stat > thr)
         w = weights.get(name)
-        healthy = FAULTS[name].healthy if baseline is None else float(baseline.means[name])
         out.append(Verdict(name, float(est), tuple(assessment.intervals[name]),
-                           healthy, thr, float(stat), degraded, w))
+                           FAULTS[name].healthy, thr, float(stat), degraded, w))
         supported = name in core_faults() or (w is not None and w >= ISOLATION_WEIGHT)
         if degraded and supported:
             isolated.append(name)
@@ -543,8 +482,6 @@ def performance(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,
     (rows: injected fault, columns: declared fault).
     """
     out: dict[str, Any] = {}
-    # a baseline campaign: each record against its own (a running one: the pairs so far)
-    rows = pair_with_baselines(rows, strict=False)
     for command in sorted({r["command"] for r in rows}):
         mine = [r for r in rows if r["command"] == command]
         healthy = [r for r in mine if r["grp"] == "healthy"]

@@ -16,7 +16,6 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from eha.health.baseline import pair_with_baselines
 from eha.health.detection import (DEFAULT_ALPHA, MAX_ACTUATORS, MIN_HEALTHY, Calibration,
                                   calibrate_thresholds, empirical_false_alarms, load_calibration,
                                   performance, verdicts)
@@ -56,20 +55,15 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                     out: str | Path | None = None, results: str | Path = "results",
                     workers: int = 2, progress: bool = True,
                     signals: tuple[str, ...] | list[str] = ("xu",),
-                    noise_p12: float | None = None, baseline: bool = False) -> dict[str, Any]:
+                    noise_p12: float | None = None) -> dict[str, Any]:
     """Run a healthy fleet through the campaign runner and set per-fault thresholds.
 
     ``signals`` is what the checks fit: ``("xu",)``, the position, or ``("xu", "p12")``, the
     position and the load pressure (recorded with ``noise_p12`` [Pa] of white noise); the
     calibration file says which, and :func:`check_record` assesses its records the same way.
 
-    With ``baseline`` every actuator is recorded twice (other noise and dither) and the
-    thresholds are those of the baseline check (:mod:`eha.health.baseline`): a record against
-    the same actuator's own earlier record, without the fleet's scatter.
-
     Returns ``{"calibration": Calibration, "path": file, "summary": RunSummary,
-    "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``
-    (``-baseline.json`` for the baseline check).
+    "campaign": name}``. The file defaults to ``RESULTS/health/calibration-<command>.json``.
     """
     from eha.campaigns.files import build_campaign, CampaignError
     from eha.campaigns.runner import run_campaign
@@ -88,8 +82,6 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
 
         section |= {"signals": list(signals),
                     "noise_p12": DEFAULT_NOISE_P12 if noise_p12 is None else noise_p12}
-    if baseline:                  # a fleet calibration keeps its campaign name
-        section["baseline"] = True
     tag = hashlib.sha256(json.dumps(section, sort_keys=True).encode()).hexdigest()[:8]
     name = f"health-calibrate-{label}-{tag}"
     try:
@@ -101,10 +93,9 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
         raise DetectionError(re.sub(r"health\.(\w+)", r"`\1`", first)) from None
     summary = run_campaign(camp, results, workers=workers, progress=progress)
     rows = _assessments(results, name)
-    if summary.failed or len(rows) < actuators * (2 if baseline else 1):
-        raise DetectionError(f"calibration: {summary.failed} of {len(camp.jobs)} assessments "
+    if summary.failed or len(rows) < actuators:
+        raise DetectionError(f"calibration: {summary.failed} of {actuators} assessments "
                              f"failed ({'; '.join(summary.errors[:1])})")
-    rows = pair_with_baselines(rows)
     thresholds, healthy = calibrate_thresholds(rows, alpha)
     cal = Calibration(command=command,
                       command_sig=command_signature(_command_samples(command, t_end)),
@@ -115,10 +106,9 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                              "campaign": name, "dispersion": _dispersion_text()},
                       false_alarms=empirical_false_alarms(rows, thresholds),
                       signals=["xu", "p12"] if "p12" in signals else ["xu"],
-                      reference="baseline" if baseline else "fleet",
                       created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     path = Path(out) if out is not None else Path(results) / "health" / \
-        f"calibration-{label}{'-baseline' if baseline else ''}.json"
+        f"calibration-{label}.json"
     cal.save(path)
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     replace_rows(results, "health_thresholds",
@@ -161,15 +151,10 @@ class CheckResult:
     check_id: str
     paths: dict[str, Path] = field(default_factory=dict)
     db_error: str | None = None
-    #: The actuator's own earlier record the check was referenced to (the baseline check).
-    baseline: str | None = None
-    #: What the baseline record's assessment noted (a poor fit of it, for one).
-    baseline_notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         a = self.assessment
-        return {"record": self.record, "calibration": self.calibration,
-                "baseline": self.baseline, "level": a.level,
+        return {"record": self.record, "calibration": self.calibration, "level": a.level,
                 "estimates": a.estimates, "means": a.means,
                 "intervals": {k: list(v) for k, v in a.intervals.items()},
                 "faults": {v.name: v.to_dict() for v in self.verdicts},
@@ -178,20 +163,14 @@ class CheckResult:
                            "degraded" if any(v.degraded for v in self.verdicts) else "healthy"),
                 "flagged": a.flagged, "noise_rmse": a.noise_rmse,
                 "residual_rmse": a.residual_rmse, "seed": a.seed, "seconds": a.seconds,
-                "hypotheses": a.to_dict()["hypotheses"],
-                "notes": [*a.notes, *self.baseline_notes]}
+                "hypotheses": a.to_dict()["hypotheses"], "notes": list(a.notes)}
 
 
 def check_record(record: str | Path, calibration: str | Path | None = None,
                  level: float | None = None, seed: int = 0,
                  json_path: str | Path | None = None, results: str | Path | None = "results",
-                 on_progress: Callable[[str], None] | None = None,
-                 baseline: str | Path | None = None) -> CheckResult:
+                 on_progress: Callable[[str], None] | None = None) -> CheckResult:
     """Assess one record, decide healthy/degraded per fault and isolate.
-
-    With a calibration made for the baseline check (:mod:`eha.health.baseline`),
-    ``baseline`` is the same actuator's own earlier record on the same command and length:
-    each fault is judged by its change from that record's estimate.
 
     Raises
     ------
@@ -203,6 +182,7 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
     """
     from eha.health.assessment import assess_record
     from eha.identification.intervals import check_level
+    from eha.identification.measured import load
 
     if level is not None:  # the one check of --level, before any file is read
         try:
@@ -217,37 +197,37 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         except ValueError:
             raise DetectionError(f"`calibration` {calibration}: level {level!r}: allowed "
                                  "range (0, 1)") from None
-    data = _checked_record(record, cal, calibration)
-    if cal is not None and cal.reference == "baseline" and baseline is None:
-        raise DetectionError(f"`baseline`: the calibration {calibration} checks a record "
-                             "against the same actuator's own baseline record on the command; "
-                             "give that record")
-    if baseline is not None and (cal is None or cal.reference != "baseline"):
-        raise DetectionError(f"`baseline` {baseline}: a baseline record needs a calibration "
-                             "made for the baseline check (eha health calibrate --baseline)")
-    old = _checked_record(baseline, cal, calibration) if baseline is not None else None
-    if old is not None and np.array_equal(old.xu, data.xu):
-        raise DetectionError(f"`baseline` {baseline}: the same samples as the record {record}; "
-                             "give the actuator's earlier record")
+    data = load(record)
+    lo, hi = RECORD_SECONDS
+    if not lo <= data.t_end <= hi:
+        raise DetectionError(f"{record}: record of {data.t_end:g} s; the health check takes "
+                             f"[{lo:g}, {hi:g}] s (cut a longer record)")
+    if cal is not None:
+        if abs(data.t_end - cal.t_end) > 1.5e-3:
+            raise DetectionError(f"{record}: {data.t_end:g} s long, the calibration "
+                                 f"{calibration} is for {cal.t_end:g} s records of "
+                                 f"{cal.command}")
+        sig = command_signature(data.com)
+        if sig != cal.command_sig:
+            ref = _command_samples(cal.command, cal.t_end)
+            diff = float(np.max(np.abs(ref - data.com))) if ref.size == data.com.size else \
+                float("nan")
+            raise DetectionError(f"{record}: its command is not {cal.command} (largest "
+                                 f"difference {1e3 * diff:.3g} mm), the command the calibration "
+                                 f"{calibration} was made for; calibrate for this command")
     base = BASE_MODELS[cal.base_model if cal else "calibrated"]
     signals = tuple(cal.signals) if cal else ("xu",)
-    for rec, d in ((record, data), (baseline, old)):
-        if d is not None and "p12" in signals and d.p12 is None:
-            raise DetectionError(f"{rec}: no load pressure (p12 column); the calibration "
-                                 f"{calibration} fits it (calibrated on position and p12)")
+    if "p12" in signals and data.p12 is None:
+        raise DetectionError(f"{record}: no load pressure (p12 column); the calibration "
+                             f"{calibration} fits it (calibrated on position and p12)")
     a = assess_record(data, base=base, level=level, seed=seed, on_progress=on_progress,
                       signals=signals)
-    ref = None if old is None else assess_record(old, base=base, level=level, seed=seed,
-                                                 on_progress=on_progress, signals=signals)
-    vs, isolated = verdicts(a, cal, ref)
-    key = [str(Path(record).resolve()), str(calibration), level, seed, data.info.get("noise_m")]
-    if baseline is not None:     # a fleet check keeps the id it always had
-        key.append(str(Path(baseline).resolve()))
-    check_id = hashlib.sha256(json.dumps(key).encode()).hexdigest()[:16]
+    vs, isolated = verdicts(a, cal)
+    check_id = hashlib.sha256(json.dumps([str(Path(record).resolve()), str(calibration),
+                                          level, seed, data.info.get("noise_m")]).encode()
+                              ).hexdigest()[:16]
     out = CheckResult(str(record), a, vs, isolated, str(calibration) if calibration else None,
-                      check_id, baseline=None if baseline is None else str(baseline),
-                      baseline_notes=[] if ref is None else
-                      [f"baseline record {baseline}: {n}" for n in ref.notes])
+                      check_id)
     if json_path is not None:
         p = Path(json_path)
         p.parent.mkdir(parents=True, exist_ok=True)
@@ -271,32 +251,6 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
         except StoreError as exc:
             out.db_error = str(exc)
     return out
-
-
-def _checked_record(record: str | Path, cal: Calibration | None, calibration) -> Any:
-    """Read a record the check takes: its length within :data:`RECORD_SECONDS`, and with a
-    calibration, its length and command the calibration's; one-line errors."""
-    from eha.identification.measured import load
-
-    data = load(record)
-    lo, hi = RECORD_SECONDS
-    if not lo <= data.t_end <= hi:
-        raise DetectionError(f"{record}: record of {data.t_end:g} s; the health check takes "
-                             f"[{lo:g}, {hi:g}] s (cut a longer record)")
-    if cal is not None:
-        if abs(data.t_end - cal.t_end) > 1.5e-3:
-            raise DetectionError(f"{record}: {data.t_end:g} s long, the calibration "
-                                 f"{calibration} is for {cal.t_end:g} s records of "
-                                 f"{cal.command}")
-        sig = command_signature(data.com)
-        if sig != cal.command_sig:
-            ref = _command_samples(cal.command, cal.t_end)
-            diff = float(np.max(np.abs(ref - data.com))) if ref.size == data.com.size else \
-                float("nan")
-            raise DetectionError(f"{record}: its command is not {cal.command} (largest "
-                                 f"difference {1e3 * diff:.3g} mm), the command the calibration "
-                                 f"{calibration} was made for; calibrate for this command")
-    return data
 
 
 def summary_markdown(perf: Mapping[str, Any], alpha: float) -> str:
