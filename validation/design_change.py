@@ -203,7 +203,7 @@ def measure(command, levels: dict[str, list[float]], args) -> dict:
         for k, size in enumerate(levels[n]):
             det = iso = 0
             for j in range(args.per_level):
-                seed = FAULT0 + 1000 * NAMES.index(n) + 100 * k + j
+                seed = FAULT0 + 10_000 * NAMES.index(n) + 100 * k + j
                 r = chk.pair(seed, n, sign * size)
                 det += int(chk.stats(r)[NAMES.index(n)] > thr[n])
                 iso += int(chk.declared(r, thr) == n)
