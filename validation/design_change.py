@@ -8,7 +8,7 @@ null (docs/design.md, "Floors that no command moves")?
 The check studied here is the plainest one that keeps its false-alarm rate: the new record
 minus the same actuator's earlier record on the same command (its acceptance test; same
 actuator, other sensor noise and HF dither), projected on each fault's LF signature (the
-calibrated LF's change of the position per unit of the fault, at nominal), is a linear
+LF model's change of the position per unit of the fault, at nominal parameters), is a linear
 estimate of the fault's change, Gaussian under no change (noise and dither only). Thresholds
 (:func:`thresholds`): per fault a normal prediction bound at alpha/7 with Student's t from
 ``--calibration`` healthy pairs, two-sided for the offset; the false-alarm rate on
@@ -63,6 +63,15 @@ SEARCH0, CAL0, HELD0, FAULT0 = 100_000, 200_000, 300_000, 400_000
 SHIFT = 1_000_000
 
 
+def faulted(hf: dict, fault: str | None, change: float) -> dict:
+    """Actuator ``hf`` with ``fault`` changed by ``change`` from its own value (within the
+    fault's bounds)."""
+    if not fault:
+        return dict(hf)
+    f = FAULTS[fault]
+    return {**hf, fault: min(max(hf.get(fault, f.healthy) + change, f.bounds[0]), f.bounds[1])}
+
+
 class Check:
     """The change check on one command: signatures, estimates of a pair, thresholds."""
 
@@ -73,6 +82,7 @@ class Check:
         self.S = np.stack([(y[i + 1] - y[0]) / PROBE[n] for i, n in enumerate(NAMES)])
         self.norm2 = (self.S ** 2).sum(axis=1)
         self.unit = self.S / np.sqrt(self.norm2)[:, None]
+        self._healthy: dict[int, np.ndarray] = {}      # new records of healthy actuators
 
     def record(self, hf: dict, seed: int) -> np.ndarray:
         return synthetic_record(self.command, hf, t_end=self.t_end, noise=self.noise,
@@ -82,11 +92,7 @@ class Check:
         """The difference new - earlier of actuator ``seed`` (a fault ``change`` from its own
         value in the new record)."""
         hf = draw_actuator(seed)
-        new = dict(hf)
-        if fault:
-            f = FAULTS[fault]
-            new[fault] = min(max(hf.get(fault, f.healthy) + change, f.bounds[0]), f.bounds[1])
-        return self.record(new, seed) - self.record(hf, seed + SHIFT)
+        return self.record(faulted(hf, fault, change), seed) - self.record(hf, seed + SHIFT)
 
     def estimate(self, r: np.ndarray) -> np.ndarray:
         return (self.S @ r) / self.norm2
@@ -96,19 +102,33 @@ class Check:
         return np.array([statistic(n, FAULTS[n].healthy + a[i]) for i, n in enumerate(NAMES)])
 
     def calibrate(self, seeds, alpha: float) -> dict:
-        st = np.array([self.stats(self.pair(s)) for s in seeds])
-        est = np.array([self.estimate(self.pair(s)) for s in seeds])
-        return thresholds(est, alpha) | {"stats": st}
+        return thresholds(np.array([self.estimate(self.pair(s)) for s in seeds]), alpha)
+
+    def gain(self, fault: str, change: float, seeds) -> float:
+        """The estimate's change per unit of a fault's change ``change`` (signed), noise-free:
+        the new record with the fault minus the one without (same seed: noise and dither
+        cancel), mean over the actuators of ``seeds``."""
+        i, out = NAMES.index(fault), []
+        for s in seeds:
+            hf = draw_actuator(s)
+            if s not in self._healthy:
+                self._healthy[s] = self.record(hf, s)
+            r = self.record(faulted(hf, fault, change), s) - self._healthy[s]
+            out.append(self.estimate(r)[i] / change)
+        return float(np.mean(out))
 
     def predicted(self, cal: dict, seeds) -> dict[str, float]:
-        """Per fault, the change detected at P_D 0.95: the threshold plus z(0.95) healthy
-        pairs' stds of the estimate, over the estimate's gain at the probe (mean of
-        ``seeds``)."""
+        """Per fault, the change detected at P_D 0.95: the threshold's margin over the healthy
+        pairs' mean plus z(0.95) of their stds, over the estimate's gain (:meth:`gain`), read
+        at the probe and again at the size so predicted (faults whose response is not linear
+        in their size: the motor gain on a fast command)."""
         out = {}
-        for i, n in enumerate(NAMES):
-            g = np.mean([self.estimate(self.pair(s, n, PROBE[n]))[i] / PROBE[n] for s in seeds])
-            out[n] = float((cal["thresholds"][n] + Z95 * cal["std"][n]) / g) if g > 0 \
-                else math.inf
+        for n in NAMES:
+            need = cal["thresholds"][n] - cal["mean"][n] + Z95 * cal["std"][n]
+            g = self.gain(n, PROBE[n], seeds)
+            if g > 0:
+                g = self.gain(n, math.copysign(need / g, PROBE[n]), seeds)
+            out[n] = float(need / g) if g > 0 else math.inf
         return out
 
     def declared(self, r: np.ndarray, thr: dict) -> str:
@@ -129,7 +149,7 @@ def thresholds(est: np.ndarray, alpha: float) -> dict:
     from scipy.stats import t as student
 
     n = est.shape[0]
-    thr, std = {}, {}
+    thr, std, means = {}, {}, {}
     for i, name in enumerate(NAMES):
         d = est[:, i] * (1.0 if FAULTS[name].direction == 0 else FAULTS[name].direction)
         mean, sd = float(d.mean()), float(d.std(ddof=1))
@@ -137,8 +157,8 @@ def thresholds(est: np.ndarray, alpha: float) -> dict:
         q = float(student.ppf(1.0 - alpha / len(NAMES) / (2.0 if two else 1.0), n - 1))
         half = q * sd * math.sqrt(1.0 + 1.0 / n)
         thr[name] = max(abs(mean - half), abs(mean + half)) if two else mean + half
-        std[name] = sd
-    return {"thresholds": thr, "std": std}
+        std[name], means[name] = sd, mean
+    return {"thresholds": thr, "std": std, "mean": means}
 
 
 def prediction(command, args, n_pairs: int) -> dict[str, float]:
@@ -156,6 +176,8 @@ def search(args, library: dict[str, dict[str, float]]) -> dict:
     from pymoo.optimize import minimize
 
     limits = Limits(1.0, 0.01, args.max_rate, 20.0)
+    # the library predicted as the candidates are (the same healthy pairs)
+    library = {c: prediction(c, args, args.search_pairs) for c in library}
     best_lib = {n: min(p[n] for p in library.values()) for n in NAMES}
     seen: list = []
 
@@ -182,7 +204,7 @@ def search(args, library: dict[str, dict[str, float]]) -> dict:
     start = rng.random((args.pop, n_genes()))
     starts = [genes([{"shape": shape, "share": 1.0, "amplitude": 1.0, "frequency": f}], limits)
               for shape in ("sine", "triangle") for f in (3.0, 5.0, 8.0)]
-    start[:len(starts)] = starts
+    start[:min(len(starts), args.pop)] = starts[:args.pop]
     minimize(Family(), GA(pop_size=args.pop, sampling=start), ("n_gen", args.generations), seed=args.seed,
              verbose=False)
     value, x, pred = min(seen, key=lambda s: s[0])
@@ -191,11 +213,15 @@ def search(args, library: dict[str, dict[str, float]]) -> dict:
 
 
 def measure(command, levels: dict[str, list[float]], args) -> dict:
+    from scipy.stats import kurtosis
+
     chk = Check(command, 1.0, args.noise)
     cal = chk.calibrate(list(range(CAL0, CAL0 + args.calibration)), args.alpha)
     thr = cal["thresholds"]
     held = [chk.pair(s) for s in range(HELD0, HELD0 + args.held_out)]
     alarms = sum(chk.declared(r, thr) != "none" for r in held)
+    # how normal the healthy estimates are (the thresholds assume it)
+    excess = kurtosis(np.array([chk.estimate(r) for r in held]), axis=0)
     faults = {}
     for n in NAMES:
         sign = -1.0 if FAULTS[n].direction < 0 else 1.0
@@ -207,13 +233,19 @@ def measure(command, levels: dict[str, list[float]], args) -> dict:
                 r = chk.pair(seed, n, sign * size)
                 det += int(chk.stats(r)[NAMES.index(n)] > thr[n])
                 iso += int(chk.declared(r, thr) == n)
+            lo, hi = FAULTS[n].bounds
             rows.append({"size": size, "p_detect": det / args.per_level,
-                         "isolated": iso / args.per_level, "n": args.per_level})
-        ok = [e["size"] for e in rows if e["p_detect"] >= 0.95]
+                         "isolated": iso / args.per_level, "n": args.per_level,
+                         "clipped": not lo <= FAULTS[n].healthy + sign * size <= hi})
+        # the smallest level from which every larger one is detected in >= 95 % of its records
+        # (with 9 a level: all of them)
+        ok = [e["size"] for k, e in enumerate(rows)
+              if all(o["p_detect"] >= 0.95 for o in rows[k:])]
         faults[n] = {"levels": rows, "min_detectable": min(ok) if ok else None}
     from eha.design.verify import upper_bound
 
-    return {"thresholds": thr, "false_alarms": {"n": len(held), "alarms": int(alarms),
+    return {"thresholds": thr, "healthy_excess_kurtosis": dict(zip(NAMES, excess.tolist())),
+            "false_alarms": {"n": len(held), "alarms": int(alarms),
                                                 "rate": alarms / len(held),
                                                 "upper_95": upper_bound(alarms, len(held))},
             "faults": faults}
@@ -226,8 +258,8 @@ def main() -> None:
     ap.add_argument("--max-rate", type=float, default=1.0)
     ap.add_argument("--search-pairs", type=int, default=16)
     ap.add_argument("--library-pairs", type=int, default=60)
-    ap.add_argument("--pop", type=int, default=24)
-    ap.add_argument("--generations", type=int, default=12)
+    ap.add_argument("--pop", type=int, default=30)
+    ap.add_argument("--generations", type=int, default=20)
     ap.add_argument("--calibration", type=int, default=30)
     ap.add_argument("--held-out", type=int, default=200)
     ap.add_argument("--per-level", type=int, default=9)
@@ -236,6 +268,8 @@ def main() -> None:
                     help="measure the command found by the last run (its result file)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    if not 1 <= args.per_level <= 100:
+        ap.error("--per-level: allowed range [1, 100] (the faulty actuators' seeds)")
     start = time.perf_counter()
     library = {c: prediction(c, args, args.library_pairs) for c in LIBRARY}
     for c, p in library.items():
