@@ -45,8 +45,16 @@ def health_calibrate(
                                     "of the records in Pa (with --signals xu,p12)."),
     seed: int = typer.Option(0, "--seed", help="First actuator seed (dispersion, dither, "
                              "noise, optimizer)."),
+    baseline: bool = typer.Option(False, "--baseline", help="Calibrate the change check "
+                                  "instead (eha health check RECORD --baseline EARLIER): "
+                                  "healthy pairs, each actuator recorded twice on two test "
+                                  "days (--nuisance), in seconds, without the campaign runner."),
+    nuisance: Optional[list[str]] = typer.Option(
+        None, "--nuisance", help="With --baseline: a test-day difference NAME=HALFWIDTH "
+        "(repeatable; defaults CJ=0.05, FDJ=0.05, GQ=0.01, PSR=0.02 relative, Ofs=0.002 mA)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
-                                       "RESULTS/health/calibration-COMMAND.json)."),
+                                       "RESULTS/health/calibration-COMMAND.json, "
+                                       "...-baseline.json with --baseline)."),
     results: ResultsOption = RESULTS,
     workers: WorkersOption = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bar."),
@@ -63,17 +71,71 @@ def health_calibrate(
     With --signals xu,p12 the checks fit the load pressure too: a leak that the position
     alone reads as jack friction shows as leakage (docs/design.md).
     """
-    from eha.health.monitoring import calibrate_fleet
-
     check_seed(seed)
     check_out_file(out, "--out", (".json",))
     check_out_dir(results, "--results")
+    if baseline or nuisance:
+        _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance, out,
+                            results, progress, baseline)
+        return
+    from eha.health.monitoring import calibrate_fleet
+
     with resumable("finished assessments are saved, re-run the same command to resume"):
         res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
                               noise=noise, alpha=alpha, out=out, results=results,
                               workers=workers, progress=progress,
                               signals=tuple(signals.split(",")), noise_p12=noise_p12)
     _render_calibration(res, actuators, command, alpha, results)
+
+
+def _parse_nuisances(items: Optional[list[str]]) -> dict[str, float]:
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            fail(f"--nuisance {item!r}: NAME=HALFWIDTH, e.g. GQ=0.01")
+        if not sep:
+            fail(f"--nuisance {item!r}: NAME=HALFWIDTH, e.g. GQ=0.01")
+    return out
+
+
+def _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance, out, results,
+                        progress, baseline) -> None:
+    from eha.health.change_check import calibrate_baseline
+    from eha.models.units import show
+
+    if not baseline:
+        fail("--nuisance: only with --baseline (the test-day differences of the change check)")
+    widths = _parse_nuisances(nuisance)
+    with err_console.status("calibrating the change check ...") as status:
+        res = calibrate_baseline(command=command, actuators=actuators, seed=seed, t_end=t_end,
+                                 noise=noise, alpha=alpha, nuisances=widths, out=out,
+                                 results=results,
+                                 on_progress=(lambda m: status.update(f"calibrating: {m}"))
+                                 if progress else None)
+    cal = res["calibration"]
+    table = Table("fault", "what", "alarm at a change since the baseline of",
+                  "healthy pairs' std of the change")
+    from eha.health.change_calibration import sign_of
+    from eha.models.faults import FAULTS
+
+    for name, f in cal.faults.items():
+        curve = cal.gain(name)
+        sign = "±" if f["two_sided"] else ("+" if sign_of(name) > 0 else "-")
+        at = curve.invert(sign_of(name) * f["threshold"], sign_of(name))
+        table.add_row(name, FAULTS[name].description, f"{sign}{show(name, abs(at))}",
+                      show(name, f["std"] / max(curve.gains[0] if curve.gains else 1.0, 1e-12)))
+    console.print(f"change check calibrated on {actuators} healthy pairs of {command} "
+                  f"({t_end:g} s, {1e6 * noise:g} µm noise); test-day differences: "
+                  + ", ".join(f"{n} ±{w:g}{' mA' if n == 'Ofs' else ''}"
+                              for n, w in cal.nuisances.items()), highlight=False)
+    console.print(table)
+    fa = cal.false_alarms
+    console.print(f"alarms among the calibration's pairs: {fa['in_sample']} of {fa['n']} "
+                  f"(leave-one-out {fa['loo']['alarms']} of {fa['loo']['n']}; target alpha "
+                  f"{alpha:g}); calibration: {res['path']}", highlight=False)
 
 
 def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
@@ -106,6 +168,11 @@ def health_check(
                                           "else 0.9)."),
     seed: int = typer.Option(0, "--seed", help="Optimizer seed."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the check as JSON."),
+    baseline: Optional[Path] = typer.Option(None, "--baseline", help="The same actuator's "
+                                            "earlier record on the same command (its "
+                                            "acceptance test): judge the change since it, "
+                                            "with a calibration made by eha health calibrate "
+                                            "--baseline."),
     results: ResultsOption = RESULTS,
     columns: ColumnsOption = None,
     units: UnitsOption = None,
@@ -128,6 +195,9 @@ def health_check(
              f"--command COMMAND (it writes RESULTS/health/calibration-COMMAND.json)")
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(results, "--results")
+    if baseline is not None:
+        _check_baseline(record, baseline, calibration, level, json_out, results, columns, units)
+        return
     with err_console.status("assessing ...") as status:
         run = check_record(record_file(record, columns, units), calibration, level=level,
                            seed=seed, json_path=json_out, results=results,
@@ -136,6 +206,48 @@ def health_check(
     _render_check(run, record)
     if run.db_error:
         fail(f"results database not written: {run.db_error}", code=1)
+
+
+def _check_baseline(record, baseline, calibration, level, json_out, results, columns,
+                    units) -> None:
+    from eha.health.change_check import check_change
+    from eha.models.faults import FAULTS
+    from eha.models.units import show
+
+    if calibration is None:
+        fail("--baseline: the change check needs --calibration FILE made with eha health "
+             "calibrate --baseline --command COMMAND")
+    run = check_change(record_file(record, columns, units), record_file(baseline, columns, units),
+                       calibration, level=level, json_path=json_out, results=results)
+    console.print(run.finding(), highlight=False)
+    table = Table("fault", "change since the baseline", f"{100 * run.level:g} % interval",
+                  "alarm at", "verdict")
+    for name, v in run.judged.items():
+        verdict = "DEGRADED" if v["degraded"] else "healthy"
+        if name in run.isolated:
+            verdict += " (isolated)"
+        sign = "±" if FAULTS[name].direction == 0 else ("+" if v["alarm_change"] >= 0 else "-")
+        table.add_row(name, _signed(name, v["change"]),
+                      f"[{show(name, v['interval'][0])}, {show(name, v['interval'][1])}]",
+                      f"{sign}{show(name, abs(v['alarm_change']))}", verdict)
+    console.print(f"record: {record}; baseline: {baseline}; calibration: {calibration}",
+                  highlight=False)
+    console.print(table)
+    console.print(f"status: {run.status}; isolated: {' or '.join(run.isolated) or 'none'}; "
+                  f"noise {1e6 * run.noise_rmse['record']:.3g} µm (baseline "
+                  f"{1e6 * run.noise_rmse['baseline']:.3g} µm); {run.seconds:.1f} s",
+                  highlight=False)
+    for note in run.notes:
+        warn(note)
+    print_paths(run.paths)
+    if run.db_error:
+        fail(f"results database not written: {run.db_error}", code=1)
+
+
+def _signed(name: str, value: float) -> str:
+    from eha.models.units import show
+
+    return ("+" if value >= 0 else "-") + show(name, abs(value))
 
 
 _NO_CALIBRATION = ("none, so no healthy/degraded verdicts: make the thresholds once with eha "

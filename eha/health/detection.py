@@ -338,6 +338,10 @@ def load_calibration(path: str | Path) -> Calibration:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DetectionError(f"`calibration` {path}: not a calibration file "
                              f"({type(exc).__name__})") from None
+    if isinstance(data, dict) and data.get("reference") == "baseline":
+        raise DetectionError(f"`calibration` {path}: a calibration of the change check (made "
+                             "with --baseline); give the actuator's earlier record with "
+                             "--baseline, or a fleet calibration (eha health calibrate)")
     required = {"format", "model_version", "command", "command_sig", "t_end", "thresholds"}
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT or \
             not required <= set(data):

@@ -115,7 +115,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
                  [{"calibration": str(path), "command": label, "t_end": float(t_end),
                    "fault": n, "threshold": t, "mean": healthy[n]["mean"],
                    "std": healthy[n]["std"], "n": healthy[n]["n"], "alpha": alpha,
-                   "created_at": now} for n, t in thresholds.items()],
+                   "created_at": now, "reference": "fleet"} for n, t in thresholds.items()],
                  {"calibration": str(path)})
     return {"calibration": cal, "path": path, "summary": summary, "campaign": name}
 
@@ -244,7 +244,7 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
                  "lo": v.interval[0], "hi": v.interval[1], "level": a.level,
                  "healthy": v.healthy, "threshold": v.threshold, "statistic": v.statistic,
                  "degraded": v.degraded, "weight": v.weight, "isolated": v.name in isolated,
-                 "flagged": a.flagged} for v in vs]
+                 "flagged": a.flagged, "reference": "fleet", "baseline": None} for v in vs]
         try:
             out.paths["database"] = replace_rows(results, "health_verdicts", rows,
                                                  {"check_id": check_id})

@@ -67,7 +67,14 @@ HEALTH_THRESHOLDS = """
             PRIMARY KEY (calibration, fault))"""
 
 register_table("health_assessments", HEALTH_ASSESSMENTS, per_run=True)
-register_table("health_verdicts", HEALTH_VERDICTS)
-register_table("health_thresholds", HEALTH_THRESHOLDS)
+#: Columns added after the first release: which check made a row ('fleet': against the
+#: healthy fleet; 'baseline': the change since the actuator's own earlier record, whose path
+#: ``baseline`` names; then ``estimate``, ``lo``, ``hi`` are the fault's change) and, for a
+#: calibration, which check its thresholds are for. Older rows read NULL: the fleet check.
+VERDICTS_ADDED = (("reference", "VARCHAR"), ("baseline", "VARCHAR"))
+THRESHOLDS_ADDED = (("reference", "VARCHAR"),)
+
+register_table("health_verdicts", HEALTH_VERDICTS, added=VERDICTS_ADDED)
+register_table("health_thresholds", HEALTH_THRESHOLDS, added=THRESHOLDS_ADDED)
 
 __all__ = ["HEALTH_ASSESSMENTS", "HEALTH_VERDICTS", "HEALTH_THRESHOLDS"]

@@ -1,0 +1,413 @@
+"""The change check's calibration: thresholds from simulated healthy pairs, the HF gain of
+each fault's estimate, and the judgement of one record difference.
+
+A healthy pair is one actuator of the healthy fleet (manufacturing scatter,
+:func:`eha.identification.healthy.draw_actuator`) recorded twice on the same command: the
+earlier record with its own noise and dither, the later one on another test day (the
+nuisances of :mod:`eha.health.change`, drawn uniformly within their half-widths) with other
+noise and dither. Per fault the threshold is the normal prediction bound of probability
+``alpha / m`` for one more pair with Student's t (the std is estimated from the pairs;
+two-sided for the offset): the probability that a healthy pair raises any alarm is at most
+``alpha`` (union bound). The std is split into a white-noise part, scaled at a check by the
+two records' own noise (:func:`eha.identification.measured.noise_level`), and the rest
+(nuisances, dither), kept: a noisier record gets a wider threshold instead of false alarms.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from eha.health.change import (GAIN_SIZES, NUISANCES, GainCurve, Signatures, check_nuisances,
+                               draw_test_day, probe)
+from eha.identification.healthy import DetectionError, draw_actuator
+from eha.models.faults import FAULTS
+
+#: Version of the change calibration's file format.
+CHANGE_FORMAT = 1
+#: Fewest healthy pairs a calibration is made from.
+MIN_PAIRS = 5
+#: Most healthy pairs of a calibration.
+MAX_PAIRS = 10000
+#: Actuators on which each fault's HF gain is measured (the first of the calibration's).
+GAIN_ACTUATORS = 8
+#: The later record of actuator ``s`` is recorded with noise and dither seed ``s + SHIFT``.
+LATER_SEED_SHIFT = 2**30
+
+
+def later_seed(seed: int) -> int:
+    """Noise and dither seed of the later record of the actuator of ``seed``."""
+    return (int(seed) + LATER_SEED_SHIFT) % 2**31
+
+
+@dataclass(frozen=True)
+class ChangeCalibration:
+    """Thresholds of the change check for one command, record length and model version."""
+
+    command: str
+    command_sig: str
+    t_end: float
+    model_version: str
+    alpha: float
+    level: float
+    noise: float
+    nuisances: dict[str, float]
+    pairs: int
+    seed: int
+    #: per fault: mean, std, noise_var (the noise part of the variance at the calibration's
+    #: noise), other_var, noise_factor, threshold (the margin over the mean at the
+    #: calibration's noise), two_sided, n
+    faults: dict[str, dict[str, Any]]
+    #: per fault: :class:`eha.health.change.GainCurve` as a dict
+    gains: dict[str, dict[str, list]]
+    #: per fault: the earlier records against the nominal LF (mean, std, threshold): is a
+    #: baseline itself unlike the healthy fleet?
+    screen: dict[str, dict[str, float]]
+    #: the model the signatures come from (``hf`` or ``lf``)
+    signatures: str = "hf"
+    #: the healthy pairs' variance over the model's (median over the faults): what the
+    #: model's Gaussian noise leaves out (the dither), for the isolation's likelihood ratios
+    excess: float = 1.0
+    false_alarms: dict[str, Any] = field(default_factory=dict)
+    created_at: str = ""
+    format: int = CHANGE_FORMAT
+    reference: str = "baseline"
+
+    def save(self, path: str | Path) -> Path:
+        from eha.outputs import write_json
+
+        return write_json(Path(path), asdict(self), indent=2)
+
+    def gain(self, name: str) -> GainCurve:
+        g = self.gains[name]
+        return GainCurve(tuple(g["sizes"]), tuple(g["gains"]), tuple(g["spread"]))
+
+
+def load_change_calibration(path: str | Path) -> ChangeCalibration:
+    """Read a change calibration; one-line :class:`DetectionError` on any problem (a fleet
+    calibration given to the change check says so)."""
+    from eha.models.simulate import MODEL_VERSION
+
+    path = Path(path)
+    if path.is_dir():
+        raise DetectionError(f"`calibration` {path}: a folder, not a calibration file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DetectionError(f"`calibration` {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise DetectionError(f"`calibration` {path}: not a calibration file "
+                             f"({type(exc).__name__})") from None
+    if isinstance(data, dict) and data.get("reference", "fleet") == "fleet" and \
+            "thresholds" in data:
+        raise DetectionError(f"`calibration` {path}: a fleet calibration; the check against a "
+                             "baseline record needs one made with eha health calibrate "
+                             "--baseline")
+    required = {"format", "model_version", "command", "command_sig", "t_end", "faults",
+                "gains", "screen"}
+    if not isinstance(data, dict) or data.get("format") != CHANGE_FORMAT or \
+            data.get("reference") != "baseline" or not required <= set(data):
+        raise DetectionError(f"`calibration` {path}: not a change calibration of format "
+                             f"{CHANGE_FORMAT} (make one with eha health calibrate --baseline)")
+    if data.get("model_version") != MODEL_VERSION:
+        raise DetectionError(f"`calibration` {path}: made for model version "
+                             f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
+                             "calibrate again (eha health calibrate --baseline)")
+    try:
+        return ChangeCalibration(**data)
+    except TypeError as exc:
+        raise DetectionError(f"`calibration` {path}: unexpected content ({exc})") from None
+
+
+# --------------------------------------------------------------------------------------------
+# judging one difference
+
+
+def sign_of(name: str) -> float:
+    """+1 or -1: the direction of degradation of fault ``name`` (+1 for the offset)."""
+    return -1.0 if FAULTS[name].direction < 0 else 1.0
+
+
+def judge(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2: float,
+          level: float | None = None) -> dict[str, dict[str, Any]]:
+    """:func:`judge_estimates` of the record difference ``r`` [m] (its linear estimates,
+    :meth:`Signatures.estimate`)."""
+    out = judge_estimates(cal, sig.faults, sig.estimate(r), noise2, level, sig.blind)
+    # the generalized likelihood ratio of each fault alone (the model's variance at the
+    # record's noise, widened by the pairs' measured excess over the model: the dither)
+    for i, name in enumerate(sig.faults):
+        if name in out:
+            # the faults whose signatures differ less than the two models disagree on either
+            out[name]["alike"] = [g for j, g in enumerate(sig.faults) if j != i and
+                                  sig.separation[i, j] <= max(sig.shape_doubt[i],
+                                                              sig.shape_doubt[j])]
+            d = out[name]["statistic"]
+            out[name]["glr"] = float(d * d * sig.info[i] * sig.noise2
+                                     / max(noise2, 1e-30) / cal.excess)
+    return out
+
+
+def judge_estimates(cal: ChangeCalibration, names: Sequence[str], est: np.ndarray,
+                    noise2: float, level: float | None = None, blind: Sequence[str] = ()
+                    ) -> dict[str, dict[str, Any]]:
+    """Each fault's change, interval, statistic, threshold and alarm from the linear
+    estimates ``est`` of a record difference whose two records' noise variances sum to
+    ``noise2`` [m^2].
+
+    The statistic of fault ``f`` is its linear estimate in the direction of degradation, less
+    the healthy pairs' mean; its threshold the calibration's prediction bound with the white
+    noise part of the std at ``noise2``. The change is the estimate read back through the
+    fault's HF gain curve; its interval at ``level`` (default the calibration's) the
+    estimate's spread (Student's t) mapped the same way, widened by the gain's spread over
+    actuators.
+    """
+    from scipy.stats import t as student
+
+    level = cal.level if level is None else float(level)
+    out = {}
+    m = len(cal.faults)
+    for i, name in enumerate(names):
+        f = cal.faults.get(name)
+        if f is None:
+            continue
+        n = int(f["n"])
+        sd = math.sqrt(max(f["other_var"] + f["noise_factor"] * noise2, 1e-300))
+        scale = sd * math.sqrt(1.0 + 1.0 / n)
+        two = bool(f["two_sided"])
+        q = float(student.ppf(1.0 - cal.alpha / m / (2.0 if two else 1.0), n - 1))
+        s = sign_of(name)
+        d = s * float(est[i]) - f["mean"]                 # the change in the estimate's units
+        stat = abs(d) if two else d
+        margin = q * scale
+        curve = cal.gain(name)
+        change = curve.invert(s * d, s)
+        qi = float(student.ppf(0.5 + level / 2.0, n - 1))
+        lo_e, hi_e = s * (d - qi * scale), s * (d + qi * scale)
+        lo, hi = sorted((curve.invert(lo_e, s), curve.invert(hi_e, s)))
+        extra = qi * curve.relative_spread(change) * abs(change)
+        out[name] = {"change": change, "interval": [lo - extra, hi + extra],
+                     "statistic": stat, "threshold": margin, "z": stat / scale,
+                     "degraded": bool(stat > margin), "alarm_change": curve.invert(s * margin, s),
+                     "blind": name in blind}
+    return out
+
+
+#: How much smaller (in the log-likelihood ratio, 2 ln LR) a fault's fit of the difference may
+#: be than the best one's and still be kept among the faults the change is isolated to: the
+#: 95 % point of chi-square with one degree of freedom (the records cannot tell them apart).
+AMBIGUITY_MARGIN = 3.84
+
+
+def isolate_group(judged: Mapping[str, Mapping[str, Any]],
+                  margin: float = AMBIGUITY_MARGIN) -> list[str]:
+    """The faults a degraded difference is isolated to, best first: the alarming fault with
+    the largest generalized likelihood ratio (``glr``), the alarming faults within ``margin``
+    of it, and those whose signatures differ from its less than the HF and LF models of one
+    actuator disagree on either's shape (``alike``: a separation finer than the models' own
+    is not evidence); ``[]`` when nothing alarms. More than one: faults the records do not
+    tell apart (on ``chirp_1cm`` the jack friction and the leakage, the clogging and the
+    spool friction)."""
+    alarmed = sorted(((v.get("glr", v["z"] ** 2), n) for n, v in judged.items()
+                      if v["degraded"]), reverse=True)
+    if not alarmed:
+        return []
+    best, first = alarmed[0]
+    alike = judged[first].get("alike", ())
+    return [n for g, n in alarmed if g >= best - margin or n in alike]
+
+
+def isolate(judged: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The fault a degraded difference is isolated to: among the alarming faults, the one
+    whose statistic is the most standard deviations beyond its healthy mean (the generalized
+    likelihood ratio of one fault under the check's Gaussian model); ``[]`` when nothing
+    alarms."""
+    alarmed = [(v["z"], n) for n, v in judged.items() if v["degraded"]]
+    return [max(alarmed)[1]] if alarmed else []
+
+
+# --------------------------------------------------------------------------------------------
+# calibration
+
+
+def _record(command, hf: Mapping[str, float], t_end: float, noise: float, seed: int):
+    from eha.identification.measured import from_arrays
+    from eha.identification.synthetic import synthetic_record
+
+    df = synthetic_record(command, dict(hf), t_end=t_end, noise=noise, seed=seed)
+    return from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
+                       source="calibration")
+
+
+def _faulted(hf: Mapping[str, float], name: str, change: float) -> tuple[dict, float]:
+    """``hf`` with fault ``name`` changed by ``change`` from its own value, within the
+    parameter's range; the change applied."""
+    from eha.models.params import SPECS
+
+    spec = SPECS[name]
+    v0 = float(hf.get(name, FAULTS[name].healthy))
+    v = min(max(v0 + change, spec.lo), spec.hi)
+    return {**hf, name: v}, v - v0
+
+
+def _prediction_bound(values: np.ndarray, alpha: float, two: bool) -> float:
+    from scipy.stats import t as student
+
+    n = values.size
+    q = float(student.ppf(1.0 - alpha / (2.0 if two else 1.0), n - 1))
+    return q * float(values.std(ddof=1)) * math.sqrt(1.0 + 1.0 / n)
+
+
+def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int = 0,
+                     t_end: float = 1.0, noise: float = 1e-6, alpha: float = 0.01,
+                     level: float = 0.9, nuisances: Mapping[str, float] | None = None,
+                     model: str = "hf",
+                     on_progress: Callable[[str], None] | None = None
+                     ) -> tuple[ChangeCalibration, dict[str, Any]]:
+    """Calibrate the change check on ``actuators`` simulated healthy pairs.
+
+    Returns the calibration and the pairs' figures (``estimates``: one row per pair, the
+    faults' linear estimates; ``screen``: the earlier records against the nominal LF).
+
+    Raises
+    ------
+    DetectionError
+        A setting outside its range (one line naming it).
+    """
+    from eha.identification.healthy import command_signature
+    from eha.identification.measured import noise_level
+    from eha.models.commands import CommandError, as_command
+    from eha.models.simulate import MODEL_VERSION
+
+    problems = []
+    if isinstance(actuators, bool) or not isinstance(actuators, int) or \
+            not MIN_PAIRS <= actuators <= MAX_PAIRS:
+        problems.append(f"`actuators` {actuators!r}: allowed range [{MIN_PAIRS}, {MAX_PAIRS}] "
+                        "(healthy pairs)")
+    if not 0 < alpha < 1:
+        problems.append(f"`alpha` {alpha!r}: allowed range (0, 1)")
+    if not 0 < level < 1:
+        problems.append(f"`level` {level!r}: allowed range (0, 1)")
+    if not (isinstance(noise, (int, float)) and 0 < noise <= 1e-3):
+        problems.append(f"`noise` {noise!r}: allowed range (0, 0.001] m")
+    if not 0.2 <= t_end <= 10:
+        problems.append(f"`t_end` {t_end!r}: allowed range [0.2, 10] s")
+    if problems:
+        raise DetectionError(problems)
+    widths = check_nuisances(nuisances)
+    try:
+        cmd = as_command(command)
+    except (CommandError, ValueError) as exc:
+        raise DetectionError(f"`command`: {exc}") from None
+    first = _record(cmd, draw_actuator(seed), t_end, noise, seed)
+    pairs = []
+    for k in range(actuators):
+        s = seed + k
+        hf = draw_actuator(s)
+        a = first if k == 0 else _record(cmd, hf, t_end, noise, s)
+        b = _record(cmd, draw_test_day(hf, widths, s), t_end, noise, later_seed(s))
+        pairs.append((a.xu, b.xu))
+        if on_progress and (k + 1) % 10 == 0:
+            on_progress(f"{k + 1} of {actuators} healthy pairs")
+    # the records' own command, as a reader of them rebuilds it (the check does the same)
+    sig = Signatures(first.command, t_end, noise, widths, model=model)
+    names = sig.faults
+    est = [sig.estimate(b - a) for a, b in pairs]
+    screen = [sig.estimate(a - sig.y0) for a, _ in pairs]
+    noise2 = [noise_level(a) ** 2 + noise_level(b) ** 2 for a, b in pairs]
+    est, screen, noise2 = np.array(est), np.array(screen), np.array(noise2)
+    faults, screened = {}, {}
+    m = len(names)
+    for i, name in enumerate(names):
+        s = sign_of(name)
+        d = s * est[:, i]
+        two = FAULTS[name].direction == 0
+        var = float(d.var(ddof=1))
+        noise_var = float(sig.noise_factor[i] * noise2.mean())
+        faults[name] = {"mean": float(d.mean()), "std": math.sqrt(var),
+                        "noise_var": noise_var, "other_var": max(var - noise_var, 0.0),
+                        "noise_factor": float(sig.noise_factor[i]),
+                        "threshold": _prediction_bound(d, alpha / m, two),
+                        "two_sided": two, "n": int(d.size)}
+        sd = s * screen[:, i]
+        screened[name] = {"mean": float(sd.mean()), "std": float(sd.std(ddof=1)),
+                          "threshold": _prediction_bound(sd, alpha / m, two), "two_sided": two}
+    if on_progress:
+        on_progress("the HF gain of each fault")
+    gains = _gains(cmd, sig, widths, actuators, seed, t_end, noise)
+    cal = ChangeCalibration(
+        command=str(command), command_sig=command_signature(first.com), t_end=float(t_end),
+        model_version=MODEL_VERSION, alpha=float(alpha), level=float(level),
+        noise=float(noise), nuisances=widths, pairs=int(actuators), seed=int(seed),
+        faults=faults, gains=gains, screen=screened, signatures=model,
+        excess=float(max(np.median([faults[n]["std"] ** 2 * sig.info[i]
+                                    for i, n in enumerate(names) if sig.info[i] > 0]), 1.0)),
+        created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
+    alarms = [any(v["degraded"] for v in judge_estimates(cal, names, e, n2).values())
+              for e, n2 in zip(est, noise2)]
+    cal = ChangeCalibration(**{**asdict(cal), "false_alarms": {
+        "in_sample": int(sum(alarms)), "n": int(actuators),
+        "loo": _leave_one_out(est, noise2, sig, cal)}})
+    return cal, {"estimates": est, "screen": screen, "noise2": noise2, "names": names}
+
+
+def _leave_one_out(est: np.ndarray, noise2: np.ndarray, sig: Signatures,
+                   cal: ChangeCalibration) -> dict[str, Any]:
+    """Each healthy pair judged against thresholds set without it: alarms out of sample."""
+    names = sig.faults
+    m, n = len(names), est.shape[0]
+    alarms = 0
+    for j in range(n):
+        keep = np.arange(n) != j
+        hit = False
+        for i, name in enumerate(names):
+            d = sign_of(name) * est[keep, i]
+            two = cal.faults[name]["two_sided"]
+            thr = _prediction_bound(d, cal.alpha / m, two)
+            x = sign_of(name) * est[j, i] - d.mean()
+            hit |= (abs(x) if two else x) > thr
+        alarms += int(hit)
+    return {"alarms": alarms, "n": n}
+
+
+def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, seed: int,
+           t_end: float, noise: float) -> dict[str, dict[str, list]]:
+    """Per fault, the HF gain curve of its estimate (:class:`GainCurve`): the later record
+    with the fault grown by each size of :data:`GAIN_SIZES` x its probe minus the same record
+    without it (same noise and dither seed: the noise cancels), over the first
+    :data:`GAIN_ACTUATORS` actuators."""
+    out = {}
+    k_max = min(actuators, GAIN_ACTUATORS)
+    later = []
+    for k in range(k_max):
+        s = seed + k
+        hf = draw_test_day(draw_actuator(s), widths, s)
+        later.append((hf, later_seed(s), _record(cmd, hf, t_end, noise, later_seed(s)).xu))
+    for i, name in enumerate(sig.faults):
+        sizes, gains, spread = [], [], []
+        for mult in GAIN_SIZES:
+            g, applied = [], []
+            for hf, s, xb in later:
+                faulty, change = _faulted(hf, name, mult * probe(name))
+                if change == 0:
+                    continue
+                xf = _record(cmd, faulty, t_end, noise, s).xu
+                g.append(sig.estimate(xf - xb)[i] / change)
+                applied.append(change)
+            if len(g) < 2 or abs(np.mean(applied)) < 0.5 * abs(mult * probe(name)):
+                continue                           # clipped at the parameter's range
+            sizes.append(float(np.mean(applied)))
+            gains.append(float(np.mean(g)))
+            spread.append(float(np.std(g, ddof=1)))
+        out[name] = {"sizes": sizes, "gains": gains, "spread": spread}
+    return out
+
+
+__all__ = ["CHANGE_FORMAT", "ChangeCalibration", "load_change_calibration", "calibrate_change",
+           "judge", "judge_estimates", "isolate", "isolate_group",
+           "AMBIGUITY_MARGIN", "later_seed", "sign_of", "MIN_PAIRS", "NUISANCES"]

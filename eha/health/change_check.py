@@ -1,0 +1,289 @@
+"""``eha health check LATER --baseline EARLIER``: a record judged against the same actuator's own
+earlier record (the change check, :mod:`eha.health.change`), and what it shows and writes.
+
+The baseline must be fit for its purpose: the same command, sampling and length as the later
+record and as the calibration (else one line, exit 2, nothing written); a baseline that looks
+unlike the calibration's healthy fleet (the fleet screen, :func:`screen_baseline`) is used, and
+the console and the JSON say so.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from eha.health.change import Signatures
+from eha.health.change_calibration import (ChangeCalibration, isolate_group, judge,
+                                           load_change_calibration, sign_of)
+from eha.identification.healthy import DetectionError, command_signature
+from eha.models.faults import FAULTS
+
+#: Records the change check accepts [s].
+RECORD_SECONDS = (0.2, 10.0)
+
+
+@dataclass
+class ChangeCheckResult:
+    """What ``eha health check --baseline`` shows and writes.
+
+    ``judged[name]``: the fault's ``change`` (later minus earlier, fault unit), its
+    ``interval`` at ``level``, ``statistic``, ``threshold`` (in the estimate's units),
+    ``alarm_change`` (the change at which it alarms), ``degraded``; ``isolated``: the faults
+    the change is isolated to (more than one: the records cannot tell them apart);
+    ``screen``: the faults in which the baseline itself is unlike the healthy fleet.
+    """
+
+    record: str
+    baseline: str
+    calibration: str
+    level: float
+    judged: dict[str, dict[str, Any]]
+    isolated: list[str]
+    screen: list[str]
+    noise_rmse: dict[str, float]
+    check_id: str
+    seconds: float
+    notes: list[str] = field(default_factory=list)
+    paths: dict[str, Path] = field(default_factory=dict)
+    db_error: str | None = None
+
+    @property
+    def status(self) -> str:
+        return "degraded" if any(v["degraded"] for v in self.judged.values()) else "healthy"
+
+    def finding(self) -> str:
+        """The finding in one sentence, with units."""
+        from eha.models.units import show
+
+        if self.status == "healthy":
+            return ("healthy: no fault changed beyond its threshold since the baseline "
+                    f"record (false-alarm probability at most {self._alpha:g})")
+        parts = []
+        for name in self.isolated or [n for n, v in self.judged.items() if v["degraded"]]:
+            v = self.judged[name]
+            parts.append(f"{name} ({FAULTS[name].description}) changed by "
+                         f"{_signed(name, v['change'])} [{show(name, v['interval'][0])}, "
+                         f"{show(name, v['interval'][1])}] since the baseline")
+        which = " or ".join(parts)
+        return f"degraded: {which}"
+
+    _alpha: float = 0.01
+
+    def to_dict(self) -> dict[str, Any]:
+        from eha.models.units import display_unit
+
+        faults = {}
+        for name, v in self.judged.items():
+            unit, scale = display_unit(name)
+            faults[name] = {
+                "change": v["change"], "interval": list(v["interval"]), "level": self.level,
+                "unit": FAULTS[name].unit, "display_unit": unit, "display_scale": scale,
+                "alarm_change": v["alarm_change"], "statistic": v["statistic"],
+                "threshold": v["threshold"], "z": v["z"], "degraded": v["degraded"],
+                "isolated": name in self.isolated, "blind": v["blind"]}
+        return {"check": "change", "status": self.status, "isolated": list(self.isolated),
+                "finding": self.finding(), "record": self.record, "baseline": self.baseline,
+                "calibration": self.calibration, "level": self.level,
+                "changes": {n: f["change"] for n, f in faults.items()},
+                "intervals": {n: f["interval"] for n, f in faults.items()},
+                "faults": faults,
+                "baseline_screen": {"status": "unlike the healthy fleet" if self.screen
+                                    else "like the healthy fleet", "faults": self.screen},
+                "noise_rmse": self.noise_rmse, "seconds": self.seconds,
+                "check_id": self.check_id, "notes": list(self.notes)}
+
+    def to_pandas(self):
+        """One row per fault: change, interval, threshold, verdict (fault units)."""
+        import pandas as pd
+
+        return pd.DataFrame([{"fault": n, "change": v["change"], "lo": v["interval"][0],
+                              "hi": v["interval"][1], "alarm_change": v["alarm_change"],
+                              "degraded": v["degraded"], "isolated": n in self.isolated}
+                             for n, v in self.judged.items()])
+
+
+def _signed(name: str, value: float) -> str:
+    from eha.models.units import show
+
+    return ("+" if value >= 0 else "-") + show(name, abs(value))
+
+
+def _load_pair(record, baseline, cal: ChangeCalibration, calibration):
+    """Both records, checked against each other and against the calibration."""
+    from eha.identification.measured import load
+
+    later, earlier = load(record), load(baseline)
+    lo, hi = RECORD_SECONDS
+    for what, data in (("record", later), ("baseline", earlier)):
+        if not lo <= data.t_end <= hi:
+            raise DetectionError(f"{data.source}: {what} of {data.t_end:g} s; the change check "
+                                 f"takes [{lo:g}, {hi:g}] s")
+    pa, pb = later.info.get("period"), earlier.info.get("period")
+    if pa and pb and abs(pa - pb) > 1e-3 * pa:
+        raise DetectionError(f"--baseline {baseline}: sampled every {1e3 * pb:g} ms, the record "
+                             f"{record} every {1e3 * pa:g} ms; record both the same way")
+    if abs(later.t_end - earlier.t_end) > 1.5e-3 or len(later) != len(earlier):
+        raise DetectionError(f"--baseline {baseline}: {earlier.t_end:g} s long, the record "
+                             f"{record} {later.t_end:g} s; a baseline on the same command and "
+                             "length is needed")
+    if command_signature(earlier.com) != command_signature(later.com):
+        diff = float(np.max(np.abs(earlier.com - later.com)))
+        raise DetectionError(f"--baseline {baseline}: another command than the record {record} "
+                             f"(largest difference {1e3 * diff:.3g} mm); a baseline on the same "
+                             "command is needed")
+    if abs(later.t_end - cal.t_end) > 1.5e-3:
+        raise DetectionError(f"{record}: {later.t_end:g} s long, the calibration {calibration} "
+                             f"is for {cal.t_end:g} s records of {cal.command}")
+    if command_signature(later.com) != cal.command_sig:
+        raise DetectionError(f"{record}: its command is not {cal.command}, the command the "
+                             f"calibration {calibration} was made for; calibrate for this "
+                             "command (eha health calibrate --baseline --command ...)")
+    return later, earlier
+
+
+def screen_baseline(cal: ChangeCalibration, sig: Signatures, xu: np.ndarray) -> list[str]:
+    """The faults in which a baseline record is unlike the calibration's healthy fleet: its
+    difference from the nominal model on the faults' signatures, beyond the prediction bound
+    of the fleet's earlier records at the calibration's alpha (a linear screen of the fleet,
+    not the hypothesis bank of ``eha health check``)."""
+    est = sig.estimate(xu - sig.y0)
+    out = []
+    for i, name in enumerate(sig.faults):
+        sc = cal.screen.get(name)
+        if sc is None:
+            continue
+        d = sign_of(name) * float(est[i]) - sc["mean"]
+        if (abs(d) if sc["two_sided"] else d) > sc["threshold"]:
+            out.append(name)
+    return out
+
+
+def signatures_of(cal: ChangeCalibration, command) -> Signatures:
+    """The calibration's estimator on a record's own command."""
+    return Signatures(command, cal.t_end, cal.noise, cal.nuisances, faults=list(cal.faults),
+                      model=cal.signatures)
+
+
+def check_change(record, baseline, calibration, level: float | None = None,
+                 json_path: str | Path | None = None,
+                 results: str | Path | None = "results") -> ChangeCheckResult:
+    """Judge ``record`` against the same actuator's earlier ``baseline`` record.
+
+    Raises
+    ------
+    DetectionError
+        A missing or wrong calibration (a fleet calibration), a baseline on another command,
+        sampling or length, a record outside the calibration's command or length.
+    eha.identification.measured.MeasuredDataError
+        A record that cannot be read.
+    """
+    from eha.identification.intervals import check_level
+    from eha.identification.measured import noise_level
+
+    start = time.perf_counter()
+    if level is not None:
+        try:
+            level = check_level(level)
+        except ValueError:
+            raise DetectionError(f"`level` {level!r}: allowed range (0, 1), e.g. 0.9") from None
+    cal = load_change_calibration(calibration)
+    later, earlier = _load_pair(record, baseline, cal, calibration)
+    sig = signatures_of(cal, later.command)
+    n_a, n_b = noise_level(earlier.xu), noise_level(later.xu)
+    judged = judge(cal, sig, later.xu - earlier.xu, n_a ** 2 + n_b ** 2, level)
+    isolated = isolate_group(judged)
+    screen = screen_baseline(cal, sig, earlier.xu)
+    notes = []
+    if screen:
+        notes.append(f"the baseline {baseline} itself looks unlike the healthy fleet in "
+                     f"{', '.join(screen)} (fleet screen at alpha {cal.alpha:g}): it is used, "
+                     "but the changes are from an actuator that may already be degraded")
+    for name, v in judged.items():
+        if v["blind"]:
+            notes.append(f"{name}: this command does not move it; a change is not seen")
+    ratio = max(n_a, n_b) / cal.noise if cal.noise > 0 else 1.0
+    if ratio > 3:
+        notes.append(f"sensor noise {1e6 * max(n_a, n_b):.3g} µm, {ratio:.1f}x the "
+                     f"calibration's: thresholds widened for it")
+    check_id = hashlib.sha256(json.dumps(
+        [str(Path(str(record)).resolve()), str(Path(str(baseline)).resolve()),
+         str(calibration), level]).encode()).hexdigest()[:16]
+    out = ChangeCheckResult(str(record), str(baseline), str(calibration),
+                            cal.level if level is None else level, judged, isolated, screen,
+                            {"record": n_b, "baseline": n_a}, check_id,
+                            time.perf_counter() - start, notes)
+    out._alpha = cal.alpha
+    if json_path is not None:
+        from eha.outputs import write_json
+
+        out.paths["json"] = write_json(Path(json_path), out.to_dict(), indent=2)
+    if results is not None:
+        _store(out, results)
+    return out
+
+
+def _store(out: ChangeCheckResult, results) -> None:
+    """The check's rows in ``health_verdicts`` (``reference`` 'baseline')."""
+    from eha.campaigns.store import StoreError, replace_rows
+
+    now = datetime.now(timezone.utc).replace(tzinfo=None)
+    rows = [{"check_id": out.check_id, "record": out.record, "created_at": now,
+             "calibration": out.calibration, "fault": n, "estimate": v["change"],
+             "lo": v["interval"][0], "hi": v["interval"][1], "level": out.level,
+             "healthy": None, "threshold": v["threshold"], "statistic": v["statistic"],
+             "degraded": v["degraded"], "weight": None, "isolated": n in out.isolated,
+             "flagged": bool(out.screen), "reference": "baseline", "baseline": out.baseline}
+            for n, v in out.judged.items()]
+    try:
+        out.paths["database"] = replace_rows(results, "health_verdicts", rows,
+                                             {"check_id": out.check_id})
+    except StoreError as exc:
+        out.db_error = str(exc)
+
+
+def calibrate_baseline(command: str = "chirp_1cm", actuators: int = 30, seed: int = 0,
+                       t_end: float = 1.0, noise: float = 1e-6, alpha: float = 0.01,
+                       level: float = 0.9, nuisances: Mapping[str, float] | None = None,
+                       out: str | Path | None = None, results: str | Path | None = "results",
+                       on_progress=None) -> dict[str, Any]:
+    """``eha health calibrate --baseline``: :func:`eha.health.change_calibration.calibrate_change`,
+    saved (default ``RESULTS/health/calibration-COMMAND-baseline.json``) and its thresholds in
+    ``health_thresholds`` (``reference`` 'baseline').
+
+    Returns ``{"calibration": ChangeCalibration, "path": file}``.
+    """
+    from eha.health.change_calibration import calibrate_change
+    from eha.models.commands import CommandError, command_label, pin_command
+
+    try:
+        pinned, label = pin_command(command), command_label(command)
+    except (CommandError, ValueError) as exc:
+        raise DetectionError(f"`command`: {exc}") from None
+    cal, _ = calibrate_change(pinned, actuators, seed, t_end, noise, alpha, level, nuisances,
+                              on_progress=on_progress)
+    base = Path(results) if results is not None else Path("results")
+    path = Path(out) if out is not None else base / "health" / f"calibration-{label}-baseline.json"
+    cal.save(path)
+    if results is not None:
+        from eha.campaigns.store import replace_rows
+
+        now = datetime.now(timezone.utc).replace(tzinfo=None)
+        replace_rows(results, "health_thresholds",
+                     [{"calibration": str(path), "command": label, "t_end": float(t_end),
+                       "fault": n, "threshold": f["threshold"], "mean": f["mean"],
+                       "std": f["std"], "n": f["n"], "alpha": alpha, "created_at": now,
+                       "reference": "baseline"} for n, f in cal.faults.items()],
+                     {"calibration": str(path)})
+    return {"calibration": cal, "path": path}
+
+
+__all__ = ["ChangeCheckResult", "check_change", "calibrate_baseline", "screen_baseline",
+           "signatures_of"]

@@ -1,0 +1,226 @@
+"""The change check (eha.health.change, change_calibration, change_check): a record judged
+against the same actuator's own earlier record. Round trips with known truth on simulated pairs
+(fixed seeds), the calibration file, `eha health calibrate --baseline` / `eha health check
+--baseline` on real files and a real DuckDB, and bad input (one line, exit 2, nothing written)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from helpers import error_line, files_under, invoke_eha
+from eha.health.change import GainCurve, NUISANCES, check_nuisances, draw_test_day
+from eha.health.change_calibration import (_faulted, _record, calibrate_change, isolate_group,
+                                           judge, later_seed, load_change_calibration)
+from eha.health.change_check import check_change, signatures_of
+from eha.identification.healthy import DetectionError, draw_actuator
+from eha.identification.measured import noise_level
+from eha.models.commands import as_command
+
+#: A short record keeps the pairs cheap (each HF record of 0.5 s takes a few ms).
+T_END = 0.5
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    """A change calibration on 20 healthy pairs of chirp_1cm, 0.5 s (about 2 s)."""
+    cal, pairs = calibrate_change("chirp_1cm", actuators=20, seed=0, t_end=T_END)
+    return cal, pairs
+
+
+def _pair(cal, seed, fault=None, change=0.0):
+    """A pair of records of actuator ``seed`` (the later one on another test day, with a
+    fault grown by ``change``) judged by ``cal``."""
+    cmd = as_command(cal.command)
+    hf = draw_actuator(seed)
+    a = _record(cmd, hf, T_END, 1e-6, seed)
+    b_hf = draw_test_day(hf, cal.nuisances, seed)
+    if fault:
+        b_hf, _ = _faulted(b_hf, fault, change)
+    b = _record(cmd, b_hf, T_END, 1e-6, later_seed(seed))
+    sig = signatures_of(cal, a.command)
+    return judge(cal, sig, b.xu - a.xu, noise_level(a.xu) ** 2 + noise_level(b.xu) ** 2)
+
+
+def test_nuisances_are_declared_once_and_checked():
+    assert check_nuisances(None) == {n: v.width for n, v in NUISANCES.items()}
+    assert check_nuisances({"GQ": 0.02})["GQ"] == 0.02
+    with pytest.raises(DetectionError, match="unknown; allowed CJ"):
+        check_nuisances({"XX": 0.1})
+    with pytest.raises(DetectionError, match=r"PSR=0.9: allowed range \[0, 0.5\]"):
+        check_nuisances({"PSR": 0.9})
+    # another test day: every nuisance within its half-width of the actuator's own value
+    hf = draw_actuator(3)
+    later = draw_test_day(hf, check_nuisances(None), 3)
+    assert abs(later["FDJ"] / hf["FDJ"] - 1) <= 0.05
+    assert abs(later["GQ"] / hf["GQ"] - 1) <= 0.01
+    assert abs(later["Ofs"] - 0.0) <= 0.002
+    assert later == draw_test_day(hf, check_nuisances(None), 3)          # reproducible
+
+
+def test_gain_curve_inverts_its_own_response():
+    curve = GainCurve((1.0, 2.0, 4.0), (1.0, 0.8, 0.5), (0.1, 0.1, 0.1))
+    for size in (0.5, 1.0, 1.7, 3.0, 6.0):
+        assert curve.invert(curve.estimate_at(size), 1.0) == pytest.approx(size)
+    # a fault that degrades downwards (the motor gain): sizes and estimates negative
+    down = GainCurve((-1.0, -2.0), (0.9, 0.9), (0.0, 0.0))
+    assert down.invert(down.estimate_at(-1.5), -1.0) == pytest.approx(-1.5)
+
+
+def test_calibration_is_reproducible_and_holds_its_false_alarms(calibrated):
+    cal, pairs = calibrated
+    assert cal.pairs == 20 and cal.reference == "baseline"
+    assert set(cal.faults) == {"BKL", "FDJ", "GM", "Kintas", "Clk", "Ofs", "FSS"}
+    assert all(f["threshold"] > 0 and f["std"] > 0 for f in cal.faults.values())
+    assert cal.faults["Ofs"]["two_sided"] and not cal.faults["FDJ"]["two_sided"]
+    # the leave-one-out alarms of 20 healthy pairs at alpha 0.01: 0 expected, 2 would be rare
+    assert cal.false_alarms["loo"]["alarms"] <= 1
+    again, _ = calibrate_change("chirp_1cm", actuators=20, seed=0, t_end=T_END)
+    assert again.faults == cal.faults and again.gains == cal.gains
+
+
+@pytest.mark.parametrize("fault, change", [("FDJ", 150.0), ("BKL", 2e-5), ("Ofs", -0.03),
+                                           ("GM", -2e-3)])
+def test_a_grown_fault_is_detected_isolated_and_its_change_covered(calibrated, fault, change):
+    """Round trip with known truth: a fault grown well beyond its threshold (about 5x) on a
+    held-out actuator is detected, the change is isolated to a group holding it, and the
+    interval covers the true change; the same actuator without the fault is healthy."""
+    cal, _ = calibrated
+    judged = _pair(cal, 900, fault, change)
+    assert judged[fault]["degraded"]
+    assert fault in isolate_group(judged)
+    lo, hi = judged[fault]["interval"]
+    assert lo <= change <= hi, (lo, change, hi)
+    healthy = _pair(cal, 900)
+    assert not any(v["degraded"] for v in healthy.values())
+
+
+def test_held_out_healthy_pairs_alarm_at_most_alpha(calibrated):
+    """40 held-out healthy pairs with the nuisances: at alpha 0.01 the expected count is 0.4;
+    3 or more has probability 0.8 % under the target (binomial)."""
+    cal, _ = calibrated
+    alarms = sum(any(v["degraded"] for v in _pair(cal, 5000 + k).values()) for k in range(40))
+    assert alarms <= 2
+
+
+def _write(path, df):
+    df[["t", "com", "xu"]].to_csv(path, index=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, calibrated):
+    """A calibration file and records of one actuator: earlier, later healthy, later with
+    +150 N of jack friction, one on another command, one of another length."""
+    from eha.identification.synthetic import synthetic_record
+
+    folder = tmp_path_factory.mktemp("change")
+    cal, _ = calibrated
+    cal_path = cal.save(folder / "cal-baseline.json")
+    hf = draw_actuator(777)
+    later = draw_test_day(hf, cal.nuisances, 777)
+    rec = lambda params, seed, command="chirp_1cm", t=T_END: synthetic_record(  # noqa: E731
+        command, params, t_end=t, noise=1e-6, seed=seed)
+    out = {"cal": cal_path, "folder": folder,
+           "earlier": _write(folder / "earlier.csv", rec(hf, 777)),
+           "later": _write(folder / "later.csv", rec(later, later_seed(777))),
+           "worse": _write(folder / "worse.csv", rec({**later, "FDJ": later["FDJ"] + 150},
+                                                     later_seed(777))),
+           "other": _write(folder / "other.csv", rec(hf, 777, "mixed")),
+           "short": _write(folder / "short.csv", rec(hf, 777, t=0.4)),
+           "stuck": _write(folder / "stuck.csv", rec({**hf, "BKL": 2e-4}, 777))}
+    return out
+
+
+def test_cli_check_against_a_baseline(files, tmp_path):
+    res = tmp_path / "res"
+    out = tmp_path / "out.json"
+    proc = invoke_eha("health", "check", files["worse"], "--baseline", files["earlier"],
+                      "--calibration", files["cal"], "--json", out, "--results", res)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("degraded: "), proc.stdout      # the finding first
+    data = json.loads(out.read_text())
+    assert data["status"] == "degraded" and "FDJ" in data["isolated"]
+    assert data["check"] == "change" and data["faults"]["FDJ"]["display_unit"] == "N"
+    lo, hi = data["faults"]["FDJ"]["interval"]
+    assert lo <= 150 <= hi
+    from eha.campaigns.query import query
+
+    rows = query(res, "SELECT fault, reference, baseline, degraded FROM health_verdicts")
+    assert set(rows["reference"]) == {"baseline"} and len(rows) == 7
+    assert rows.set_index("fault").loc["FDJ", "degraded"]
+    # the same actuator on its later test day without a fault
+    proc = invoke_eha("health", "check", files["later"], "--baseline", files["earlier"],
+                      "--calibration", files["cal"], "--json", out, "--results", res)
+    assert proc.returncode == 0 and json.loads(out.read_text())["status"] == "healthy"
+
+
+def test_a_baseline_unlike_the_fleet_is_used_and_said_so(files, tmp_path):
+    out = tmp_path / "o.json"
+    proc = invoke_eha("health", "check", files["later"], "--baseline", files["stuck"],
+                      "--calibration", files["cal"], "--json", out, "--results", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    assert data["baseline_screen"]["faults"]          # a linear screen: which, not asserted
+    assert "looks unlike the healthy fleet" in proc.stderr
+
+
+@pytest.mark.parametrize("case, args, message", [
+    ("other command", ("later", "other"), "another command"),
+    ("other length", ("later", "short"), "0.4 s long"),
+    ("missing", ("later", "nothing"), "file not found"),
+])
+def test_a_baseline_unfit_for_its_purpose_is_refused(files, tmp_path, case, args, message):
+    record, baseline = (files.get(a, files["folder"] / "nothing.csv") for a in args)
+    out = tmp_path / "o.json"
+    proc = invoke_eha("health", "check", record, "--baseline", baseline, "--calibration",
+                      files["cal"], "--json", out, "--results", tmp_path / "r")
+    assert message in error_line(proc, 2)
+    assert files_under(tmp_path) == []
+
+
+def test_calibrations_of_the_other_check_are_refused(files, tmp_path):
+    from eha.health.detection import load_calibration
+
+    with pytest.raises(DetectionError, match="change check"):
+        load_calibration(files["cal"])
+    fleet = tmp_path / "fleet.json"
+    fleet.write_text(json.dumps({"format": 1, "thresholds": {}, "command": "chirp_1cm"}))
+    with pytest.raises(DetectionError, match="a fleet calibration"):
+        load_change_calibration(fleet)
+    proc = invoke_eha("health", "check", files["later"], "--baseline", files["earlier"],
+                      "--calibration", fleet, "--results", tmp_path / "r")
+    assert "fleet calibration" in error_line(proc, 2)
+    proc = invoke_eha("health", "check", files["later"], "--baseline", files["earlier"],
+                      "--results", tmp_path / "r")
+    assert "--calibration" in error_line(proc, 2)
+    damaged = tmp_path / "damaged.csv"
+    damaged.write_text(files["earlier"].read_text().replace("\n0.1,", "\n0.1,nan,", 1)[:5000])
+    proc = invoke_eha("health", "check", files["later"], "--baseline", damaged,
+                      "--calibration", files["cal"], "--results", tmp_path / "r")
+    error_line(proc, 2)
+    assert not (tmp_path / "r").exists()
+
+
+def test_cli_calibrate_baseline(tmp_path):
+    out = tmp_path / "cal.json"
+    proc = invoke_eha("health", "calibrate", "--baseline", "--command", "chirp_1cm",
+                      "--actuators", "6", "--t-end", "0.3", "--nuisance", "GQ=0.02",
+                      "--out", out, "--results", tmp_path / "res", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    assert data["reference"] == "baseline" and data["nuisances"]["GQ"] == 0.02
+    assert data["pairs"] == 6 and math.isclose(data["t_end"], 0.3)
+    for bad, msg in ((["--nuisance", "GQ"], "NAME=HALFWIDTH"),
+                     (["--nuisance", "XX=0.1"], "unknown"),
+                     (["--actuators", "2"], "allowed range [5"),):
+        proc = invoke_eha("health", "calibrate", "--baseline", *bad, "--out",
+                          tmp_path / "bad.json", "--results", tmp_path / "bad")
+        assert msg in error_line(proc, 2)
+        assert not (tmp_path / "bad.json").exists() and not (tmp_path / "bad").exists()
+    proc = invoke_eha("health", "calibrate", "--nuisance", "GQ=0.1", "--out",
+                      tmp_path / "bad.json")
+    assert "only with --baseline" in error_line(proc, 2)
