@@ -149,6 +149,22 @@ def _load_pair(record, baseline, cal: ChangeCalibration, calibration):
     return later, earlier
 
 
+#: How many times the two records' noise the difference may stay after the isolated fault's
+#: fit before the check says the change is beyond its linear reading.
+UNEXPLAINED_RATIO = 3.0
+
+
+def _unexplained(sig: Signatures, r: np.ndarray, isolated: list[str], noise2: float) -> float:
+    """The RMS of the difference left by the best isolated fault's linear fit, in multiples
+    of the two records' noise, when above :data:`UNEXPLAINED_RATIO` (else 0)."""
+    if not isolated or noise2 <= 0:
+        return 0.0
+    i = sig.faults.index(isolated[0])
+    a = float(sig.W[i] @ r)
+    ratio = float(np.sqrt(np.mean((r - sig.S[i] * a) ** 2) / noise2))
+    return ratio if ratio > UNEXPLAINED_RATIO else 0.0
+
+
 def screen_baseline(cal: ChangeCalibration, sig: Signatures, xu: np.ndarray) -> list[str]:
     """The faults in which a baseline record is unlike the calibration's healthy fleet: its
     difference from the nominal model on the faults' signatures, beyond the prediction bound
@@ -206,6 +222,12 @@ def check_change(record, baseline, calibration, level: float | None = None,
         notes.append(f"the baseline {baseline} itself looks unlike the healthy fleet in "
                      f"{', '.join(screen)} (fleet screen at alpha {cal.alpha:g}): it is used, "
                      "but the changes are from an actuator that may already be degraded")
+    unexplained = _unexplained(sig, later.xu - earlier.xu, isolated, n_a ** 2 + n_b ** 2)
+    if unexplained:
+        notes.append(f"the difference is {unexplained:.1f}x the noise after the isolated "
+                     f"fault's fit: a change beyond the check's linear range or of several "
+                     "faults; the sizes are indicative (eha health check without --baseline, "
+                     "or eha explain, fits the whole model)")
     for name, v in judged.items():
         if v["blind"]:
             notes.append(f"{name}: this command does not move it; a change is not seen")
