@@ -233,14 +233,40 @@ def test_the_design_is_never_worse_than_a_library_command_within_the_limits():
     reference = best_library(targets, result.library)
     mine = score(predict(array_command(result.t, result.com, "d"), targets, 2.0,
                          n_actuators=1), targets, reference)
+    from eha.design.library import best_by_score, cut_to_limits, dominated_by
+
+    cuts = {name: cut_to_limits(name, limits) for name in result.library}
     eligible = [name for name, pred in result.library.items() if pred.followed and
-                outside_limits(make_command(name).sample(result.t), limits) is None]
+                cuts[name].beyond is None]
     assert eligible, "no library command fits the limits: the test shows nothing"
     for name in eligible:   # 1e-3: a log ratio (0.1 %), the samples against the formula
         assert mine <= score(result.library[name], targets, reference) + 1e-3, name
+    # and no target harder to see than on the best library command (by score), cut to the
+    # same limits
+    top = best_by_score({n: result.library[n] for n in eligible}, targets, reference)
+    mine_pred = predict(array_command(result.t, result.com, "d"), targets, 2.0, n_actuators=1)
+    assert dominated_by(mine_pred, result.library[top], targets, tolerance=1e-3) == []
     if result.settings["chosen"] != "searched":
         assert result.settings["chosen"].startswith("library command ")
         assert outside_limits(result.com, limits) is None
+
+
+def test_library_commands_are_cut_to_the_design_limits():
+    """Each library command as a test within the limits: within the stroke and the rate,
+    at rest at the start and the end; a step command (test) cannot meet a rate limit
+    without shrinking to a tenth of a millimetre and is marked beyond the frequency limit."""
+    from eha.design.family import at_rest_at_the_end
+    from eha.design.library import cut_to_limits
+
+    limits = Limits(duration=0.5, max_stroke=5e-3, max_rate=0.1)
+    for name in ("chirp_1cm", "mixed", "test", "sine"):
+        cut = cut_to_limits(name, limits)
+        assert cut.t[-1] == pytest.approx(0.5) and cut.com[0] == 0.0
+        assert np.max(np.abs(cut.com)) <= 5e-3 * (1 + 1e-9)
+        assert np.max(np.abs(np.diff(cut.com))) / 1e-3 <= 0.1 * 1.001
+        assert at_rest_at_the_end(cut.com, limits)
+    assert cut_to_limits("test", limits).beyond is not None
+    assert cut_to_limits("chirp_1cm", limits).scale < 1.0
 
 
 def test_a_pair_member_not_asked_for_counts_only_through_the_pair():

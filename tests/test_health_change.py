@@ -224,3 +224,42 @@ def test_cli_calibrate_baseline(tmp_path):
     proc = invoke_eha("health", "calibrate", "--nuisance", "GQ=0.1", "--out",
                       tmp_path / "bad.json")
     assert "only with --baseline" in error_line(proc, 2)
+
+
+@pytest.mark.slow
+def test_design_for_the_change_check_is_never_worse_than_the_best_library_command(tmp_path):
+    """`eha design --check baseline` with a search too short to find much: the command it
+    returns is predicted no worse on any target than the best library command (by the
+    search's score) cut to the same limits, or is that command; then `eha design verify`
+    measures it on simulated pairs (a small run: the figures are not the point here)."""
+    from eha.design import Limits, design
+    from eha.design.library import best_by_score, cut_to_limits, dominated_by
+    from eha.design.search import best_library
+
+    limits = Limits(duration=0.5, max_stroke=5e-3, max_rate=0.1)
+    result = design(faults=["BKL", "Ofs"], limits=limits, seed=0, population=4,
+                    generations=1, check="baseline")
+    assert result.settings["check"] == "baseline"
+    cuts = {n: cut_to_limits(n, limits) for n in result.library}
+    reference = best_library(result.targets, result.library)
+    top = best_by_score(result.library, result.targets, reference, None, cuts)
+    assert dominated_by(result.prediction, result.library[top], result.targets) == []
+    paths = result.save(tmp_path / "d")
+    doc = json.loads(paths["json"].read_text())
+    assert doc["settings"]["check"] == "baseline"
+    proc = invoke_eha("design", "verify", paths["json"], "--library", "chirp_1cm",
+                      "--healthy", "26", "--calibration", "10", "--per-level", "2")
+    assert proc.returncode == 0, proc.stderr
+    ver = json.loads((tmp_path / "d" / "design-verification.json").read_text())
+    assert set(ver["measured"]) == {"design", "chirp_1cm"}
+    assert ver["measured"]["design"]["false_alarms"]["n"] == 16
+    assert set(ver["measured"]["design"]["faults"]) == {"BKL", "Ofs"}
+
+
+def test_design_check_baseline_refuses_what_the_change_check_does_not_judge(tmp_path):
+    proc = invoke_eha("design", "--check", "baseline", "--effects", "external_load",
+                      "--out", tmp_path / "o")
+    assert "--check baseline" in error_line(proc, 2)
+    proc = invoke_eha("design", "--check", "nope", "--out", tmp_path / "o")
+    assert "allowed fleet or baseline" in error_line(proc, 2)
+    assert files_under(tmp_path) == []

@@ -29,7 +29,8 @@ _FLAGS = {"duration=": "--duration ", "max_stroke=": "--max-stroke ",
           "population=": "--population ", "generations=": "--generations ",
           "faults:": "--faults:", "effects:": "--effects:", "separate:": "--separate:",
           "signals:": "--signals:", "around:": "--around:", "noise.xu=": "--noise ",
-          "noise.p12=": "--noise-p12 ", "calibration=": "--calibration "}
+          "noise.p12=": "--noise-p12 ", "calibration=": "--calibration ",
+          "check=": "--check "}
 
 
 def _flags(message: str) -> str:
@@ -75,6 +76,9 @@ _POPULATION = typer.Option(32, "--population", help="Search population, 4 to 500
 _OUT = typer.Option(Path("results/design"), "--out", help="Folder of the command "
                     "file, JSON report and figure.")
 _NAME = typer.Option("design", "--name", help="Base name of the files written.")
+_CHECK = typer.Option("fleet", "--check", help="The health check the test is for: fleet "
+                      "(against a healthy fleet) or baseline (the change since the "
+                      "actuator's own earlier record, eha health check --baseline).")
 
 
 @design_app.callback()
@@ -99,6 +103,7 @@ def design(
     population: int = _POPULATION,
     out: Path = _OUT,
     name: str = _NAME,
+    check: str = _CHECK,
 ):
     """Design a test command: within the test's limits, the command on which the chosen
     faults are detectable at the smallest sizes and the pairs told apart, predicted from the
@@ -131,7 +136,7 @@ def design(
             signals=split_names(signals), sampling=sampling,
             noise={"xu": noise, "p12": noise_p12} if "p12" in signals else {"xu": noise},
             alpha=alpha, seed=seed, actuators=actuators, population=population,
-            generations=generations,
+            generations=generations, check=check,
             on_progress=lambda m: console.print(m, highlight=False))
     except DesignError as exc:
         fail(_flags(str(exc)))
@@ -172,7 +177,11 @@ def _show(result) -> None:
         on_library = f"{t.shown(ref)} ({lib})" if ref < t.limit else "not detectable"
         table.add_row(t.name, shown, on_library, f"{result.ratio(t.name):.2f}")
     console.print(table)
-    console.print(_followed_line(result.prediction), highlight=False)
+    if result.settings.get("check") == "baseline":
+        console.print("for the change check (each actuator against its own earlier record); "
+                      f"chosen: {result.settings['chosen']}", highlight=False)
+    else:
+        console.print(_followed_line(result.prediction), highlight=False)
     for t in result.targets:
         if not result.prediction.detectable(t):
             console.print(f"{t.name}: {result.verdict(t)}", highlight=False)

@@ -17,13 +17,13 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from eha.design.family import (COMMAND_DT, DesignError, Limits, command_samples, decode,
-                               outside_limits)
+from eha.design.family import COMMAND_DT, DesignError, Limits, command_samples, decode
 from eha.design.predict import FOLLOW_RATIO, Prediction, predict
-from eha.design.search import LIBRARY, best_library, library_predictions, score, search
+from eha.design.library import best_by_score, cut_to_limits, dominated_by
+from eha.design.search import LIBRARY, best_library, score, search
 from eha.design.targets import SIGNALS, Target, resolve_targets, with_probes
 from eha.models.faults import FAULTS
-from eha.models.commands import array_command, make_command, write_command_file
+from eha.models.commands import array_command, write_command_file
 
 #: A test load the "what would make it visible" line tries [N] (an eighth of the jack's
 #: 16 kN stall force).
@@ -202,7 +202,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
            limits: Limits | None = None, signals: Sequence[str] = ("xu",),
            sampling: float = 1000.0, noise: Mapping[str, float] | None = None,
            alpha: float = 0.01, seed: int = 0, actuators: int = 3, population: int = 32,
-           generations: int = 30,
+           generations: int = 30, check: str = "fleet",
            on_progress: Callable[[str], None] | None = None) -> DesignResult:
     """Design a test command (docs/design.md).
 
@@ -234,6 +234,9 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
         Actuators the design must work on (the nominal and scattered ones), 1 to 10.
     population, generations : int
         Search budget.
+    check : {"fleet", "baseline"}
+        The health check the test is for: against the healthy fleet, or the change since the
+        actuator's own earlier record (:mod:`eha.design.change`; health faults only).
 
     Raises
     ------
@@ -242,14 +245,28 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
     """
     limits = (limits or Limits()).check()
     options = _check(signals, sampling, noise, alpha, actuators, population, generations, seed)
+    if check not in ("fleet", "baseline"):
+        raise DesignError(f"check={check!r}: allowed fleet or baseline")
+    if check == "baseline":
+        from eha.design.change import design_change
+
+        if effects or separate or around or tuple(signals) != ("xu",) or sampling != 1000.0:
+            raise DesignError("check=baseline: the change check judges the health faults on "
+                              "the position at 1 kHz (no effects, pairs, --around or other "
+                              "signals)")
+        return design_change(faults, limits, options["noise"]["xu"], alpha, seed, population,
+                             generations, on_progress)
     pairs = _pairs(separate)
     targets = resolve_targets(faults, effects, pairs)
     if around:
         targets = with_probes(targets, around)
     say = on_progress or (lambda message: None)
     start = time.perf_counter()
-    say(f"library commands: predicting {len(targets)} targets on {', '.join(LIBRARY)}")
-    library = library_predictions(targets, limits.duration, **options)
+    cuts = {name: cut_to_limits(name, limits) for name in LIBRARY}
+    say(f"library commands cut to the limits: predicting {len(targets)} targets on "
+        f"{', '.join(c.label for c in cuts.values())}")
+    library = {name: predict(c.command(), targets, limits.duration, **options)
+               for name, c in cuts.items()}
     reference = best_library(targets, library)
     # the targets asked for in their own right; a pair's other members count through it
     detect = {t.name for t in targets if t.name in set(effects) | set(
@@ -260,13 +277,13 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
     t, com = command_samples(x, limits)
     segments = decode(x, limits)
     incumbent = _better_library_command(t, com, targets, limits, reference, pairs,
-                                        bool(around), library, options, detect)
+                                        bool(around), library, options, detect, cuts)
     if incumbent is not None:   # the search found nothing better: the library's command is
         name, com = incumbent   # the design (never worse than what the user already has)
-        segments = [{"shape": f"library command {name}", "start": 0.0,
-                     "length": limits.duration}]
-        say(f"no member of the family found beats the library command {name} within the "
-            f"limits: it is the design")
+        segments = [{"shape": f"library command {cuts[name].label} (cut to the limits)",
+                     "start": 0.0, "length": limits.duration}]
+        say(f"no member of the family found is at least as good as the library command "
+            f"{cuts[name].label} (cut to the limits) on every target: it is the design")
     command = array_command(t, com, "design")
     say("final prediction: signatures at the predicted sizes")
     first = predict(command, targets, limits.duration, **options)
@@ -287,7 +304,9 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                 **limits.to_dict(), "signals": list(signals), "sampling": sampling,
                 "noise": options["noise"], "alpha": alpha, "seed": seed,
                 "actuators": actuators, "population": population, "generations": generations,
-                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO,
+                "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO, "check": "fleet",
+                "library_cut": {n: {"scale": c.scale, "beyond": c.beyond}
+                                for n, c in cuts.items()},
                 "chosen": (f"library command {incumbent[0]}" if incumbent is not None
                            else "searched")}
     return DesignResult(t, com, refined, prediction, library, settings, segments,
@@ -296,24 +315,28 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
 
 
 def _better_library_command(t, com, targets, limits, reference, pairs, at_size, library,
-                            options, detect=None) -> tuple[str, np.ndarray] | None:
-    """The library command within ``limits`` (:func:`eha.design.family.outside_limits`) that
-    the LF model follows and that scores better than the searched command by the search's own
-    objective (:func:`eha.design.search.score`), with its samples; None when the searched
-    command is at least as good. A search over a family is a local answer: the incumbent
-    designs are candidates too."""
+                            options, detect=None, cuts=None) -> tuple[str, np.ndarray] | None:
+    """The library command cut to ``limits`` (:func:`eha.design.library.cut_to_limits`) that
+    the LF model follows and that the searched command does not beat, with its samples; None
+    when the searched command is at least as good. Beaten means: by the search's own objective
+    (:func:`eha.design.search.score`), or on any one target of ``detect`` against the library
+    command with the best score (:func:`eha.design.library.dominated_by`: a design never
+    makes a chosen target harder to see than the best library command does). A search over a
+    family is a local answer: the incumbent designs are candidates too."""
     all_pairs = [q for f, g in pairs for q in ((f, g), (g, f))]
     searched = predict(array_command(t, com, "design"), targets, limits.duration,
                        pairs=all_pairs, **options)
     best = score(searched, targets, reference, pairs, at_size, detect)
     chosen = None
-    for name, pred in library.items():
-        samples = make_command(name).sample(t)
-        if not pred.followed or outside_limits(samples, limits) is not None:
-            continue
+    usable = {n: p for n, p in library.items() if p.followed and cuts[n].beyond is None}
+    for name, pred in usable.items():
         value = score(pred, targets, reference, pairs, at_size, detect)
         if value < best - 1e-9:
-            best, chosen = value, (name, samples)
+            best, chosen = value, (name, cuts[name].com)
+    if chosen is None and usable and not pairs:
+        top = best_by_score(usable, targets, reference, detect, cuts)
+        if dominated_by(searched, usable[top], targets, detect):
+            chosen = (top, cuts[top].com)
     return chosen
 
 

@@ -2,15 +2,16 @@
 fault's change since the actuator's own earlier record (:mod:`eha.health.change`), predicted,
 and measured on simulated pairs (``eha design verify``).
 
-Two predictions, one measurement:
+A prediction and a measurement:
 
-- :func:`analytic_prediction` (the search's, ~0.1 s a command): the change check's estimator
-  on the command, each fault's detectable change ``(t(1 - alpha/m) + z(0.95)) * sigma`` with
-  ``sigma^2 = EXCESS / (S_f^T Sigma^-1 S_f)``: the model's variance (noise and the test-day
-  nuisances) times the healthy pairs' measured excess over it (the dither).
-- :func:`simulated_prediction` (the design's and the library's, ~4 s a command): a change
-  calibration on simulated healthy pairs (:func:`eha.health.change_calibration.calibrate_change`),
-  the detectable change read back through each fault's HF gain curve.
+- :func:`simulated_prediction`: a change calibration on simulated healthy pairs
+  (:func:`eha.health.change_calibration.calibrate_change`), each fault's detectable change
+  the threshold plus z(0.95) healthy stds read back through its HF gain curve: 30 pairs for
+  the design and the library commands (a few seconds each), :data:`SEARCH_PAIRS` without the
+  gain curves for each candidate of the search (a fraction of a second). Why simulated and
+  not the estimator's analytic variance: on fast commands the HF's response to the dither
+  and the nuisances is far from linear (on the 5 Hz sine the analytic figure was 7 to 30
+  times optimistic, docs/health.md).
 - :func:`measure` (``eha design verify --check baseline``, ``validation/baseline.py``): fresh
   held-out healthy pairs (false alarms with their binomial bound) and faulty pairs on a
   sqrt(2) grid of sizes (the detectable change at P_D >= 0.95, isolation at twice it, the
@@ -26,14 +27,12 @@ import numpy as np
 
 from eha.design.predict import Prediction
 from eha.design.targets import Target
-from eha.health.change import Signatures, check_nuisances, probe
+from eha.health.change import Signatures, probe
 from eha.models.faults import FAULTS
 
-#: The healthy pairs' variance over the change check's model (noise and nuisances), measured
-#: on chirp_1cm (the calibration's ``excess``, 1.6): the dither and what the linear model
-#: leaves out. The search multiplies the model's variance by it; the final prediction is
-#: simulated and needs none.
-EXCESS = 1.6
+#: Healthy pairs of the search's prediction (the same actuators for every candidate, so that
+#: candidates are compared on common random numbers).
+SEARCH_PAIRS = 8
 #: z of the detection probability a detectable change needs (0.95).
 Z_DETECT = 1.6449
 #: Calibration pairs of a simulated prediction.
@@ -53,37 +52,17 @@ def _prediction(mds: Mapping[str, float], sigma: Mapping[str, float], sig: Signa
                       0.0, inf)
 
 
-def analytic_prediction(command, targets: Sequence[Target], t_end: float, noise: float = 1e-6,
-                        alpha: float = 0.01, nuisances: Mapping[str, float] | None = None,
-                        pairs: int = PREDICTION_PAIRS, **_) -> Prediction:
-    """The search's prediction of the change check on ``command`` (see the module doc)."""
-    from scipy.stats import t as student
-
-    names = [t.name for t in targets]
-    sig = Signatures(command, t_end, noise, check_nuisances(nuisances), faults=names,
-                     model="hf")
-    m = len(FAULTS)
-    mds, sigma = {}, {}
-    for i, t in enumerate(targets):
-        two = FAULTS[t.name].direction == 0
-        q = float(student.ppf(1 - alpha / m / (2 if two else 1), pairs - 1))
-        info = sig.info[i]
-        sd = math.sqrt(EXCESS / info) if info > 0 else math.inf
-        sigma[t.name] = sd
-        mds[t.name] = (q * math.sqrt(1 + 1 / pairs) + Z_DETECT) * sd
-    return _prediction(mds, sigma, sig, targets)
-
-
 def simulated_prediction(command, targets: Sequence[Target], t_end: float, noise: float = 1e-6,
                          alpha: float = 0.01, nuisances: Mapping[str, float] | None = None,
-                         pairs: int = PREDICTION_PAIRS, seed: int = 0) -> Prediction:
+                         pairs: int = PREDICTION_PAIRS, seed: int = 0,
+                         gains: bool = True) -> Prediction:
     """The change check's detectable change of each target on ``command`` from a calibration
     on ``pairs`` simulated healthy pairs: the threshold plus z(0.95) healthy stds, read back
-    through the fault's HF gain curve."""
+    through the fault's HF gain curve (``gains=False``: at the signature's slope)."""
     from eha.health.change_calibration import calibrate_change, sign_of
 
     cal, _ = calibrate_change(command, actuators=pairs, seed=seed, t_end=t_end, noise=noise,
-                              alpha=alpha, nuisances=nuisances)
+                              alpha=alpha, nuisances=nuisances, gains=gains)
     names = [t.name for t in targets]
     sig = Signatures(command, t_end, noise, cal.nuisances, faults=names, model="hf")
     mds, sigma = {}, {}
@@ -191,10 +170,122 @@ def measure(command, t_end: float = 1.0, faults: Sequence[str] | None = None,
             "alpha": alpha, "noise": noise, "nuisances": dict(cal.nuisances), "seed": seed}
 
 
+def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
+                  alpha: float = 0.01, seed: int = 0, population: int = 32,
+                  generations: int = 30, on_progress=None):
+    """``eha design --check baseline``: the command of the design family on which the change
+    check sees the chosen faults' changes smallest, never worse on any of them than the best
+    library command cut to the same limits (:mod:`eha.design.library`); where the search
+    finds none, that library command, said so. Returns a :class:`eha.design.api.DesignResult`
+    (``settings["check"] == "baseline"``)."""
+    import time
+
+    from eha.design.api import DesignResult
+    from eha.design.family import command_samples, decode
+    from eha.design.library import best_by_score, cut_to_limits, dominated_by
+    from eha.design.search import LIBRARY, best_library, search
+    from eha.design.targets import resolve_targets
+    from eha.models.commands import array_command
+
+    say = on_progress or (lambda m: None)
+    start = time.perf_counter()
+    targets = resolve_targets(faults)
+    names = {t.name for t in targets}
+    cuts = {name: cut_to_limits(name, limits) for name in LIBRARY}
+    say(f"library commands cut to the limits: the change check on "
+        f"{', '.join(c.label for c in cuts.values())}")
+
+    def quick(command, targets_, t_end, pairs=(), **_):
+        return simulated_prediction(command, targets_, t_end, noise, alpha, pairs=SEARCH_PAIRS,
+                                    seed=seed, gains=False)
+
+    quick_library = {n: quick(c.command(), targets, limits.duration) for n, c in cuts.items()}
+    x, _, history = search(targets, limits, best_library(targets, quick_library), seed=seed,
+                           pop=population, generations=generations, on_progress=say,
+                           detect=names, predictor=quick)
+    t, com = command_samples(x, limits)
+    segments = decode(x, limits)
+    say("final prediction: simulated healthy pairs on the design and the library commands")
+    library = {n: simulated_prediction(c.command(), targets, limits.duration, noise, alpha,
+                                       seed=seed) for n, c in cuts.items()}
+    prediction = simulated_prediction(array_command(t, com, "design"), targets,
+                                      limits.duration, noise, alpha, seed=seed)
+    reference = best_library(targets, library)
+    top = best_by_score(library, targets, reference, names, cuts)
+    worse = dominated_by(prediction, library[top], targets, names)
+    chosen = "searched"
+    if worse:
+        say(f"the searched command sees {', '.join(worse)} worse than the library command "
+            f"{cuts[top].label} (cut to the limits): that library command is the design")
+        t, com, prediction = cuts[top].t, cuts[top].com, library[top]
+        segments = [{"shape": f"library command {cuts[top].label} (cut to the limits)",
+                     "start": 0.0, "length": limits.duration}]
+        chosen = f"library command {top}"
+    settings = {"faults": [x.name for x in targets], "effects": [], "separate": [],
+                "around": {}, **limits.to_dict(), "signals": ["xu"], "sampling": 1000.0,
+                "noise": {"xu": noise}, "alpha": alpha, "seed": seed, "actuators": 1,
+                "population": population, "generations": generations, "p_detect": 0.95,
+                "check": "baseline", "calibration_pairs": PREDICTION_PAIRS,
+                "library_cut": {n: {"scale": c.scale, "beyond": c.beyond}
+                                for n, c in cuts.items()},
+                "chosen": chosen}
+    return DesignResult(t, com, targets, prediction, library, settings, segments, {},
+                        history, time.perf_counter() - start)
+
+
+def verify_change(doc: Mapping[str, Any], command: str, library: Sequence[str],
+                  held_out: int, calibration: int, per_level: int, seed: int = 0,
+                  with_design: bool = True, on_progress=None):
+    """``eha design verify`` of a design for the change check (its JSON ``doc`` and command
+    file): :func:`measure` on the design and on each library command cut to the design's
+    limits, every command at the same sizes (:data:`MEASURE_MULTIPLES` of the design's
+    predicted detectable change). Returns a :class:`eha.design.verify.Verification`."""
+    from eha.design.family import Limits
+    from eha.design.library import cut_to_limits
+    from eha.design.verify import Verification
+
+    settings, targets = doc["settings"], doc["targets"]
+    faults = [n for n, t in targets.items() if t.get("kind") == "fault" and n in FAULTS]
+    limits = Limits(**{k: float(settings[k]) for k in ("duration", "max_stroke", "max_rate",
+                                                       "max_freq")})
+    noise = float(settings.get("noise", {}).get("xu", 1e-6))
+    alpha = float(settings.get("alpha", 0.01))
+    sizes = {}
+    for n in faults:
+        md = targets[n].get("min_detectable") or _target(n).limit
+        sizes[n] = [m * md for m in MEASURE_MULTIPLES]
+    commands = ([("design", command)] if with_design else []) + \
+        [(name, cut_to_limits(name, limits).command()) for name in library]
+    figures = {}
+    for label, cmd in commands:
+        m = measure(cmd, limits.duration, faults, sizes, per_level, held_out, calibration,
+                    alpha, noise, seed=seed, on_progress=on_progress)
+        table = {}
+        for n, f in m["faults"].items():
+            levels = [{"value": r["size"], "deviation": r["size"], "p_detect": r["p_detect"],
+                       "isolated": r["isolated"], "coverage": r["coverage"], "n": r["n"]}
+                      for r in f["levels"]]
+            md = f["min_detectable"]
+            table[n] = {"levels": levels, "min_detectable": md,
+                        "at_lowest_level": md is not None and bool(levels) and
+                        md == levels[0]["deviation"], "at_twice": f["at_twice"]}
+        figures[label] = {"thresholds": m["thresholds"], "calibration_actuators": calibration,
+                          "false_alarms": m["false_alarms"], "faults": table}
+    predicted = {"design": {n: targets[n].get("min_detectable") for n in faults},
+                 "library": {n: targets[n].get("library") for n in faults}}
+    return Verification(figures, predicted, {"check": "baseline", "held_out": held_out,
+                                             "calibration": calibration,
+                                             "per_level": per_level, "sizes": sizes,
+                                             "library": list(library), "seed": seed,
+                                             "library_cut_to": limits.to_dict()},
+                        "change check (simulated pairs, no campaign)", "")
+
+
 def _target(name: str) -> Target:
     from eha.design.targets import fault_target
 
     return fault_target(name)
 
 
-__all__ = ["analytic_prediction", "simulated_prediction", "measure", "EXCESS"]
+__all__ = ["simulated_prediction", "measure", "design_change", "verify_change",
+           "SEARCH_PAIRS"]

@@ -108,9 +108,11 @@ def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tu
            pairs: Sequence[tuple[str, str]] = (), seed: int = 0, pop: int = 24,
            generations: int = 12, on_progress: Callable[[str], None] | None = None,
            at_size: bool = False, detect: Collection[str] | None = None,
+           predictor: Callable[..., Prediction] | None = None,
            **options) -> tuple[np.ndarray, float, list[float]]:
     """The best gene vector found, its score and the best score of each generation
-    (``detect``: :func:`score`'s)."""
+    (``detect``: :func:`score`'s; ``predictor``: the check's prediction, default the fleet
+    check's :func:`eha.design.predict.predict`)."""
     from pymoo.algorithms.soo.nonconvex.ga import GA
     from pymoo.core.problem import Problem
     from pymoo.termination.max_gen import MaximumGenerationTermination
@@ -123,8 +125,8 @@ def search(targets: Sequence[Target], limits: Limits, reference: Mapping[str, tu
         t, com = command_samples(x, limits)
         if not at_rest_at_the_end(com, limits):
             return 50.0
-        pred = predict(array_command(t, com, "candidate"), targets, limits.duration,
-                       pairs=all_pairs, **options)
+        pred = (predictor or predict)(array_command(t, com, "candidate"), targets,
+                                      limits.duration, pairs=all_pairs, **options)
         return score(pred, targets, reference, pairs, at_size, detect) + unfollowed_penalty(pred)
 
     class _Family(Problem):

@@ -196,6 +196,13 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
     command = str(command_file or design_json.with_suffix(".csv"))
     if not 5 <= calibration < healthy:
         raise DesignError(f"calibration={calibration}: allowed range [5, healthy - 1]")
+    if settings.get("check") == "baseline":    # the change check: simulated pairs, seconds
+        from eha.design.change import verify_change
+
+        if not Path(command).is_file() and with_design:
+            raise DesignError(f"command {command}: no such file (the design's .csv)")
+        return verify_change(doc, command, library, healthy - calibration, calibration,
+                             per_level, seed, with_design)
     faults = [n for n, t in targets.items() if t.get("kind") == "fault" and n in FAULTS]
     if not faults:
         raise DesignError(f"design {design_json}: no health fault to verify")
