@@ -50,6 +50,7 @@ class ChangeCheckResult:
     noise_rmse: dict[str, float]
     check_id: str
     seconds: float
+    alpha: float = 0.01
     notes: list[str] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
     db_error: str | None = None
@@ -64,7 +65,7 @@ class ChangeCheckResult:
 
         if self.status == "healthy":
             return ("healthy: no fault changed beyond its threshold since the baseline "
-                    f"record (false-alarm probability at most {self._alpha:g})")
+                    f"record (false-alarm probability at most {self.alpha:g})")
         parts = []
         for name in self.isolated or [n for n, v in self.judged.items() if v["degraded"]]:
             v = self.judged[name]
@@ -73,8 +74,6 @@ class ChangeCheckResult:
                          f"{show(name, v['interval'][1])}] since the baseline")
         which = " or ".join(parts)
         return f"degraded: {which}"
-
-    _alpha: float = 0.01
 
     def to_dict(self) -> dict[str, Any]:
         from eha.models.units import display_unit
@@ -87,7 +86,8 @@ class ChangeCheckResult:
                 "unit": FAULTS[name].unit, "display_unit": unit, "display_scale": scale,
                 "alarm_change": v["alarm_change"], "statistic": v["statistic"],
                 "threshold": v["threshold"], "z": v["z"], "degraded": v["degraded"],
-                "isolated": name in self.isolated, "blind": v["blind"]}
+                "isolated": name in self.isolated, "blind": v["blind"],
+                "not_told_apart_from": list(v.get("alike", []))}
         return {"check": "change", "status": self.status, "isolated": list(self.isolated),
                 "finding": self.finding(), "record": self.record, "baseline": self.baseline,
                 "calibration": self.calibration, "level": self.level,
@@ -96,7 +96,7 @@ class ChangeCheckResult:
                 "faults": faults,
                 "baseline_screen": {"status": "unlike the healthy fleet" if self.screen
                                     else "like the healthy fleet", "faults": self.screen},
-                "noise_rmse": self.noise_rmse, "seconds": self.seconds,
+                "noise_rmse": self.noise_rmse, "alpha": self.alpha, "seconds": self.seconds,
                 "check_id": self.check_id, "notes": list(self.notes)}
 
     def to_pandas(self):
@@ -240,8 +240,7 @@ def check_change(record, baseline, calibration, level: float | None = None,
     out = ChangeCheckResult(str(record), str(baseline), str(calibration),
                             cal.level if level is None else level, judged, isolated, screen,
                             {"record": n_b, "baseline": n_a}, check_id,
-                            time.perf_counter() - start, notes)
-    out._alpha = cal.alpha
+                            time.perf_counter() - start, cal.alpha, notes)
     if json_path is not None:
         from eha.outputs import write_json
 
