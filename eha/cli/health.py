@@ -216,7 +216,7 @@ def health_check(
 
 def _check_baseline(record, baseline, calibration, level, json_out, results, columns,
                     units) -> None:
-    from eha.health.change_check import check_change
+    from eha.health.change_check import check_change, interval_text
     from eha.models.faults import FAULTS
     from eha.models.units import show
 
@@ -234,7 +234,7 @@ def _check_baseline(record, baseline, calibration, level, json_out, results, col
             verdict += " (isolated)"
         sign = "±" if FAULTS[name].direction == 0 else ("+" if v["alarm_change"] >= 0 else "-")
         table.add_row(name, _signed(name, v["change"]),
-                      f"[{show(name, v['interval'][0])}, {show(name, v['interval'][1])}]",
+                      interval_text(name, *v["interval"]),
                       f"{sign}{show(name, abs(v['alarm_change']))}", verdict)
     console.print(f"record: {record}; baseline: {baseline}; calibration: {calibration}",
                   highlight=False)

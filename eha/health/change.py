@@ -261,14 +261,31 @@ class GainCurve:
         return math.copysign(float(np.interp(s, xs, ys)), size)
 
     def _knots(self) -> tuple[np.ndarray, np.ndarray]:
+        """The response up to the largest size where it still grows (by 2 % or more from the
+        knot below): beyond it the estimate no longer tells the size (a clogging filter near
+        jammed, a motor gain at a fifth of nominal)."""
         xs = np.array([0.0] + [abs(s) for s in self.sizes])
         ys = np.array([0.0] + [g * abs(s) for s, g in zip(self.sizes, self.gains)])
-        # a monotone response (a non-monotone read-back is the noise of the gain's mean)
-        return xs, np.maximum.accumulate(np.maximum(ys, 0.0))
+        top = 1
+        while top + 1 < xs.size and ys[top + 1] >= 1.02 * ys[top] and ys[top] > 0:
+            top += 1
+        return xs[:top + 1], ys[:top + 1]
+
+    def top(self) -> tuple[float, float]:
+        """``(size, estimate)`` at the end of the response's growing range."""
+        xs, ys = self._knots()
+        return float(xs[-1]), float(ys[-1])
+
+    def beyond(self, estimate: float, sign: float) -> bool:
+        """Is ``estimate`` beyond the growing range (the size only bounded below)?"""
+        _, y_top = self.top()
+        return y_top > 0 and estimate * sign > y_top
 
     def invert(self, estimate: float, sign: float) -> float:
         """The change whose expected estimate is ``estimate`` (``sign``: the direction of
-        degradation of the fault's sizes; an estimate against it is read at the first gain)."""
+        degradation of the fault's sizes; an estimate against it is read at the first gain,
+        one beyond the growing range at the top's secant gain: a lower bound of the size,
+        :meth:`beyond`)."""
         xs, ys = self._knots()
         e = estimate * sign
         if e <= 0 or ys[-1] <= 0:
@@ -276,7 +293,6 @@ class GainCurve:
             return estimate / g
         if e >= ys[-1]:
             return sign * e * xs[-1] / ys[-1]
-        # the first crossing of the monotone curve
         return sign * float(np.interp(e, ys, xs))
 
     def relative_spread(self, size: float) -> float:

@@ -228,7 +228,12 @@ def judge_estimates(cal: ChangeCalibration, names: Sequence[str], est: np.ndarra
         lo_e, hi_e = s * (d - qi * scale), s * (d + qi * scale)
         lo, hi = sorted((curve.invert(lo_e, s), curve.invert(hi_e, s)))
         extra = qi * curve.relative_spread(change) * abs(change)
-        out[name] = {"change": change, "interval": [lo - extra, hi + extra],
+        lo, hi = lo - extra, hi + extra
+        # beyond the response's growing range the size is only bounded on its near side
+        open_end = curve.beyond(hi_e if s > 0 else lo_e, s)
+        if open_end:
+            lo, hi = (lo, math.inf) if s > 0 else (-math.inf, hi)
+        out[name] = {"change": change, "interval": [lo, hi], "open_ended": open_end,
                      "statistic": stat, "threshold": margin, "z": stat / scale,
                      "degraded": bool(stat > margin), "alarm_change": curve.invert(s * margin, s),
                      "blind": name in blind}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -61,8 +62,6 @@ class ChangeCheckResult:
 
     def finding(self) -> str:
         """The finding in one sentence, with units."""
-        from eha.models.units import show
-
         if self.status == "healthy":
             return ("healthy: no fault changed beyond its threshold since the baseline "
                     f"record (false-alarm probability at most {self.alpha:g})")
@@ -70,8 +69,8 @@ class ChangeCheckResult:
         for name in self.isolated or [n for n, v in self.judged.items() if v["degraded"]]:
             v = self.judged[name]
             parts.append(f"{name} ({FAULTS[name].description}) changed by "
-                         f"{_signed(name, v['change'])} [{show(name, v['interval'][0])}, "
-                         f"{show(name, v['interval'][1])}] since the baseline")
+                         f"{_signed(name, v['change'])} "
+                         f"{interval_text(name, *v['interval'])} since the baseline")
         which = " or ".join(parts)
         return f"degraded: {which}"
 
@@ -82,7 +81,8 @@ class ChangeCheckResult:
         for name, v in self.judged.items():
             unit, scale = display_unit(name)
             faults[name] = {
-                "change": v["change"], "interval": list(v["interval"]), "level": self.level,
+                "change": v["change"], "interval": [_json_number(x) for x in v["interval"]],
+                "open_ended": bool(v.get("open_ended")), "level": self.level,
                 "unit": FAULTS[name].unit, "display_unit": unit, "display_scale": scale,
                 "alarm_change": v["alarm_change"], "statistic": v["statistic"],
                 "threshold": v["threshold"], "z": v["z"], "degraded": v["degraded"],
@@ -113,6 +113,23 @@ def _signed(name: str, value: float) -> str:
     from eha.models.units import show
 
     return ("+" if value >= 0 else "-") + show(name, abs(value))
+
+
+def interval_text(name: str, lo: float, hi: float) -> str:
+    """An interval of a change with its unit; an open end (beyond the response's growing
+    range) as a bound: ``>= 410 µm``."""
+    from eha.models.units import show
+
+    if math.isinf(hi):
+        return f">= {show(name, lo)}"
+    if math.isinf(lo):
+        return f"<= {show(name, hi)}"
+    return f"[{show(name, lo)}, {show(name, hi)}]"
+
+
+def _json_number(x: float) -> float | None:
+    """JSON has no infinity: an open end of an interval is null."""
+    return None if math.isinf(x) else float(x)
 
 
 def _load_pair(record, baseline, cal: ChangeCalibration, calibration):
@@ -257,7 +274,8 @@ def _store(out: ChangeCheckResult, results) -> None:
     now = datetime.now(timezone.utc).replace(tzinfo=None)
     rows = [{"check_id": out.check_id, "record": out.record, "created_at": now,
              "calibration": out.calibration, "fault": n, "estimate": v["change"],
-             "lo": v["interval"][0], "hi": v["interval"][1], "level": out.level,
+             "lo": _json_number(v["interval"][0]), "hi": _json_number(v["interval"][1]),
+             "level": out.level,
              "healthy": None, "threshold": v["threshold"], "statistic": v["statistic"],
              "degraded": v["degraded"], "weight": None, "isolated": n in out.isolated,
              "flagged": bool(out.screen), "reference": "baseline", "baseline": out.baseline}
