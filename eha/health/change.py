@@ -146,7 +146,7 @@ def probe(name: str) -> float:
 
 
 class Signatures:
-    """The LF signatures of the faults and the nuisances on one command, and the generalized
+    """The signatures of the faults and the nuisances on one command, and the generalized
     least-squares weights of each fault's change (see the module docstring).
 
     Parameters
@@ -161,10 +161,17 @@ class Signatures:
         Nuisance half-widths (:func:`check_nuisances`).
     faults : sequence of str
         The faults (default every one of :data:`eha.models.faults.FAULTS`).
+    model : {"hf", "lf"}
+        The model the signatures come from (HF: both runs with the same dither, so that it
+        cancels; LF: the calibrated LF base).
+    shapes : bool
+        Also take the other model's signatures, for :attr:`shape_doubt` (the isolation);
+        without, ``shape_doubt`` is 0.
     """
 
     def __init__(self, command, t_end: float, noise: float, widths: Mapping[str, float],
-                 faults: Sequence[str] | None = None, model: str = "hf"):
+                 faults: Sequence[str] | None = None, model: str = "hf",
+                 shapes: bool = True):
         from eha.identification.problem import BASE_MODELS
         from eha.models import OUTPUTS
         from eha.models.params import SPECS
@@ -193,12 +200,15 @@ class Signatures:
         y0 = y[0]
         self.S = np.stack([(y[1 + i] - y0) / s for i, (_, s) in enumerate(steps)])
         # the other model's signatures: how much two models of one actuator disagree on the
-        # shape of each fault's response (the isolation cannot trust a finer separation)
+        # shape of each fault's response (the isolation cannot trust a finer separation;
+        # without ``shapes``, a design's search, none)
         other = dict(BASE_MODELS["calibrated"]) if model != "lf" else {}
-        yo = simulate_lf_rows([other] + [{**other, n: float(other.get(n, FAULTS[n].healthy)) + s}
-                                         for n, s in steps], command, t_end
-                              )[:, :, OUTPUTS.index("xu")]
-        So = np.stack([(yo[1 + i] - yo[0]) / s for i, (_, s) in enumerate(steps)])
+        So = self.S
+        if shapes:
+            yo = simulate_lf_rows([other] + [{**other, n: float(other.get(n, FAULTS[n].healthy))
+                                              + s} for n, s in steps], command, t_end
+                                  )[:, :, OUTPUTS.index("xu")]
+            So = np.stack([(yo[1 + i] - yo[0]) / s for i, (_, s) in enumerate(steps)])
         unit = _unit_rows(self.S)
         #: Per pair of faults, sin^2 of the angle between their signatures.
         self.separation = 1.0 - np.clip(unit @ unit.T, -1.0, 1.0) ** 2

@@ -364,7 +364,7 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
         if on_progress and (k + 1) % 10 == 0:
             on_progress(f"{k + 1} of {actuators} healthy pairs")
     # the records' own command, as a reader of them rebuilds it (the check does the same)
-    sig = Signatures(first.command, t_end, noise, widths, model=model)
+    sig = Signatures(first.command, t_end, noise, widths, model=model, shapes=gains)
     names = sig.faults
     est = [sig.estimate(b - a) for a, b in pairs]
     screen = [sig.estimate(a - sig.y0) for a, _ in pairs]
