@@ -6,6 +6,10 @@ and separable within a test's limits, predicted fast and verified by simulation.
 - :mod:`~eha.design.predict`: predicted detectable and separable sizes on one command;
 - :mod:`~eha.design.search`: the search over the family against the library commands;
 - :mod:`~eha.design.api`: :func:`design` and :class:`DesignResult`;
+- :mod:`~eha.design.library`: the library commands cut to a design's limits, and the rule that
+  a design is never worse than the best of them;
+- :mod:`~eha.design.change`: the design and its verification for the change check
+  (``check="baseline"``);
 - :mod:`~eha.design.verify`: the verification campaign (measured sizes, false alarms,
   isolation).
 """

@@ -19,8 +19,8 @@ import numpy as np
 
 from eha.design.family import COMMAND_DT, DesignError, Limits, command_samples, decode
 from eha.design.predict import FOLLOW_RATIO, Prediction, predict
-from eha.design.library import best_by_score, cut_to_limits, dominated_by
-from eha.design.search import LIBRARY, best_library, score, search
+from eha.design.library import best_by_score, dominated_by, within_limits
+from eha.design.search import best_library, score, search
 from eha.design.targets import SIGNALS, Target, resolve_targets, with_probes
 from eha.models.faults import FAULTS
 from eha.models.commands import array_command, write_command_file
@@ -262,7 +262,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
         targets = with_probes(targets, around)
     say = on_progress or (lambda message: None)
     start = time.perf_counter()
-    cuts = {name: cut_to_limits(name, limits) for name in LIBRARY}
+    cuts, beyond = within_limits(limits, say)
     say(f"library commands cut to the limits: predicting {len(targets)} targets on "
         f"{', '.join(c.label for c in cuts.values())}")
     library = {name: predict(c.command(), targets, limits.duration, **options)
@@ -306,7 +306,7 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
                 "actuators": actuators, "population": population, "generations": generations,
                 "p_detect": 0.95, "follow_ratio": FOLLOW_RATIO, "check": "fleet",
                 "library_cut": {n: {"scale": c.scale, "beyond": c.beyond}
-                                for n, c in cuts.items()},
+                                for n, c in {**cuts, **beyond}.items()},
                 "chosen": (f"library command {incumbent[0]}" if incumbent is not None
                            else "searched")}
     return DesignResult(t, com, refined, prediction, library, settings, segments,

@@ -182,8 +182,8 @@ def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
 
     from eha.design.api import DesignResult
     from eha.design.family import command_samples, decode
-    from eha.design.library import best_by_score, cut_to_limits, dominated_by
-    from eha.design.search import LIBRARY, best_library, search
+    from eha.design.library import best_by_score, dominated_by, within_limits
+    from eha.design.search import best_library, search
     from eha.design.targets import resolve_targets
     from eha.models.commands import array_command
 
@@ -191,7 +191,7 @@ def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
     start = time.perf_counter()
     targets = resolve_targets(faults)
     names = {t.name for t in targets}
-    cuts = {name: cut_to_limits(name, limits) for name in LIBRARY}
+    cuts, beyond = within_limits(limits, say)
     say(f"library commands cut to the limits: the change check on "
         f"{', '.join(c.label for c in cuts.values())}")
 
@@ -227,7 +227,7 @@ def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
                 "population": population, "generations": generations, "p_detect": 0.95,
                 "check": "baseline", "calibration_pairs": PREDICTION_PAIRS,
                 "library_cut": {n: {"scale": c.scale, "beyond": c.beyond}
-                                for n, c in cuts.items()},
+                                for n, c in {**cuts, **beyond}.items()},
                 "chosen": chosen}
     return DesignResult(t, com, targets, prediction, library, settings, segments, {},
                         history, time.perf_counter() - start)

@@ -82,6 +82,24 @@ def cut_to_limits(name: str, limits: Limits) -> CutCommand:
     return CutCommand(name, t, com, scale, outside_limits(com, limits))
 
 
+def within_limits(limits: Limits, say=None) -> tuple[dict[str, CutCommand],
+                                                     dict[str, CutCommand]]:
+    """The library commands cut to ``limits``: those within them (the design's references)
+    and those still beyond (named, with why, never a reference or the design)."""
+    from eha.design.search import LIBRARY
+
+    cuts = {name: cut_to_limits(name, limits) for name in LIBRARY}
+    inside = {n: c for n, c in cuts.items() if c.beyond is None}
+    beyond = {n: c for n, c in cuts.items() if c.beyond is not None}
+    if say is not None:
+        for n, c in beyond.items():
+            say(f"library command {n} is beyond the limits even cut to them ({c.beyond}): "
+                "not compared")
+    if not inside:     # nothing fits: compare with all, marked (a design still needs a yardstick)
+        return cuts, {}
+    return inside, beyond
+
+
 def best_by_score(library: Mapping[str, Prediction], targets: Sequence[Target],
                   reference: Mapping[str, tuple[str, float]],
                   detect: Collection[str] | None = None,
@@ -110,4 +128,4 @@ def dominated_by(design: Prediction, library: Prediction, targets: Sequence[Targ
     return worse
 
 
-__all__ = ["CutCommand", "cut_to_limits", "best_by_score", "dominated_by"]
+__all__ = ["CutCommand", "cut_to_limits", "within_limits", "best_by_score", "dominated_by"]
