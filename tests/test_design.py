@@ -77,7 +77,10 @@ def test_a_design_end_to_end_writes_a_command_that_runs(tmp_path):
     assert np.max(np.abs(cmd.samples[1])) <= 5e-3 + 1e-12
     doc = json.loads(paths["json"].read_text())
     assert set(doc["targets"]) == {"BKL", "Ofs"}
-    assert set(doc["targets"]["Ofs"]["library"]) == {"chirp_1cm", "mixed", "test", "sine"}
+    # the library commands cut to the limits; the step command stays beyond them (its
+    # energy above max_freq), named in the settings and not compared
+    assert set(doc["targets"]["Ofs"]["library"]) == {"chirp_1cm", "mixed", "sine"}
+    assert doc["settings"]["library_cut"]["test"]["beyond"]
     assert doc["settings"]["max_stroke"] == 5e-3 and paths["png"].stat().st_size > 10_000
     assert np.array_equal(design(**kw).com, result.com)
     assert len(result.to_pandas()) == 2
