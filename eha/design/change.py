@@ -92,11 +92,10 @@ def measure(command, t_end: float = 1.0, faults: Sequence[str] | None = None,
     on ``per_level`` more actuators). False alarms on ``held_out`` healthy pairs with the
     one-sided 95 % binomial (Clopper-Pearson) bound.
     """
-    from eha.design.verify import upper_bound
     from eha.health.change import draw_test_day
     from eha.health.change_calibration import (_faulted, _record, calibrate_change,
                                                isolate_group, judge, later_seed, sign_of)
-    from eha.identification.healthy import draw_actuator
+    from eha.identification.healthy import draw_actuator, upper_bound
     from eha.identification.measured import noise_level
     from eha.models.commands import as_command
 
@@ -180,9 +179,9 @@ def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
     (``settings["check"] == "baseline"``)."""
     import time
 
-    from eha.design.api import DesignResult
+    from eha.design.result import DesignResult
     from eha.design.family import command_samples, decode
-    from eha.design.library import best_by_score, dominated_by, within_limits
+    from eha.design.library import best_by_score, dominated_by, library_cut, within_limits
     from eha.design.search import best_library, search
     from eha.design.targets import resolve_targets
     from eha.models.commands import array_command
@@ -226,59 +225,10 @@ def design_change(faults: Sequence[str] | None, limits, noise: float = 1e-6,
                 "noise": {"xu": noise}, "alpha": alpha, "seed": seed, "actuators": 1,
                 "population": population, "generations": generations, "p_detect": 0.95,
                 "check": "baseline", "calibration_pairs": PREDICTION_PAIRS,
-                "library_cut": {n: {"scale": c.scale, "beyond": c.beyond}
-                                for n, c in {**cuts, **beyond}.items()},
+                "library_cut": library_cut({**cuts, **beyond}),
                 "chosen": chosen}
     return DesignResult(t, com, targets, prediction, library, settings, segments, {},
                         history, time.perf_counter() - start)
-
-
-def verify_change(doc: Mapping[str, Any], command: str, library: Sequence[str],
-                  held_out: int, calibration: int, per_level: int, seed: int = 0,
-                  with_design: bool = True, on_progress=None):
-    """``eha design verify`` of a design for the change check (its JSON ``doc`` and command
-    file): :func:`measure` on the design and on each library command cut to the design's
-    limits, every command at the same sizes (:data:`MEASURE_MULTIPLES` of the design's
-    predicted detectable change). Returns a :class:`eha.design.verify.Verification`."""
-    from eha.design.family import Limits
-    from eha.design.library import cut_to_limits
-    from eha.design.verify import Verification
-
-    settings, targets = doc["settings"], doc["targets"]
-    faults = [n for n, t in targets.items() if t.get("kind") == "fault" and n in FAULTS]
-    limits = Limits(**{k: float(settings[k]) for k in ("duration", "max_stroke", "max_rate",
-                                                       "max_freq")})
-    noise = float(settings.get("noise", {}).get("xu", 1e-6))
-    alpha = float(settings.get("alpha", 0.01))
-    sizes = {}
-    for n in faults:
-        md = targets[n].get("min_detectable") or _target(n).limit
-        sizes[n] = [m * md for m in MEASURE_MULTIPLES]
-    commands = ([("design", command)] if with_design else []) + \
-        [(name, cut_to_limits(name, limits).command()) for name in library]
-    figures = {}
-    for label, cmd in commands:
-        m = measure(cmd, limits.duration, faults, sizes, per_level, held_out, calibration,
-                    alpha, noise, seed=seed, on_progress=on_progress)
-        table = {}
-        for n, f in m["faults"].items():
-            levels = [{"value": r["size"], "deviation": r["size"], "p_detect": r["p_detect"],
-                       "isolated": r["isolated"], "coverage": r["coverage"], "n": r["n"]}
-                      for r in f["levels"]]
-            md = f["min_detectable"]
-            table[n] = {"levels": levels, "min_detectable": md,
-                        "at_lowest_level": md is not None and bool(levels) and
-                        md == levels[0]["deviation"], "at_twice": f["at_twice"]}
-        figures[label] = {"thresholds": m["thresholds"], "calibration_actuators": calibration,
-                          "false_alarms": m["false_alarms"], "faults": table}
-    predicted = {"design": {n: targets[n].get("min_detectable") for n in faults},
-                 "library": {n: targets[n].get("library") for n in faults}}
-    return Verification(figures, predicted, {"check": "baseline", "held_out": held_out,
-                                             "calibration": calibration,
-                                             "per_level": per_level, "sizes": sizes,
-                                             "library": list(library), "seed": seed,
-                                             "library_cut_to": limits.to_dict()},
-                        "change check (simulated pairs, no campaign)", "")
 
 
 def _target(name: str) -> Target:
@@ -287,5 +237,5 @@ def _target(name: str) -> Target:
     return fault_target(name)
 
 
-__all__ = ["simulated_prediction", "measure", "design_change", "verify_change",
-           "SEARCH_PAIRS"]
+__all__ = ["simulated_prediction", "measure", "design_change", "SEARCH_PAIRS",
+           "MEASURE_MULTIPLES"]

@@ -100,6 +100,11 @@ def within_limits(limits: Limits, say=None) -> tuple[dict[str, CutCommand],
     return inside, beyond
 
 
+def library_cut(cuts: Mapping[str, CutCommand]) -> dict[str, dict]:
+    """What a design's settings record of each library command cut to its limits."""
+    return {n: {"scale": c.scale, "beyond": c.beyond} for n, c in cuts.items()}
+
+
 def best_by_score(library: Mapping[str, Prediction], targets: Sequence[Target],
                   reference: Mapping[str, tuple[str, float]],
                   detect: Collection[str] | None = None,
@@ -128,4 +133,4 @@ def dominated_by(design: Prediction, library: Prediction, targets: Sequence[Targ
     return worse
 
 
-__all__ = ["CutCommand", "cut_to_limits", "within_limits", "best_by_score", "dominated_by"]
+__all__ = ["CutCommand", "cut_to_limits", "within_limits", "library_cut", "best_by_score", "dominated_by"]

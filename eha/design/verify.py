@@ -23,6 +23,7 @@ from eha.design.family import DesignError
 from eha.health.assessment import DEFAULT_NOISE_P12
 from eha.health.detection import calibrate_thresholds, isolate_row, statistic
 from eha.health.monitoring import _assessments
+from eha.identification.healthy import upper_bound
 from eha.models.faults import FAULTS
 
 #: Multiples of the predicted minimum detectable size injected.
@@ -66,13 +67,6 @@ def verification_table(name: str, commands: Sequence[str], levels: Mapping[str, 
     return {"name": name, "kind": "health",
             "description": "verification of a designed test command (eha design verify)",
             "health": health}
-
-
-def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
-    """One-sided Clopper-Pearson upper bound of a rate from ``k`` events in ``n`` trials."""
-    from scipy.stats import beta
-
-    return 1.0 if k >= n else float(beta.ppf(confidence, k + 1, n - k))
 
 
 def measured(rows: Sequence[Mapping[str, Any]], calibration: int, alpha: float
@@ -197,8 +191,6 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
     if not 5 <= calibration < healthy:
         raise DesignError(f"calibration={calibration}: allowed range [5, healthy - 1]")
     if settings.get("check") == "baseline":    # the change check: simulated pairs, seconds
-        from eha.design.change import verify_change
-
         if not Path(command).is_file() and with_design:
             raise DesignError(f"command {command}: no such file (the design's .csv)")
         return verify_change(doc, command, library, healthy - calibration, calibration,
@@ -240,5 +232,53 @@ def verify(design_json: str | Path, command_file: str | Path | None = None,
                         name, str(results))
 
 
-__all__ = ["verify", "Verification", "measured", "levels_around", "verification_table",
+def verify_change(doc: Mapping[str, Any], command: str, library: Sequence[str],
+                  held_out: int, calibration: int, per_level: int, seed: int = 0,
+                  with_design: bool = True, on_progress=None):
+    """``eha design verify`` of a design for the change check (its JSON ``doc`` and command
+    file): :func:`measure` on the design and on each library command cut to the design's
+    limits, every command at the same sizes (:data:`MEASURE_MULTIPLES` of the design's
+    predicted detectable change). Returns a :class:`eha.design.verify.Verification`."""
+    from eha.design.change import MEASURE_MULTIPLES, _target, measure
+    from eha.design.family import Limits
+    from eha.design.library import cut_to_limits
+
+    settings, targets = doc["settings"], doc["targets"]
+    faults = [n for n, t in targets.items() if t.get("kind") == "fault" and n in FAULTS]
+    limits = Limits(**{k: float(settings[k]) for k in ("duration", "max_stroke", "max_rate",
+                                                       "max_freq")})
+    noise = float(settings.get("noise", {}).get("xu", 1e-6))
+    alpha = float(settings.get("alpha", 0.01))
+    sizes = {}
+    for n in faults:
+        md = targets[n].get("min_detectable") or _target(n).limit
+        sizes[n] = [m * md for m in MEASURE_MULTIPLES]
+    commands = ([("design", command)] if with_design else []) + \
+        [(name, cut_to_limits(name, limits).command()) for name in library]
+    figures = {}
+    for label, cmd in commands:
+        m = measure(cmd, limits.duration, faults, sizes, per_level, held_out, calibration,
+                    alpha, noise, seed=seed, on_progress=on_progress)
+        table = {}
+        for n, f in m["faults"].items():
+            levels = [{"value": r["size"], "deviation": r["size"], "p_detect": r["p_detect"],
+                       "isolated": r["isolated"], "coverage": r["coverage"], "n": r["n"]}
+                      for r in f["levels"]]
+            md = f["min_detectable"]
+            table[n] = {"levels": levels, "min_detectable": md,
+                        "at_lowest_level": md is not None and bool(levels) and
+                        md == levels[0]["deviation"], "at_twice": f["at_twice"]}
+        figures[label] = {"thresholds": m["thresholds"], "calibration_actuators": calibration,
+                          "false_alarms": m["false_alarms"], "faults": table}
+    predicted = {"design": {n: targets[n].get("min_detectable") for n in faults},
+                 "library": {n: targets[n].get("library") for n in faults}}
+    return Verification(figures, predicted, {"check": "baseline", "held_out": held_out,
+                                             "calibration": calibration,
+                                             "per_level": per_level, "sizes": sizes,
+                                             "library": list(library), "seed": seed,
+                                             "library_cut_to": limits.to_dict()},
+                        "change check (simulated pairs, no campaign)", "")
+
+
+__all__ = ["verify", "verify_change", "Verification", "measured", "levels_around", "verification_table",
            "upper_bound", "LEVEL_MULTIPLES"]

@@ -58,6 +58,14 @@ def command_signature(com: np.ndarray) -> str:
     return hashlib.sha256(q.tobytes()).hexdigest()[:16]
 
 
+def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
+    """One-sided Clopper-Pearson upper bound of a rate from ``k`` events in ``n`` trials (a
+    false-alarm rate measured on held-out healthy records)."""
+    from scipy.stats import beta
+
+    return 1.0 if k >= n else float(beta.ppf(confidence, k + 1, n - k))
+
+
 def tail_threshold(values: Sequence[float], alpha: float, spread: float = 0.0
                    ) -> tuple[float, dict[str, float]]:
     """The value a healthy statistic exceeds with probability ``alpha``: the one hypothesis
