@@ -15,9 +15,10 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
 INFRA = tuple(sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__"))
-#: What the infrastructure may import besides itself: the error hierarchy and the trace's
-#: columns (constants and a numpy dataclass; nothing of the domain).
-BELOW = ("eha.errors", "eha.trace")
+#: What the infrastructure may import besides itself: the error hierarchy, the trace's
+#: columns (constants and a numpy dataclass; nothing of the domain) and the writer of whole
+#: output files (eha.outputs: imports only the error hierarchy).
+BELOW = ("eha.errors", "eha.trace", "eha.outputs")
 #: Job kinds and campaign sections the domain registers (what the runner once imported itself).
 KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
