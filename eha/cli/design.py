@@ -127,11 +127,7 @@ def design(
 
     check_seed(seed)
     check_out_dir(out, "--out")
-    if not name or any(c in name for c in "/\\") or name.startswith("."):
-        fail(f"--name {name!r}: a plain file name without folders")
-    if len(name.encode("utf-8")) > MAX_NAME_BYTES:  # refused before the search, not after
-        fail(f"--name: {len(name.encode('utf-8'))} bytes; allowed at most {MAX_NAME_BYTES} "
-             "(the file names NAME.csv, NAME.json, NAME.png and their temporary names)")
+    _check_name(name)
     pairs = [tuple(split_names(p)) for p in separate]
     try:
         around_values = _around(around, pairs)
@@ -148,6 +144,16 @@ def design(
         fail(_flags(str(exc)))
     _show(result)
     print_paths(result.save(out, name))
+
+
+def _check_name(name: str) -> None:
+    """--name: a plain file name, short enough for its files' temporary names; refused before
+    the search, not after it."""
+    if not name or any(c in name for c in "/\\") or name.startswith("."):
+        fail(f"--name {name!r}: a plain file name without folders")
+    if len(name.encode("utf-8")) > MAX_NAME_BYTES:
+        fail(f"--name: {len(name.encode('utf-8'))} bytes; allowed at most {MAX_NAME_BYTES} "
+             "(the file names NAME.csv, NAME.json, NAME.png and their temporary names)")
 
 
 def _around(path: Optional[Path], pairs: list) -> Optional[dict]:

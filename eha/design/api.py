@@ -176,10 +176,10 @@ class DesignResult:
         paths = {k: folder / f"{name}.{ext}"
                  for k, ext in (("command", "csv"), ("json", "json"), ("png", "png"))}
         # the three replaced together or not at all (two runs on one folder never mix)
-        with atomic_set(list(paths.values())) as (csv, js, png):
-            write_command_file(csv, self.t, self.com, header)
-            js.write_text(json.dumps(self.to_dict(), indent=2))
-            plot_design(self, png)
+        with atomic_set(list(paths.values())) as (csv_tmp, json_tmp, png_tmp):
+            write_command_file(csv_tmp, self.t, self.com, header)
+            json_tmp.write_text(json.dumps(self.to_dict(), indent=2))
+            plot_design(self, png_tmp)
         return paths
 
     def plot(self, path: str | Path) -> Path:
