@@ -241,3 +241,47 @@ def test_verify_repairs_a_campaign_with_a_command_file_from_another_folder(tmp_p
     line = error_line(proc, 2)
     assert "changed since it was pinned" in line and "eha campaign run FILE" in line
     assert "verify --replace" not in line
+
+
+# -- a results folder that cannot work
+
+
+def test_a_traces_file_in_place_of_the_folder_is_one_line_before_any_run(tmp_path):
+    """It printed a `failed:` line per run (540)."""
+    camp = write_campaign(tmp_path, """
+        name = "tf"
+        models = ["lf"]
+        commands = ["step_1mm"]
+        seeds = [0, 1, 2]
+        t_end = 0.05
+        [faults]
+        nominal = true
+    """)
+    results = tmp_path / "results"
+    results.mkdir()
+    (results / "traces").write_text("")
+    proc = invoke_eha("campaign", "run", camp, "--results", results, "--workers", "1",
+                      "--no-progress")
+    assert "traces: a file, not the folder of the traces" in error_line(proc, 2)
+    assert sorted(p.name for p in results.iterdir()) == ["traces"]
+
+
+def test_an_unreachable_scheduler_creates_nothing(tmp_path):
+    import socket
+
+    with socket.socket() as s:          # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    camp = write_campaign(tmp_path, """
+        name = "sc"
+        models = ["lf"]
+        commands = ["step_1mm"]
+        t_end = 0.05
+        [faults]
+        nominal = true
+    """)
+    results = tmp_path / "results"
+    proc = invoke_eha("campaign", "run", camp, "--results", results, "--scheduler",
+                      f"tcp://127.0.0.1:{port}")
+    assert f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}" in error_line(proc, 1)
+    assert not results.exists()

@@ -115,9 +115,15 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     CampaignChanged
         The campaign name is recorded with a different definition and ``replace`` is false.
     eha.campaigns.store.StoreError
-        The database is locked by another process.
+        The database is locked by another process, or ``RESULTS/traces`` is not a folder.
     """
     from eha.campaigns.files import Campaign, load_campaign
+    from eha.campaigns.schema import TRACES
+    from eha.campaigns.store import StoreError
+
+    traces = Path(results) / TRACES
+    if traces.exists() and not traces.is_dir():  # every run would fail on it, one line each
+        raise StoreError(f"{traces}: a file, not the folder of the traces; move it away")
     from eha.campaigns.store import ResultStore
     from eha.campaigns.traces import clean_temp_files
 

@@ -88,7 +88,7 @@ def campaign_run(
 
     Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
     """
-    from eha.campaigns.executors import check_scheduler
+    from eha.campaigns.executors import check_reachable, check_scheduler
     from eha.campaigns.runner import run_campaign
     from eha.errors import EhaError
 
@@ -96,6 +96,11 @@ def campaign_run(
         check_scheduler(scheduler)
     check_out_dir(results, "--results")
     camp = _load(file)
+    if scheduler is not None:
+        try:
+            check_reachable(scheduler)
+        except RuntimeError as exc:
+            fail(str(exc), 1)
     with resumable("finished runs are saved, re-run the same command to resume"):
         try:
             s = run_campaign(camp, results, workers=workers, scheduler=scheduler,
