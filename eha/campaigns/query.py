@@ -93,18 +93,6 @@ class TraceDamaged(StoreError):
     exit_code = FAILURE
 
 
-def check_traces(con, results: Path, what: str) -> None:
-    """Refuse to read the traces while one of them is damaged: a file whose size or time
-    differs from the recorded ones is hashed (:func:`eha.campaigns.integrity.check_files`,
-    not ``full``); the message names the file and the command that repairs it."""
-    from eha.campaigns.integrity import check_files, damaged_message, recorded_files
-
-    files = recorded_files(con)
-    check = check_files(results, files, full=False)
-    if check.damaged:
-        raise TraceDamaged(damaged_message(results, files, check, what))
-
-
 def traces_view(con, results: Path):
     """Check the recorded trace files (:func:`eha.campaigns.integrity.check_files`, not
     ``full``: a file whose size or time changed is hashed) and create the view ``traces`` of
