@@ -285,3 +285,22 @@ def test_an_unreachable_scheduler_creates_nothing(tmp_path):
                       f"tcp://127.0.0.1:{port}")
     assert f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port}" in error_line(proc, 1)
     assert not results.exists()
+
+
+@pytest.mark.parametrize("eol", ["NaN", "Infinity", "true", "-1", "1e999", "\"12\""])
+def test_a_truth_file_with_an_impossible_end_of_life_is_refused(tmp_path, eol):
+    """An invalid --truth was ignored or taken as a number, exit 0."""
+    from eha.prognostics.degradation import PrognosticsError
+    from eha.prognostics.jobs import load_truth
+
+    path = tmp_path / "truth.json"
+    path.write_text('{"actuators": {"A1": {"eol": 3.5}, "A2": {"eol": %s}}}' % eol)
+    with pytest.raises(PrognosticsError, match="actuator A2: eol .*; allowed a finite number"):
+        load_truth(path)
+    csv = tmp_path / "truth.csv"
+    if eol in ("Infinity", "-1", "1e999"):
+        csv.write_text(f"actuator,eol\nA1,3.5\nA2,{eol}\n")
+        with pytest.raises(PrognosticsError, match="actuator A2"):
+            load_truth(csv)
+    path.write_text('{"actuators": {"A1": {"eol": 3.5}, "A2": {"eol": null}}}')
+    assert load_truth(path) == {"A1": 3.5, "A2": None}
