@@ -304,3 +304,25 @@ def test_a_truth_file_with_an_impossible_end_of_life_is_refused(tmp_path, eol):
             load_truth(csv)
     path.write_text('{"actuators": {"A1": {"eol": 3.5}, "A2": {"eol": null}}}')
     assert load_truth(path) == {"A1": 3.5, "A2": None}
+
+
+def test_a_design_whose_png_is_a_folder_replaces_none_of_its_files(tmp_path):
+    """design.csv and design.json were replaced, and the message said they were left."""
+    from eha.design import Limits, design
+
+    result = design(faults=["Ofs"], limits=Limits(duration=0.2, max_stroke=5e-3), seed=1,
+                    population=4, generations=1, actuators=1)
+    (tmp_path / "design.csv").write_text("old csv")
+    (tmp_path / "design.json").write_text("old json")
+    (tmp_path / "design.png").mkdir()
+    with pytest.raises(OutputError, match="design.png: could not be written .it is a folder.; "
+                                          "none of design.csv, design.json, design.png"):
+        result.save(tmp_path)
+    assert (tmp_path / "design.csv").read_text() == "old csv"
+    assert (tmp_path / "design.json").read_text() == "old json"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["design.csv", "design.json",
+                                                          "design.png"]
+    (tmp_path / "design.png").rmdir()
+    paths = result.save(tmp_path)
+    assert json.loads(paths["json"].read_text())["settings"]["seed"] == 1
+    assert load_command_file(str(paths["command"])).samples[1].size > 10
