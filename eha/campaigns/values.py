@@ -21,7 +21,8 @@ import datetime as _dt
 import json
 import math
 from decimal import Decimal
-from typing import Any, Iterable, Sequence
+from itertools import islice
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 #: JSON text of the non-finite floats.
 NON_FINITE_JSON = {"nan": '"NaN"', "inf": '"Infinity"', "-inf": '"-Infinity"'}
@@ -81,21 +82,50 @@ def csv_value(v: Any) -> str | None:
     return str(v)
 
 
-def json_records(columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Iterable[str]:
+#: Rows encoded at a time: a batch is turned into columns, each column encoded by one C-level
+#: ``map`` (a float column by ``float.__repr__``), then joined row by row.
+BATCH = 10_000
+
+
+def _batches(rows: Iterable[Sequence[Any]]) -> Iterator[list]:
+    it = iter(rows)
+    while batch := list(islice(it, BATCH)):
+        yield batch
+
+
+def _column_text(col: tuple, one: Callable[[Any], str | None], non_finite: Mapping[str, str]
+                 ) -> list:
+    """The text of each value of one column: a column of floats by ``float.__repr__`` (its
+    non-finite values, if its sum says there are any, through ``non_finite``), any other
+    column value by value (``one``)."""
+    if all(type(v) is float for v in col):
+        out = list(map(float.__repr__, col))
+        if not math.isfinite(sum(col)):   # a NaN or an infinity (or a sum that overflowed)
+            out = [non_finite.get(x, x) for x in out]
+        return out
+    return list(map(one, col))
+
+
+def json_records(columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Iterator[str]:
     """The JSON text of a list of records (one object per row), in pieces: ``[``, the
     records separated by ``,``, then ``]``."""
+    from operator import add
+
     keys = [json.dumps(str(c), ensure_ascii=False) + ":" for c in columns]
+    nan_text = {"nan": NON_FINITE_JSON["nan"], "inf": NON_FINITE_JSON["inf"],
+                "-inf": NON_FINITE_JSON["-inf"]}
     yield "["
     first = True
-    for row in rows:
-        yield ("" if first else ",") + "{" + ",".join(k + json_value(v)
-                                                      for k, v in zip(keys, row)) + "}"
+    for batch in _batches(rows):
+        cols = [_column_text(c, json_value, nan_text) for c in zip(*batch)]
+        text = ",".join(["{" + ",".join(map(add, keys, row)) + "}" for row in zip(*cols)])
+        yield ("" if first else ",") + text
         first = False
     yield "]"
 
 
-def csv_lines(columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Iterable[str]:
-    """The CSV text (header, then one line per row) in lines, RFC 4180 quoting."""
+def csv_lines(columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Iterator[str]:
+    """The CSV text (header, then the rows) in pieces, RFC 4180 quoting."""
     import csv
     import io
 
@@ -103,10 +133,15 @@ def csv_lines(columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Iterable
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)
     yield buf.getvalue()
-    for row in rows:
+
+    def one(v: Any) -> str:
+        x = csv_value(v)
+        return "" if x is None else x
+
+    for batch in _batches(rows):
         buf.seek(0)
         buf.truncate()
-        writer.writerow(["" if (x := csv_value(v)) is None else x for v in row])
+        writer.writerows(zip(*[_column_text(c, one, {}) for c in zip(*batch)]))
         yield buf.getvalue()
 
 
