@@ -286,6 +286,7 @@ def test_xu_is_stored_only_where_it_differs_from_xj_and_read_back_bit_for_bit(tm
     import duckdb
     import pyarrow as pa
 
+    from eha.campaigns.integrity import TraceFile
     from eha.campaigns.query import _create_traces_view
     from eha.campaigns.traces import (COPY_FLAG, chunk_table, read_run, write_chunk,
                                       write_table_atomic)
@@ -325,7 +326,10 @@ def test_xu_is_stored_only_where_it_differs_from_xj_and_read_back_bit_for_bit(tm
     write_table_atomic(chunk_table([("f" * 16, nominal, {})], ["t", "xj"]),
                        folder / "chunk-noxu.parquet")
     con = duckdb.connect()
-    _create_traces_view(con, tmp_path)
+    # the view lists the files given (as recorded), by name
+    recorded = [TraceFile(str(f.relative_to(tmp_path)), "camp", [], None, None, None, None)
+                for f in sorted(folder.glob("*.parquet"))]
+    _create_traces_view(con, tmp_path, recorded)
     view = con.execute("SELECT run_key, xu, xj FROM traces ORDER BY run_key, t").fetchnumpy()
     expect = {"a": nominal, "b": backlash, "c": odd, "d": backlash, "e": nominal}
     for k, data in expect.items():

@@ -15,9 +15,10 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "eha" / "campaigns"
 INFRA = tuple(sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__"))
-#: What the infrastructure may import besides itself: the error hierarchy and the trace's
-#: columns (constants and a numpy dataclass; nothing of the domain).
-BELOW = ("eha.errors", "eha.trace")
+#: What the infrastructure may import besides itself: the error hierarchy, the trace's
+#: columns (constants and a numpy dataclass; nothing of the domain) and the writer of whole
+#: output files (eha.outputs: imports only the error hierarchy).
+BELOW = ("eha.errors", "eha.trace", "eha.outputs")
 #: Job kinds and campaign sections the domain registers (what the runner once imported itself).
 KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
@@ -151,11 +152,12 @@ def test_no_module_imports_a_layer_above_its_own():
 
 
 def test_the_infrastructure_imports_nothing_of_the_domain():
-    """eha.campaigns: the error hierarchy and the trace columns only; a job kind's part of a
-    campaign file, its worker and its tables are its own module's (e.g. eha.simulations)."""
+    """eha.campaigns: the error hierarchy, the trace columns and the writer of whole output
+    files (eha.outputs, below it) only; a job kind's part of a campaign file, its worker and
+    its tables are its own module's (e.g. eha.simulations)."""
     found = {f"{module} -> eha.{part}" for module, parts in _graph().items()
              if module.startswith("eha/campaigns/")
-             for part in parts - {"campaigns", "errors", "trace"}}
+             for part in parts - {"campaigns", "errors", "trace", "outputs"}}
     assert found == set(), sorted(found)
 
 

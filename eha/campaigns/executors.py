@@ -305,6 +305,30 @@ def check_scheduler(address: str) -> str:
     return address
 
 
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Refuse a ``--scheduler`` (``tcp://HOST:PORT``) that no one answers at, before any
+    work starts (the results folder and its database are not created): a TCP connection to
+    its host and port, closed at once.
+
+    Raises
+    ------
+    RuntimeError
+        One line naming the address and the reason (connection refused, timed out, unknown
+        host).
+    """
+    import re
+    import socket
+
+    found = re.fullmatch(r"(?:\w+://)?\[?([^\]]+?)\]?:(\d+)", address.strip())
+    if found is None:
+        return  # check_scheduler's to refuse
+    try:
+        socket.create_connection((found.group(1), int(found.group(2))), timeout=timeout).close()
+    except OSError as exc:
+        raise RuntimeError(f"cannot reach the Dask scheduler at {address} "
+                           f"({exc.strerror or exc}); nothing was created") from None
+
+
 def make_executor(workers: int = 2, scheduler: Any = None) -> Executor:
     """The local spawn pool, or a :class:`DaskExecutor` when ``scheduler`` is given."""
     if scheduler is not None:
@@ -313,4 +337,5 @@ def make_executor(workers: int = 2, scheduler: Any = None) -> Executor:
 
 
 __all__ = ["Executor", "LocalPoolExecutor", "DaskExecutor", "make_executor", "check_scheduler",
+           "check_reachable",
            "warm_worker", "tune_malloc", "WORKER_NUMBA_THREADS"]

@@ -185,8 +185,16 @@ def load_campaign(path: str | Path) -> Campaign:
 
 
 def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign:
-    """Validate and expand a campaign given as a mapping (the parsed TOML)."""
+    """Validate and expand a campaign given as a mapping (the parsed TOML).
+
+    The definition stored is a copy of ``table`` in which a kind's expansion may name a file it
+    reads by its absolute path and content hash (a command file), so that the campaign can be
+    rebuilt from the database in any folder (``eha campaign verify --repair``)."""
+    import copy
+
     from eha.campaigns import jobs as registry
+
+    table = copy.deepcopy(dict(table))
 
     owners = registry.file_keys()
     sections = registry.section_names()

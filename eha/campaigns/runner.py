@@ -115,9 +115,15 @@ def run_campaign(campaign, results: str | Path = "results", workers: int = 2,
     CampaignChanged
         The campaign name is recorded with a different definition and ``replace`` is false.
     eha.campaigns.store.StoreError
-        The database is locked by another process.
+        The database is locked by another process, or ``RESULTS/traces`` is not a folder.
     """
     from eha.campaigns.files import Campaign, load_campaign
+    from eha.campaigns.schema import TRACES
+    from eha.campaigns.store import StoreError
+
+    traces = Path(results) / TRACES
+    if traces.exists() and not traces.is_dir():  # every run would fail on it, one line each
+        raise StoreError(f"{traces}: a file, not the folder of the traces; move it away")
     from eha.campaigns.store import ResultStore
     from eha.campaigns.traces import clean_temp_files
 
@@ -178,6 +184,7 @@ class Verified:
     damaged: dict[str, str]                 # path -> reason
     by_campaign: dict[str, list[str]]       # campaign -> its damaged paths
     repaired: dict[str, int] = field(default_factory=dict)   # campaign -> runs re-run
+    strays: list[str] = field(default_factory=list)  # trace files no done run records
 
 
 def verify_results(results: str | Path, repair: bool = False, workers: int | None = None,
@@ -210,16 +217,36 @@ def verify_results(results: str | Path, repair: bool = False, workers: int | Non
     for f in files:
         if f.path in check.damaged:
             by_campaign.setdefault(f.campaign, []).append(f.path)
-    out = Verified(len(files), sum(len(f.keys) for f in files), check.damaged, by_campaign)
+    out = Verified(len(files), sum(len(f.keys) for f in files), check.damaged, by_campaign,
+                   strays=stray_files(results, {f.path for f in files}))
     if repair:
-        from eha.campaigns.files import build_campaign
+        from eha.campaigns.files import CampaignError, build_campaign
 
         for name in sorted(by_campaign):
             definition, source = definitions[name]
-            camp = build_campaign(json.loads(definition), source=source or "<stored>")
+            try:
+                camp = build_campaign(json.loads(definition), source=source or "<stored>")
+            except CampaignError as exc:  # e.g. a command file edited or moved since
+                raise CampaignError([f"repair {name}: the campaign cannot be rebuilt from the "
+                                     f"definition stored with it ({p}); run its file again "
+                                     f"with: eha campaign run FILE --results {results}"
+                                     for p in exc.problems]) from None
             summary = run_campaign(camp, results, workers=workers, progress=progress)
             out.repaired[name] = summary.done
     return out
+
+
+def stray_files(results: Path, recorded: set[str]) -> list[str]:
+    """The Parquet files under ``DIR/traces`` that no done run records (a copy, a file of a
+    discarded run or of another database), relative to ``results``: never read (the
+    ``traces`` view lists the recorded files only), listed by ``eha campaign verify``."""
+    from eha.campaigns.schema import TRACES
+
+    base = results / TRACES
+    if not base.is_dir():
+        return []
+    return sorted(p for f in base.rglob("*.parquet")
+                  if (p := str(f.relative_to(results))) not in recorded)
 
 
 def _kinds(camp) -> list[JobKind]:

@@ -106,6 +106,31 @@ def _damaged(text: str) -> bool:
     return any(w in text for w in ("Corrupt", "checksum", "not a valid DuckDB"))
 
 
+#: DuckDB's configuration at every connect: no extension loaded or installed on its own. Given
+#: a file of another engine (a SQLite file saved as ``eha.duckdb``), DuckDB otherwise
+#: downloads the extension that reads it, a network request from a local tool.
+NO_EXTENSIONS = {"autoload_known_extensions": False, "autoinstall_known_extensions": False}
+#: DuckDB's file magic, at byte 8 of its database file.
+DUCKDB_MAGIC = (8, b"DUCK")
+
+
+def _check_magic(path: Path) -> None:
+    """Refuse a file that is not a DuckDB database before DuckDB opens it (it would look for
+    an extension to read a SQLite file, say); a missing or empty file is DuckDB's to handle."""
+    at, magic = DUCKDB_MAGIC
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot be read ({exc.strerror})") from None
+    if head and head[at:at + len(magic)] != magic:
+        kind = " (a SQLite database)" if head.startswith(b"SQLite format 3") else ""
+        raise DatabaseDamaged(f"{path}: not a DuckDB database file{kind}; move it away and "
+                              "run the campaigns again")
+
+
 def db_path(results: str | Path) -> Path:
     """``DIR/eha.duckdb``."""
     return Path(results) / DB_NAME
@@ -129,7 +154,8 @@ def connect(results: str | Path, read_only: bool = False):
         if not read_only:
             path.parent.mkdir(parents=True, exist_ok=True)
             _create_whole(path, duckdb)
-        con = duckdb.connect(str(path), read_only=read_only)
+        _check_magic(path)
+        con = duckdb.connect(str(path), read_only=read_only, config=NO_EXTENSIONS)
     except OSError as exc:
         raise StoreError(f"{path.parent}: cannot create the results folder "
                          f"({exc.strerror})") from None
@@ -185,7 +211,7 @@ def _create_whole(path: Path, duckdb) -> None:
     if path.exists():
         return
     tmp = path.with_name(f"{path.name}.creating-{os.getpid()}")
-    duckdb.connect(str(tmp)).close()
+    duckdb.connect(str(tmp), config=NO_EXTENSIONS).close()
     try:
         os.link(tmp, path)
     except FileExistsError:  # another process created it meanwhile: theirs is kept

@@ -88,7 +88,7 @@ def campaign_run(
 
     Example: eha campaign run campaigns/thesis-matrix.toml --workers 2 --results results
     """
-    from eha.campaigns.executors import check_scheduler
+    from eha.campaigns.executors import check_reachable, check_scheduler
     from eha.campaigns.runner import run_campaign
     from eha.errors import EhaError
 
@@ -96,6 +96,11 @@ def campaign_run(
         check_scheduler(scheduler)
     check_out_dir(results, "--results")
     camp = _load(file)
+    if scheduler is not None:
+        try:
+            check_reachable(scheduler)
+        except RuntimeError as exc:
+            fail(str(exc), 1)
     with resumable("finished runs are saved, re-run the same command to resume"):
         try:
             s = run_campaign(camp, results, workers=workers, scheduler=scheduler,
@@ -137,33 +142,41 @@ def campaign_verify(
         v = verify_results(results, repair=repair, workers=workers, progress=False)
     for path, reason in sorted(v.damaged.items()):
         warn(f"{results / path}: {reason}", "damaged")
+    for path in v.strays:
+        warn(f"{results / path}: recorded by no run (a copy or a leftover); never read, "
+             "remove it", "not recorded")
     for name, n in sorted(v.repaired.items()):
         console.print(f"{name}: {n} runs of its damaged trace files run again")
     console.print(f"{results}: {v.files} trace files of {v.runs} runs checked, "
                   f"{len(v.damaged)} damaged"
-                  + (", repaired" if v.repaired else ""))
+                  + (", repaired" if v.repaired else "")
+                  + (f", {len(v.strays)} not recorded" if v.strays else ""))
     if v.damaged and not repair:
         fail(f"{len(v.damaged)} damaged trace files; repair them with: "
              f"{repair_hint(results)}", 1)
 
 
-def _write_frame(frame, format: str, limit: int = 0) -> None:
+def _write_rows(columns, rows, format: str, limit: int = 0) -> None:
     """The query's result on standard output as a table (its first ``limit`` rows, 0 all),
-    CSV or JSON (every row)."""
-    if format == "csv":
-        typer.echo(frame.to_csv(index=False), nl=False)
-    elif format == "json":
-        typer.echo(frame.to_json(orient="records", date_format="iso"))
-    else:
-        hidden = len(frame) - limit if 0 < limit < len(frame) else 0
-        table = Table(*[str(c) for c in frame.columns])
-        for row in frame.head(len(frame) - hidden).itertuples(index=False):
-            table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v)
-                            for v in row])
-        console.print(table)
-        if hidden:
-            console.print(f"{hidden} more rows not shown (--limit 0 shows all; --format csv "
-                          "or json writes every row)")
+    CSV or JSON (every row, every value exact: :mod:`eha.campaigns.values`)."""
+    from eha.campaigns.values import csv_lines, json_records
+
+    if format in ("csv", "json"):
+        pieces = csv_lines(columns, rows) if format == "csv" else json_records(columns, rows)
+        out = sys.stdout
+        for piece in pieces:
+            out.write(piece)
+        if format == "json":
+            out.write("\n")
+        return
+    hidden = len(rows) - limit if 0 < limit < len(rows) else 0
+    table = Table(*[str(c) for c in columns])
+    for row in rows[:len(rows) - hidden]:
+        table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+    console.print(table)
+    if hidden:
+        console.print(f"{hidden} more rows not shown (--limit 0 shows all; --format csv "
+                      "or json writes every row)")
 
 
 def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
@@ -174,20 +187,23 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
                                          "json write every row.")):
     """Query the result database read-only; Parquet traces are the view `traces`.
 
+    CSV and JSON keep every value exact: floats in their shortest round-trip form, every digit
+    of an integer; in JSON NaN and infinities are "NaN", "Infinity", "-Infinity" and BLOBs hex.
+
     Only reading statements run (SELECT, WITH, EXPLAIN, DESCRIBE, SHOW, PRAGMA table_info);
     SET, ATTACH, COPY, EXPORT, INSTALL, CREATE, INSERT, ... are refused (exit 2).
 
     Example: eha query "SELECT r.label, m.rmse_xu_hf_lf FROM runs r JOIN metrics m USING
     (run_key) WHERE r.campaign = 'thesis-matrix' AND r.model = 'hf'" --format csv
     """
-    from eha.campaigns.query import query as run_query
+    from eha.campaigns.query import query_rows
 
     if format not in ("table", "csv", "json"):
         fail(f"--format {format!r}: allowed table, csv, json")
     check_database(results)
-    frame = run_query(results, sql)
+    columns, rows = query_rows(results, sql)
     try:
-        _write_frame(frame, format, limit)
+        _write_rows(columns, rows, format, limit)
         sys.stdout.flush()  # a full disk or a closed pipe shows here, not silently at exit
     except OSError as exc:
         discard_stdout()
@@ -197,18 +213,25 @@ def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),
 
 def export(table: str = typer.Argument(..., help="Table or view (campaigns, runs, metrics, "
                                                  "traces, ...)."),
-           csv: Path = typer.Option(..., "--csv", help="CSV file to write."),
+           csv: Optional[Path] = typer.Option(None, "--csv", help="CSV file to write."),
+           json: Optional[Path] = typer.Option(None, "--json",
+                                               help="JSON file to write (a list of records)."),
            results: ResultsOption = RESULTS):
-    """Export a table of the result database to CSV.
+    """Export a table of the result database to CSV or JSON, every value exact (floats in
+    their shortest round-trip form; in JSON NaN and infinities as "NaN", "Infinity",
+    "-Infinity", BLOBs in hex).
 
     Example: eha export metrics --csv results/metrics.csv
     """
-    from eha.campaigns.query import export_csv
+    from eha.campaigns.query import export_table
 
-    check_out_file(csv, "--csv", (".csv",))
+    if (csv is None) == (json is None):
+        fail("export: give one of --csv FILE or --json FILE")
+    path, format = (csv, "csv") if csv is not None else (json, "json")
+    check_out_file(path, f"--{format}", (f".{format}",))
     check_database(results)
-    n = export_csv(results, table, csv)
-    console.print(f"{table}: {n} rows -> {csv}")
+    n = export_table(results, table, path, format)
+    console.print(f"{table}: {n} rows -> {path}")
 
 
 def plot(campaign: str = typer.Argument(..., help="Campaign name (as in the database)."),

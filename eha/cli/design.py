@@ -75,6 +75,9 @@ _GENERATIONS = typer.Option(30, "--generations", help="Search generations, 1 to 
 _POPULATION = typer.Option(32, "--population", help="Search population, 4 to 500.")
 _OUT = typer.Option(Path("results/design"), "--out", help="Folder of the command "
                     "file, JSON report and figure.")
+#: Longest --name [bytes, UTF-8]: a file name holds 255, the temporary name of NAME.json
+#: (.NAME.json.eha-PID-RANDOM.part.json) about 40 more.
+MAX_NAME_BYTES = 200
 _NAME = typer.Option("design", "--name", help="Base name of the files written.")
 _CHECK = typer.Option("fleet", "--check", help="The health check the test is for: fleet "
                       "(against a healthy fleet) or baseline (the change since the "
@@ -124,8 +127,7 @@ def design(
 
     check_seed(seed)
     check_out_dir(out, "--out")
-    if not name or any(c in name for c in "/\\") or name.startswith("."):
-        fail(f"--name {name!r}: a plain file name without folders")
+    _check_name(name)
     pairs = [tuple(split_names(p)) for p in separate]
     try:
         around_values = _around(around, pairs)
@@ -144,6 +146,16 @@ def design(
     print_paths(result.save(out, name))
 
 
+def _check_name(name: str) -> None:
+    """--name: a plain file name, short enough for its files' temporary names; refused before
+    the search, not after it."""
+    if not name or any(c in name for c in "/\\") or name.startswith("."):
+        fail(f"--name {name!r}: a plain file name without folders")
+    if len(name.encode("utf-8")) > MAX_NAME_BYTES:
+        fail(f"--name: {len(name.encode('utf-8'))} bytes; allowed at most {MAX_NAME_BYTES} "
+             "(the file names NAME.csv, NAME.json, NAME.png and their temporary names)")
+
+
 def _around(path: Optional[Path], pairs: list) -> Optional[dict]:
     """The sizes to design at from an explain JSON (``--around``); its pairs added."""
     from eha.design.targets import from_explain
@@ -152,7 +164,7 @@ def _around(path: Optional[Path], pairs: list) -> Optional[dict]:
         return None
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # e.g. 100 000 [
         fail(f"--around {path}: not a readable eha explain JSON")
     more, values = from_explain(doc)
     pairs += more

@@ -317,6 +317,10 @@ class GuardedGroup(TyperGroup):
             if code is not None:
                 raise typer.Exit(code)
             _traceback()
+            if isinstance(exc, RecursionError):  # a hostile JSON or TOML: 100 000 nested [
+                error_line("an input file is nested too deeply to be read (JSON or TOML "
+                           "arrays or tables inside each other)")
+                raise typer.Exit(BAD_INPUT)
             if isinstance(exc, OSError) and stdout_failed():
                 if STATE.get("pipe_closed"):
                     raise typer.Exit(PIPE_CLOSED)

@@ -152,19 +152,20 @@ class DesignResult:
         """Write ``NAME.csv`` (the command file), ``NAME.json`` and ``NAME.png`` into
         ``folder``; returns their paths."""
         from eha.design.plots import plot_design
+        from eha.outputs import atomic_set
 
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         header = {"eha": "designed test command (eha design)", "units": "t in s, com in m"}
         header |= {k: json.dumps(v) if not isinstance(v, (int, float, str)) else v
                    for k, v in self.settings.items()}
-        paths = {"command": write_command_file(folder / f"{name}.csv", self.t, self.com,
-                                               header)}
-        tmp = folder / f".{name}.json.tmp"
-        tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        tmp.replace(folder / f"{name}.json")
-        paths["json"] = folder / f"{name}.json"
-        paths["png"] = plot_design(self, folder / f"{name}.png")
+        paths = {k: folder / f"{name}.{ext}"
+                 for k, ext in (("command", "csv"), ("json", "json"), ("png", "png"))}
+        # the three replaced together or not at all (two runs on one folder never mix)
+        with atomic_set(list(paths.values())) as (csv_tmp, json_tmp, png_tmp):
+            write_command_file(csv_tmp, self.t, self.com, header)
+            json_tmp.write_text(json.dumps(self.to_dict(), indent=2))
+            plot_design(self, png_tmp)
         return paths
 
     def plot(self, path: str | Path) -> Path:

@@ -141,6 +141,21 @@ def with_probes(targets: Sequence[Target], probes: Mapping[str, float]) -> list[
     return out
 
 
+def _deviation(name: str, value, where: str) -> float:
+    """The deviation from off of an effect's fitted ``value`` in an explain JSON: a finite
+    number inside the effect's search bounds and not its off value (a NaN, an infinity, a
+    ``true`` or the off value would design at no size, or write NaN)."""
+    param = EFFECTS[name].tested
+    lo, hi = EFFECTS[name].bounds.get(param, (-math.inf, math.inf))
+    off = EFFECTS[name].off[param]
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and math.isfinite(value) and lo <= value <= hi and value != off
+    if not ok:
+        raise DesignError(f"around: {where} = {value!r}: allowed a number in [{lo:g}, {hi:g}] "
+                          f"other than the effect's off value {off:g}")
+    return float(value) - off
+
+
 def from_explain(doc: Mapping) -> tuple[list[tuple[str, str]], dict[str, float]]:
     """The pairs to tell apart and the sizes to design at, from ``eha explain``'s JSON: each
     effect the record's model added (its fitted value) against each rival the record could
@@ -149,18 +164,25 @@ def from_explain(doc: Mapping) -> tuple[list[tuple[str, str]], dict[str, float]]
     if not isinstance(doc, Mapping) or not isinstance(doc.get("steps"), list):
         raise DesignError("around: not an eha explain JSON (no 'steps')")
     found: dict[str, float] = {}
-    for step in doc["steps"]:
+    for i, step in enumerate(doc["steps"]):
         name = step.get("effect") if isinstance(step, Mapping) else None
         if name in designable_effects():
             param = EFFECTS[name].tested
-            value = (step.get("params") or {}).get(param)
-            if isinstance(value, (int, float)):
-                found[name] = float(value) - EFFECTS[name].off[param]
+            params = step.get("params") or {}
+            if not isinstance(params, Mapping):
+                raise DesignError(f"around: steps[{i}].params: an object of parameter values "
+                                  f"expected, not {type(params).__name__}")
+            if params.get(param) is not None:
+                found[name] = _deviation(name, params[param], f"steps[{i}].params.{param}")
     rivals: dict[str, float] = {}
-    for e in doc.get("not_excluded") or []:
+    excluded = doc.get("not_excluded") or []
+    if not isinstance(excluded, list):
+        raise DesignError("around: not_excluded: a list of effects expected, not "
+                          f"{type(excluded).__name__}")
+    for i, e in enumerate(excluded):
         name = e.get("effect") if isinstance(e, Mapping) else None
-        if name in designable_effects() and isinstance(e.get("value"), (int, float)):
-            rivals[name] = float(e["value"]) - EFFECTS[name].off[EFFECTS[name].tested]
+        if name in designable_effects() and e.get("value") is not None:
+            rivals[name] = _deviation(name, e["value"], f"not_excluded[{i}].value")
     pairs = [(f, r) for f in found for r in rivals if f != r]
     if not pairs:
         raise DesignError("around: the record's answer has no rival it could not rule out "

@@ -128,11 +128,9 @@ class Verification:
                 "measured": self.figures, "notes": self.notes}
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2))
-        tmp.replace(path)
-        return path
+        from eha.outputs import write_json
+
+        return write_json(path, self.to_dict())  # a temporary name of its own
 
     def markdown(self) -> str:
         """The table a person reads: per fault and command the measured minimum detectable

@@ -320,12 +320,9 @@ class Calibration:
     signals: list[str] = field(default_factory=lambda: ["xu"])
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(asdict(self), indent=2))
-        tmp.replace(path)
-        return path
+        from eha.outputs import write_json
+
+        return write_json(path, asdict(self))  # a temporary name of its own
 
 
 def load_calibration(path: str | Path) -> Calibration:

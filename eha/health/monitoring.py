@@ -229,11 +229,9 @@ def check_record(record: str | Path, calibration: str | Path | None = None,
     out = CheckResult(str(record), a, vs, isolated, str(calibration) if calibration else None,
                       check_id)
     if json_path is not None:
-        p = Path(json_path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.name}.tmp")
-        tmp.write_text(json.dumps(out.to_dict(), indent=2))
-        tmp.replace(p)
+        from eha.outputs import write_json
+
+        p = write_json(json_path, out.to_dict())  # a temporary name of its own
         out.paths["json"] = p
     if results is not None:
         from eha.campaigns.store import StoreError, replace_rows

@@ -8,6 +8,7 @@ whose parameters can be overridden (``make_command("chirp_1cm", A0=5e-3)``).
 from __future__ import annotations
 
 import hashlib
+import os
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -313,9 +314,29 @@ def pin_command(name: str) -> str:
     return f"{path.resolve()}{_PIN}{_file_digest(_read_bytes(path))}"
 
 
+#: The largest command file read [bytes]: 64 MiB, some 2.5 million samples (40 min at
+#: 1 kHz); a larger file, or a file that is not a regular one (``/dev/zero``, a pipe), is
+#: refused before it is read.
+MAX_COMMAND_FILE_BYTES = 64 * 1024 * 1024
+
+
 def _read_bytes(path: Path) -> bytes:
+    import stat
+
     try:
-        return path.read_bytes()
+        with open(path, "rb") as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise CommandError(f"command file {path}: not a regular file (a device, a "
+                                   "pipe or a socket)")
+            if st.st_size > MAX_COMMAND_FILE_BYTES:
+                raise CommandError(f"command file {path}: {st.st_size} bytes; allowed at most "
+                                   f"{MAX_COMMAND_FILE_BYTES} bytes (64 MiB)")
+            data = fh.read(MAX_COMMAND_FILE_BYTES + 1)
+        if len(data) > MAX_COMMAND_FILE_BYTES:  # grew while it was read
+            raise CommandError(f"command file {path}: more than {MAX_COMMAND_FILE_BYTES} "
+                               "bytes; allowed at most 64 MiB")
+        return data
     except FileNotFoundError:
         raise CommandError(f"command file {path}: no such file") from None
     except IsADirectoryError:
@@ -359,7 +380,7 @@ def load_command_file(name: str) -> Command:
                            f"{digest}, expected {pinned}); plan the campaign again")
     where = f"command file {path}"
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8").removeprefix("\ufeff")  # a BOM (spreadsheets write one)
     except UnicodeDecodeError:
         raise CommandError(f"{where}: not UTF-8 text") from None
     rows = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
@@ -370,7 +391,7 @@ def load_command_file(name: str) -> Command:
     for i, line in enumerate(rows[1:], start=1):
         cells = line.split(",")
         try:
-            if len(cells) != 2:
+            if len(cells) != 2 or "_" in line:  # float() reads 1_0e-4 as 1e-3
                 raise ValueError
             values.append((float(cells[0]), float(cells[1])))
         except ValueError:
@@ -401,17 +422,11 @@ def load_command_file(name: str) -> Command:
 def write_command_file(path: str | Path, t: np.ndarray, com: np.ndarray,
                        settings: Mapping[str, Any] | None = None) -> Path:
     """Write a command file (:func:`load_command_file`'s format), whole or not at all."""
-    import os
+    from eha.outputs import write_atomic
 
     path = Path(path)
     lines = [f"# {k} = {v}" for k, v in (settings or {}).items()]
     lines.append("t,com")
     lines += [f"{a:.6f},{b:.9g}" for a, b in zip(np.asarray(t), np.asarray(com))]
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write("\n".join(lines) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, "\n".join(lines) + "\n")  # a temporary name of its own
 

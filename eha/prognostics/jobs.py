@@ -241,17 +241,34 @@ def load_truth(path: str | Path) -> dict[str, float | None]:
             except ValueError:
                 raise PrognosticsError(f"`truth` {path}: line {i + 2}: eol {v!r} is not a "
                                        "number (or empty for not reached)") from None
-        return out
+        return _checked_eol(path, out)
     try:
         data = json.loads(path.read_bytes().decode("utf-8"))
         acts = data["actuators"]
-        return {str(k): (None if v.get("eol") is None else float(v["eol"]))
-                for k, v in acts.items()}
+        out = {str(k): v.get("eol") for k, v in acts.items()}
     except UnicodeDecodeError as exc:
         raise PrognosticsError(f"`truth` {path}: not UTF-8 text (byte {exc.start})") from None
     except (ValueError, KeyError, TypeError, AttributeError):
         raise PrognosticsError(f"`truth` {path}: expected JSON {{\"actuators\": {{ID: "
                                "{\"eol\": number or null}}}} or a CSV actuator,eol") from None
+    return _checked_eol(path, out)
+
+
+def _checked_eol(path: Path, eol: Mapping[str, Any]) -> dict[str, float | None]:
+    """The ends of life of a truth file, each a finite number >= 0 or None (NaN, Infinity,
+    ``true`` or -1 were taken as one)."""
+    import math
+
+    for k, v in eol.items():
+        try:
+            ok = v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)
+                               and math.isfinite(v) and v >= 0)
+        except OverflowError:  # an integer beyond any float
+            ok = False
+        if not ok:
+            raise PrognosticsError(f"`truth` {path}: actuator {k}: eol {v!r}; allowed a "
+                                   "finite number >= 0, or null (not reached)")
+    return {k: None if v is None else float(v) for k, v in eol.items()}
 
 
 # =========================================================================== the pipeline

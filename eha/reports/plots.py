@@ -133,6 +133,7 @@ def plot_campaign(results: str | Path = "results", campaign: str = "thesis-matri
     list of Path
         The PNGs written under ``out`` (default ``DIR/plots/<campaign>/``).
     """
+    from eha.campaigns.query import check_trace_files
     from eha.campaigns.traces import read_trace
 
     results = Path(results)
@@ -144,6 +145,8 @@ def plot_campaign(results: str | Path = "results", campaign: str = "thesis-matri
                          f"{results / 'eha.duckdb'}")
     out = Path(out) if out is not None else results / "plots" / campaign
     runs = runs[runs["seed"] == runs["seed"].min()]
+    # the checksums of the files drawn, as every reader of traces (a flipped byte is a spike)
+    check_trace_files(results, set(runs["trace_path"]), "plot")
     traces = {rk: read_trace(results / p, rk)
               for rk, p in zip(runs["run_key"], runs["trace_path"])}
     fault_sets = sorted({json.dumps(f, sort_keys=True): f for f in runs["faults"]}.values(),

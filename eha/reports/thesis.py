@@ -76,6 +76,7 @@ def reproduce_thesis(results: str | Path = "results", *, workers: int = 2,
     """
     from eha.campaigns.executors import LocalPoolExecutor
     from eha.campaigns.runner import run_campaign
+    from eha.campaigns.query import check_trace_files
     from eha.campaigns.traces import read_trace
 
     results = Path(results)
@@ -90,6 +91,7 @@ def reproduce_thesis(results: str | Path = "results", *, workers: int = 2,
     plots: list[Path] = []
     nominal = []
     runs = campaign_runs(results, "thesis-nominal")
+    check_trace_files(results, set(runs["trace_path"]), "report")
     commands = list(dict.fromkeys(runs["command"]))
     for k, cmd in enumerate(commands):
         say(f"figures: nominal HF vs LF, {cmd} ({k + 1} of {len(commands)})")

@@ -55,6 +55,7 @@ def _expand_simulations(table: Mapping[str, Any], name: str,
     n_before = len(problems)
     models = _models(table.get("models"), problems)
     commands = _commands(table.get("commands"), problems)
+    _pin_in_definition(table, commands)
     seeds = _seeds(table.get("seeds", [0]), problems)
     signals = _signals(table.get("signals", list(OUTPUTS)), problems)
     fixed = _fixed_params(table.get("params", {}), models, problems)
@@ -134,6 +135,20 @@ def _models(value: Any, problems: list[str]) -> list[str]:
         return []
     return _distinct("models", value, "models from: hf, lf", lambda m: m in MODELS,
                      lambda m: f"unknown model {m!r}; allowed: hf, lf", problems)
+
+
+def _pin_in_definition(table: Mapping[str, Any], commands: list) -> None:
+    """Name each command file of the definition (``build_campaign``'s own copy) by its
+    absolute path and content hash, as the run keys do: ``eha campaign verify --repair``
+    rebuilds the campaign from the stored definition in any folder, and refuses a file edited
+    since (:func:`eha.models.commands.load_command_file`)."""
+    value = table.get("commands")
+    entries = value if isinstance(value, list) else [value]
+    if not isinstance(table, dict) or len(entries) != len(commands):
+        return  # a bad entry was left out: nothing is stored
+    pinned = [name if isinstance(entry, str) else {**entry, "name": name}
+              for entry, (name, _, _) in zip(entries, commands)]
+    table["commands"] = pinned if isinstance(value, list) else pinned[0]
 
 
 def _commands(value: Any, problems: list[str]) -> list[tuple[str, dict, Command]]:
