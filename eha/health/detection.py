@@ -58,7 +58,8 @@ MAX_ACTUATORS = 10000
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
-                 "noise", "faults", "base_model", "level", "signals", "noise_p12"}
+                 "noise", "faults", "base_model", "level", "signals", "noise_p12",
+                 "baseline", "nuisances"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -75,6 +76,8 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         noise = 1e-6                         # m, white sensor noise
         faults = { GM = [0.009, 0.008, 0.007], Clk = [5e-13, 1e-12, 2e-12] }   # optional
         # or faults = ["GM", "Clk"] / "all": the levels declared with each fault
+        baseline = true                      # optional: each actuator a pair (change check)
+        nuisances = { GQ = 0.01 }            # with baseline: test-day half-widths
         base_model = "calibrated"            # LF of the assessment
         level = 0.9
         signals = ["xu", "p12"]              # optional: the check fits the load pressure too
@@ -82,7 +85,9 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
 
     Without ``faults`` every actuator is healthy (a calibration fleet); with it, each fault
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
-    added.
+    added. With ``baseline = true`` each actuator is a pair of records, a fault level is a
+    change from the actuator's own value in the later one, and the jobs are the change
+    check's (:func:`eha.health.change_campaign.change_jobs`).
     """
     from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
@@ -126,6 +131,13 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 < level < 1:
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
     signals, noise_p12 = _signals(section, problems)
+    baseline = _baseline(section, problems)
+    if baseline is None:                 # neither check's fault levels can be read
+        return []
+    if baseline:                         # pairs judged by the change check
+        from eha.health.change_campaign import change_jobs
+
+        return change_jobs(section, commands, t_end, n, n_healthy, seed, noise, level, problems)
     groups = _fault_groups(section.get("faults", {}), problems)
     if problems:
         return []
@@ -153,6 +165,20 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
+
+
+def _baseline(section: Mapping[str, Any], problems: list[str]) -> bool | None:
+    """Whether a ``[health]`` section asks for the change check (``baseline = true``: each
+    actuator a pair of records, :mod:`eha.health.change_campaign`), None when it cannot be
+    read; its problems appended."""
+    baseline = section.get("baseline", False)
+    if not isinstance(baseline, bool):
+        problems.append(f"health.baseline={baseline!r}: true or false")
+        return None
+    if not baseline and "nuisances" in section:
+        problems.append("health.nuisances: only with baseline = true (the test-day differences "
+                        "of a pair)")
+    return baseline
 
 
 def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:

@@ -300,10 +300,17 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
     from eha.health.plots import plot_confusion, plot_roc
 
     rows = _assessments(results, campaign)
-    if not rows:
-        raise DetectionError(f"{campaign}: no health assessments in {results}/eha.duckdb; run "
-                             f"eha campaign run campaigns/{campaign}.toml first")
-    perf = performance(rows, alpha)
+    if rows:
+        perf = performance(rows, alpha)
+    else:   # a change campaign ([health] baseline = true): its pairs
+        from eha.health.change_campaign import change_rows
+        from eha.health.change_performance import performance_change
+
+        rows = change_rows(results, campaign)
+        if not rows:
+            raise DetectionError(f"{campaign}: no health assessments in {results}/eha.duckdb; "
+                                 f"run eha campaign run campaigns/{campaign}.toml first")
+        perf = performance_change(rows, alpha)
     if not perf:
         raise DetectionError(f"{campaign}: fewer than 5 healthy actuators per command")
     folder = Path(out) if out is not None else Path(results) / "reports" / "health"
