@@ -44,6 +44,7 @@ CHANGE_ALARMS = """
             baseline_cycle  DOUBLE,
             first_alarm     DOUBLE,   -- first cycle the fault alarms, isolated (NULL: never)
             first_confirmed DOUBLE,   -- first cycle of two such checks in a row
+            first_statistic DOUBLE,   -- first cycle its own statistic alarms (any isolation)
             first_degraded  DOUBLE,   -- first cycle any fault alarms
             checks          INTEGER,  -- later records judged
             created_at      TIMESTAMP,
@@ -171,8 +172,9 @@ def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[
     """Per actuator and fault, from its ``change_checks`` rows: ``first_alarm`` (the first
     cycle its change alarms and the check is isolated to it, among the faults the records do
     not tell apart), ``first_confirmed`` (the first of two such checks in a row),
-    ``first_degraded`` (the first cycle any fault alarms), ``checks`` and ``baseline_cycle``;
-    None where it never does."""
+    ``first_statistic`` (the first cycle its own statistic is beyond its threshold, whatever
+    the isolation), ``first_degraded`` (the first cycle any fault alarms), ``checks`` and
+    ``baseline_cycle``; None where it never does."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
     by_act: dict[str, list] = {}
     for r in rows:
@@ -188,9 +190,11 @@ def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[
             first = next((float(r["cycle"]) for r, a in zip(rs, alarms) if a), None)
             confirmed = next((float(rs[k]["cycle"]) for k in range(len(rs) - 1)
                               if alarms[k] and alarms[k + 1]), None)
+            own = next((float(r["cycle"]) for r in rs if r["degraded"][name]), None)
             base = rs[0].get("baseline_cycle")
             out[aid][name] = {"first_alarm": first, "first_confirmed": confirmed,
-                              "first_degraded": degraded, "checks": len(rs),
+                              "first_statistic": own, "first_degraded": degraded,
+                              "checks": len(rs),
                               "baseline_cycle": None if base is None or base != base
                               else float(base)}
     return out
@@ -245,6 +249,7 @@ def store_alarms(results, run_id: str,
     rows = [{"run_id": run_id, "actuator": aid, "fault": n, "reference": REFERENCE,
              "baseline_cycle": a["baseline_cycle"], "first_alarm": a["first_alarm"],
              "first_confirmed": a["first_confirmed"],
+             "first_statistic": a["first_statistic"],
              "first_degraded": a["first_degraded"], "checks": a["checks"],
              "created_at": now}
             for aid, per in alarms.items() for n, a in per.items()]
