@@ -6,6 +6,7 @@ nothing written). Records are real CSV files of 0.3-s chirp_1cm HF runs with kno
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -142,6 +143,11 @@ def test_baseline_column_names_the_baseline(tmp_path, fleet):
     (["--check", "change"], "--check change needs a change calibration"),
     (["--check", "other"], "--check 'other': allowed fleet, change"),
     (["--calibration", "CAL"], "--calibration: only with --check change"),
+    (["--trend", "changes"], "--trend changes: only with --check change"),
+    (["--check", "change", "--trend", "x", "--calibration", "CAL"],
+     "--trend 'x': allowed identified, changes"),
+    (["--check", "change", "--trend", "changes", "--skip-flagged", "--calibration", "CAL"],
+     "--skip-flagged: not with --trend changes"),
     (["--check", "change", "--calibration", "missing.json"], "missing.json: no such file"),
 ])
 def test_bad_change_options_one_line_nothing_written(fleet, tmp_path, extra, message):
@@ -167,13 +173,15 @@ def test_a_fleet_calibration_is_refused(fleet, tmp_path):
 def test_rul_on_the_change_check_end_to_end(fleet, tmp_path):
     root, manifest, _ = fleet
     proc = invoke_eha("rul", str(manifest), "--limit", "FDJ=1500", "--fit", "FDJ",
-                      "--check", "change", "--calibration", str(root / "cal.json"),
+                      "--check", "change", "--trend", "changes",
+                      "--calibration", str(root / "cal.json"),
                       "--results", str(tmp_path / "res"), "--json", str(tmp_path / "rul.json"),
                       "--workers", "1", "--no-progress")
     assert proc.returncode == 0, proc.stderr
     assert "change check: first alarm since the baseline" in proc.stdout
     out = json.loads((tmp_path / "rul.json").read_text())
-    assert out["check"] == "change" and out["run_id"].endswith("-change")
+    assert out["check"] == "change" and out["trend"] == "changes"
+    assert out["run_id"].endswith("-change")
     a1 = out["actuators"]["A1"]
     assert a1["first_alarms"]["FDJ"]["first_alarm"] == 200.0
     assert [c["cycle"] for c in a1["changes"]] == [100.0, 200.0, 300.0, 400.0]
@@ -192,3 +200,31 @@ def test_rul_on_the_change_check_end_to_end(fleet, tmp_path):
     assert list(stored["reference"]) == ["baseline"]
     alarms = query(tmp_path / "res", "SELECT * FROM change_alarms WHERE fault = 'FDJ'")
     assert sorted(alarms["first_alarm"]) == [200.0, 200.0]
+
+
+def test_the_identified_trend_identifies_every_record_and_a_named_baseline(fleet, tmp_path):
+    from eha.prognostics.change_rul import _campaign
+
+    _, _, cal = fleet
+    manifest = _write_fleet(tmp_path / "f", baseline_column=True)
+    text = manifest.read_text().replace(",A1_0.csv\n", ",acceptance.csv\n")
+    (tmp_path / "f" / "acceptance.csv").write_bytes((tmp_path / "f" / "A1_0.csv").read_bytes())
+    manifest.write_text(text)
+    m = read_manifest(manifest)
+    bases = baselines_of(m)
+    assert bases["A1"].record.name == "acceptance.csv" and bases["A1"].cycle is None
+    kinds = {}
+    for trend in ("identified", "changes"):
+        camp = _campaign(m, bases, {"FDJ": (200.0, 4000.0)}, 0, None, None, None, "c",
+                         cal["path"], trend)
+        kinds[trend] = [(j.kind, Path(j.spec["record"]).name) for j in camp.jobs]
+    ident = [r for k, r in kinds["identified"] if k == "health"]
+    # every record of the manifest, and A1's baseline outside it
+    assert sorted(ident) == sorted([f"{a}_{c}.csv" for a in ("A1", "A2") for c in CYCLES]
+                                   + ["acceptance.csv"])
+    assert sorted(r for k, r in kinds["changes"] if k == "health") == ["A2_0.csv",
+                                                                       "acceptance.csv"]
+    # A1's every record is judged against the acceptance record (its first one too)
+    judged = [r for k, r in kinds["changes"] if k == "change_record"]
+    assert sorted(judged) == sorted([f"A1_{c}.csv" for c in CYCLES]
+                                    + [f"A2_{c}.csv" for c in CYCLES[1:]])

@@ -86,6 +86,10 @@ RUL_CHECK = typer.Option("fleet", "--check", help="Health check of the histories
 RUL_CALIBRATION = typer.Option(None, "--calibration", help="With --check change: a change "
                                "calibration for the records' command, length and noise (eha "
                                "health calibrate --baseline).")
+RUL_TREND = typer.Option("identified", "--trend", help="With --check change, the histories of "
+                         "the RUL: identified (every record identified, as --check fleet) or "
+                         "changes (only the baselines identified, each record its baseline + "
+                         "change: faster, biased when several faults grow together).")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress bar.")
 
 
@@ -109,6 +113,7 @@ def rul(
     units: UnitsOption = None,
     check: str = RUL_CHECK,
     calibration: Optional[Path] = RUL_CALIBRATION,
+    trend: str = RUL_TREND,
     progress: bool = PROGRESS,
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
@@ -127,7 +132,7 @@ def rul(
     from eha.identification.fdi import parse_bounds
     from eha.prognostics.jobs import parse_limits
 
-    run_rul, extra = _rul_of(check, calibration)
+    run_rul, extra = _rul_of(check, calibration, trend)
 
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(plots, "--plots")
@@ -148,15 +153,15 @@ def rul(
         raise typer.Exit(1)
 
 
-def _rul_of(check: str, calibration: Optional[Path]):
+def _rul_of(check: str, calibration: Optional[Path], trend: str):
     """The library function of ``eha rul --check`` and its extra keywords."""
-    if check == "fleet" and calibration is None:
+    if check == "fleet" and calibration is None and trend == "identified":
         from eha.prognostics.jobs import run_rul
 
         return run_rul, {}
     from eha.prognostics.change_rul import run_rul_change   # it refuses a bad pair in one line
 
-    return run_rul_change, {"check": check, "calibration": calibration}
+    return run_rul_change, {"check": check, "calibration": calibration, "trend": trend}
 
 
 def _render_rul(res, results: Path) -> None:
