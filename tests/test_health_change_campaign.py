@@ -118,6 +118,8 @@ def test_report_health_on_a_change_campaign(campaign, tmp_path):
     names = {p.name for p in files_under(out)}
     assert {"detection.csv", "confusion.csv", "false_alarms.csv", "performance.json",
             "summary.md", "roc_chirp_1cm.png", "confusion_chirp_1cm.png"} <= names
+    assert "Minimum detectable change since the earlier record of each pair" in \
+        (out / "summary.md").read_text()
     perf = json.loads((out / "performance.json").read_text())["chirp_1cm"]
     assert perf["check"] == "change"
     # thresholds from the campaign's own 8 healthy pairs: none of them alarms in sample

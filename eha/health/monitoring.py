@@ -281,7 +281,10 @@ def summary_markdown(perf: Mapping[str, Any], alpha: float) -> str:
     for c in commands:
         fa.append(f"| {c} | {perf[c]['false_alarms']['n']} | {perf[c]['false_alarms']['any']:.3f}"
                   f" | {perf[c]['false_alarms_loo']['any']:.3f} |")
-    return ("Minimum detectable deviation from healthy at P_D >= 0.95 (fault unit; '> x': not "
+    what = ("change since the earlier record of each pair (the change check; thresholds "
+            "from the healthy pairs)" if any(perf[c].get("check") == "change" for c in perf)
+            else "deviation from healthy")
+    return (f"Minimum detectable {what} at P_D >= 0.95 (fault unit; '> x': not "
             f"reached at the largest level x), with alpha = {alpha:g} per check; in brackets "
             "the detection rate at each injected level and how many of that fault's records "
             "were isolated as it.\n\n" + "\n".join(lines) + "\n\n" + "\n".join(fa) + "\n")
