@@ -14,6 +14,7 @@ built once per worker and calibration.
 
 from __future__ import annotations
 
+import math
 import time
 from functools import lru_cache
 from typing import Any, Mapping
@@ -115,7 +116,9 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
            "baseline_cycle": spec.get("baseline_cycle"), "calibration": spec["calibration"],
            "reference": REFERENCE, "level": float(cal.level),
            "changes": {n: float(v["change"]) for n, v in judged.items()},
-           "intervals": {n: [float(x) for x in v["interval"]] for n, v in judged.items()},
+           # an open end (a change beyond its response's growing range) is null
+           "intervals": {n: [float(x) if math.isfinite(x) else None for x in v["interval"]]
+                         for n, v in judged.items()},
            "statistics": {n: float(v["statistic"]) for n, v in judged.items()},
            "thresholds": {n: float(v["threshold"]) for n, v in judged.items()},
            "degraded": {n: bool(v["degraded"]) for n, v in judged.items()},

@@ -4,7 +4,7 @@ structure of :func:`eha.health.detection.performance` (what ``eha report health`
 
 Per command, the healthy pairs' linear estimates give each fault's mean and std, split into
 the white-noise part (scaled at each pair by its own records' noise) and the rest (nuisances,
-dither), and the Student-t prediction bound at ``alpha / m`` of
+dither), and the tolerance bound at ``alpha / m`` (with its tail factor) of
 :func:`eha.health.change_calibration.judge_estimates`; a pair alarms on a fault when its
 statistic is beyond the bound at its noise. The ROC is drawn on the statistic in units of its
 scale (``z``), which is what the bound thresholds. Isolation: the alarming fault with the
@@ -21,7 +21,7 @@ import numpy as np
 
 from eha.health.change import probe
 from eha.health.change_calibration import (ChangeCalibration, isolate_group, judge_estimates,
-                                           sign_of)
+                                           sign_of, tail_factor, tolerance_factor)
 from eha.health.detection import DEFAULT_ALPHA, roc_curve
 from eha.models.faults import FAULTS
 
@@ -43,9 +43,13 @@ def calibration_of(healthy: Sequence[Mapping[str, Any]], alpha: float,
         var = float(d.var(ddof=1))
         nf = float(healthy[0]["noise_factor"][name])
         noise_var = nf * float(noise2.mean())
+        two = FAULTS[name].direction == 0
+        p = alpha / len(names) / (2.0 if two else 1.0)
+        # the tail factor as eha.health.change_calibration sets it (the heavier tail if two)
+        tail = max(tail_factor(d, p), tail_factor(-d, p)) if two else tail_factor(d, p)
         faults[name] = {"mean": float(d.mean()), "std": math.sqrt(var), "noise_var": noise_var,
                         "other_var": max(var - noise_var, 0.0), "noise_factor": nf,
-                        "threshold": 0.0, "two_sided": FAULTS[name].direction == 0,
+                        "threshold": 0.0, "tail": tail, "two_sided": two,
                         "n": int(d.size)}
     gains = {n: {"sizes": [probe(n)], "gains": [1.0], "spread": [0.0]} for n in names}
     info = {n: float(healthy[0]["info"][n]) for n in names}
@@ -145,13 +149,11 @@ def performance_change(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT
 
 def _margin(cal: ChangeCalibration, name: str) -> float:
     """The threshold of fault ``name``'s change at the healthy pairs' mean noise (fault
-    unit, over the healthy mean)."""
-    from scipy.stats import t as student
-
+    unit, over the healthy mean): the tolerance bound of
+    :func:`eha.health.change_calibration.judge_estimates`."""
     f = cal.faults[name]
-    m = len(cal.faults)
-    q = float(student.ppf(1.0 - cal.alpha / m / (2.0 if f["two_sided"] else 1.0), f["n"] - 1))
-    return q * f["std"] * math.sqrt(1.0 + 1.0 / f["n"])
+    p = cal.alpha / len(cal.faults) / (2.0 if f["two_sided"] else 1.0)
+    return tolerance_factor(f["n"], p) * f["std"] * f.get("tail", 1.0)
 
 
 def _detectable(levels: Sequence[Mapping[str, Any]], p_detect: float) -> float | None:

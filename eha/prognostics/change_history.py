@@ -209,7 +209,7 @@ def change_histories(rows: Sequence[Mapping[str, Any]],
     ``base_values[actuator]``: the baseline's ``health_checks`` row (``estimates``,
     ``intervals``, ``level``) and its ``baseline_cycle``; an actuator without one has no
     history."""
-    from eha.prognostics.rul import FaultHistory, sigma_from_interval
+    from eha.prognostics.rul import FaultHistory
 
     out: dict[str, dict[str, FaultHistory]] = {}
     for aid, row in base_values.items():
@@ -226,18 +226,33 @@ def change_histories(rows: Sequence[Mapping[str, Any]],
             v0 = float(row["estimates"][n])
             vals, sig, lo, hi = [], [], [], []
             for _, values, intervals, level, is_base in points:
-                iv = intervals.get(n)
+                iv = intervals.get(n) or (None, None)
                 shift = 0.0 if is_base else v0
-                vals.append(float(values.get(n, 0.0 if not is_base else v0)) + shift)
-                sig.append(sigma_from_interval(iv[0], iv[1], level) if iv else 0.0)
-                lo.append(shift + float(iv[0]) if iv else math.nan)
-                hi.append(shift + float(iv[1]) if iv else math.nan)
+                value = float(values.get(n, 0.0 if not is_base else v0))
+                vals.append(value + shift)
+                sig.append(_sigma(value, iv, level))
+                lo.append(math.nan if iv[0] is None else shift + float(iv[0]))
+                hi.append(math.nan if iv[1] is None else shift + float(iv[1]))
             h = FaultHistory(n, np.array([p[0] for p in points]), np.array(vals),
                              np.array(sig), np.ones(len(points), dtype=bool), np.array(lo),
                              np.array(hi))
             h.flags = np.zeros(len(points), dtype=bool)
             out[aid][n] = h
     return out
+
+
+def _sigma(value: float, interval, level: float) -> float:
+    """The spread of a value from its interval at ``level``; an open-ended interval (a change
+    beyond its response's growing range: null on one side) from its closed side."""
+    from eha.prognostics.rul import sigma_from_interval
+
+    lo, hi = interval
+    if lo is None and hi is None:
+        return 0.0
+    if lo is None or hi is None:
+        half = abs(value - (hi if lo is None else lo))
+        return sigma_from_interval(value - half, value + half, level)
+    return sigma_from_interval(float(lo), float(hi), level)
 
 
 def store_alarms(results, run_id: str,

@@ -84,8 +84,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
             ch = (last["changes"] or {}).get(name)
             lo, hi = (last["intervals"] or {}).get(name) or (None, None)
             row[name] = ch
-            row[f"{name}_text"] = "-" if ch is None else (
-                f"{f * ch:+.4g} [{fmt_num()(lo and f * lo)}, {fmt_num()(hi and f * hi)}]")
+            # an open end: the change is beyond its response's growing range (a bound)
+            ends = ["open" if v is None else fmt_num()(f * v) for v in (lo, hi)]
+            row[f"{name}_text"] = "-" if ch is None else f"{f * ch:+.4g} [{ends[0]}, {ends[1]}]"
             first = (fleet.alarms.get(str(aid), {}).get(name) or {})
             row[f"{name}_alarm"] = _num_or_none(first.get("first_alarm"))
         rows.append(row)
@@ -102,7 +103,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
     choice_html, pid = page.choice("Actuator:", figs, selected=rows[0]["actuator"])
     return ("<h4>Change check: each record against its actuator's baseline</h4>"
             '<p class="note">Change of each fault since the baseline record (later minus '
-            "earlier, eha health check --baseline), with its 90 % interval; first alarm: the "
+            "earlier, eha health check --baseline), with its 90 % interval (<i>open</i>: "
+            "beyond the range where the fault's response grows, the change only bounded on "
+            "that side); first alarm: the "
             "first check at which the fault alarms and the change is isolated to it. Click a "
             "row to show its actuator below.</p>"
             + page.table(cols, rows, f"changes {fleet.run_id}", choice=(pid, "actuator"))
