@@ -370,3 +370,86 @@ def test_the_report_with_hostile_names_in_headless_chromium(hostile, tmp_path):
     figure."""
     out = check_page(hostile.path, tmp_path, click_row=("fleet", HOSTILE))
     assert out["plots"] == hostile.figures and out["selected"] == HOSTILE
+
+
+# ----------------------------------------------------------------------------- change check
+@pytest.fixture(scope="module")
+def change_only(tmp_path_factory):
+    """A folder that holds only the change check's rows, each written by its own code: one
+    `eha health check --baseline` (health_verdicts, reference 'baseline'), a change campaign
+    ([health] baseline = true: health_changes) and an `eha rul --check change` history
+    (change_checks, change_alarms, rul_predictions with reference 'baseline'); the baselines'
+    identified values stand in for the identification (the slow part)."""
+    from helpers import Inline
+    from eha.campaigns.files import Campaign
+    from eha.campaigns.runner import run_campaign
+    from eha.health.change_check import calibrate_baseline, check_change
+    from eha.identification.healthy import draw_actuator
+    from eha.identification.synthetic import synthetic_record
+    from eha.prognostics.change_history import (baselines_of, change_histories, change_jobs,
+                                                first_alarms, read_change_rows, store_alarms)
+    from eha.prognostics.jobs import _predict_all, _store_predictions
+    from eha.prognostics.manifest import read_manifest
+
+    root = tmp_path_factory.mktemp("change-only")
+    results, fleet = root / "results", root / "fleet"
+    fleet.mkdir()
+    cal = calibrate_baseline("chirp_1cm", actuators=8, t_end=0.3, noise=1e-6,
+                             out=root / "cal.json", results=None)
+    lines, truth = ["actuator,cycle,record"], {}
+    for a, seed in (("A1", 21), ("A2", 22)):
+        hf = draw_actuator(seed)
+        truth[a] = hf["FDJ"]
+        for k, grow in enumerate((0.0, 200.0, 400.0, 700.0)):
+            df = synthetic_record("chirp_1cm", {**hf, "FDJ": hf["FDJ"] + grow}, t_end=0.3,
+                                  noise=1e-6, seed=seed + 1000 * k)
+            df[["t", "com", "xu"]].to_csv(fleet / f"{a}_{k}.csv", index=False)
+            lines.append(f"{a},{100 * k},{a}_{k}.csv")
+    (fleet / "manifest.csv").write_text("\n".join(lines) + "\n")
+    check_change(fleet / "A1_3.csv", fleet / "A1_0.csv", root / "cal.json", results=results)
+    m = read_manifest(fleet / "manifest.csv")
+    bases = baselines_of(m)
+    run_id = "rul-manifest-x-change"
+    run_campaign(Campaign(run_id, "", "m", {}, tuple(change_jobs(m, bases, root / "cal.json",
+                                                                 run_id))),
+                 results, executor=Inline(), progress=False)
+    rows = read_change_rows(results, run_id)
+    store_alarms(results, run_id, first_alarms(rows))
+    base = {a: {"estimates": {"FDJ": v}, "intervals": {"FDJ": [v - 20, v + 20]},
+                "level": 0.9, "baseline_cycle": 0.0} for a, v in truth.items()}
+    _, preds = _predict_all(m.actuators, change_histories(rows, base, ["FDJ"]),
+                            {"FDJ": 1500.0}, 0, ("linear",), None)
+    _store_predictions(results, run_id, preds, {"FDJ": 1500.0}, reference="baseline")
+    (root / "c.toml").write_text('name = "chg"\nkind = "health"\n[health]\nt_end = 0.3\n'
+                                 "healthy_actuators = 6\nactuators = 2\nbaseline = true\n"
+                                 "faults = { FDJ = [150.0] }\n")
+    run_campaign(root / "c.toml", results, executor=Inline(), progress=False)
+    res = build_report(results, results / "report.html")
+    return results, res, parse(res.path), rows
+
+
+def test_report_of_a_folder_with_only_change_check_rows(change_only):
+    results, res, page, rows = change_only
+    assert res.sections == ["fleet", "health", "campaigns"]
+    text = res.path.read_text(encoding="utf-8")
+    assert "(change check: baseline + change)" in text
+    assert "Detection campaign chg (change check: pairs of records)" in text
+    # per actuator the change since its baseline at its last check, with its interval
+    table = {r["actuator"]: r for r in page.tables["changes rul-manifest-x-change"]}
+    assert sorted(table) == ["A1", "A2"]
+    for aid, r in table.items():
+        last = [x for x in rows if x["actuator"] == aid][-1]
+        assert num(r["last_cycle"]) == last["cycle"] == 300.0
+        assert num(r["FDJ"]) == pytest.approx(last["changes"]["FDJ"], rel=1e-12)
+        lo, hi = last["intervals"]["FDJ"]
+        # a change beyond the friction's growing response range has an open upper end
+        ends = ["open" if v is None else f"{v:.4g}" for v in (lo, hi)]
+        assert r["FDJ#text"] == f"{last['changes']['FDJ']:+.4g} [{ends[0]}, {ends[1]}]"
+        assert lo < 700.0 and (hi is None or 700.0 < hi + 100)
+        first = query(results, "SELECT first_alarm FROM change_alarms WHERE actuator = ? AND "
+                               "fault = 'FDJ'", [aid])["first_alarm"][0]
+        assert num(r["FDJ_alarm"]) == first == 100.0
+    # the single check against its baseline: named as the change check
+    checks = page.tables["health checks"]
+    assert [c["check#text"] for c in checks] == ["change since A1_0.csv"]
+    assert checks[0]["verdict#text"] == "degraded"

@@ -79,6 +79,17 @@ RUL_BASE_MODEL = typer.Option(None, "--base-model", help="LF base of the assessm
                               "calibrated (default: as eha fdi --data).")
 RUL_LIMIT_ERROR = typer.Option(None, "--limit-error", help="Relative std of the assessment's "
                                "systematic error (default 0.02).")
+RUL_CHECK = typer.Option("fleet", "--check", help="Health check of the histories: fleet (each "
+                         "record identified) or change (each record's change since its "
+                         "actuator's baseline: the first record, or the manifest's baseline "
+                         "column; needs --calibration).")
+RUL_CALIBRATION = typer.Option(None, "--calibration", help="With --check change: a change "
+                               "calibration for the records' command, length and noise (eha "
+                               "health calibrate --baseline).")
+RUL_TREND = typer.Option("identified", "--trend", help="With --check change, the histories of "
+                         "the RUL: identified (every record identified, as --check fleet) or "
+                         "changes (only the baselines identified, each record its baseline + "
+                         "change: faster, biased when several faults grow together).")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress bar.")
 
 
@@ -100,6 +111,9 @@ def rul(
     limit_error: Optional[float] = RUL_LIMIT_ERROR,
     columns: ColumnsOption = None,
     units: UnitsOption = None,
+    check: str = RUL_CHECK,
+    calibration: Optional[Path] = RUL_CALIBRATION,
+    trend: str = RUL_TREND,
     progress: bool = PROGRESS,
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
@@ -113,9 +127,12 @@ def rul(
 
     Example (records headed time_s,command_mm,position_mm): eha rul manifest.csv --limit
     FDJ=2000 --columns t=time_s,com=command_mm,xu=position_mm
-    """
+    Example (the change check): eha rul manifest.csv --limit FDJ=2000 --check change
+    --calibration CAL.json"""
     from eha.identification.fdi import parse_bounds
-    from eha.prognostics.jobs import parse_limits, run_rul
+    from eha.prognostics.jobs import parse_limits
+
+    run_rul, extra = _rul_of(check, calibration, trend)
 
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(plots, "--plots")
@@ -126,7 +143,7 @@ def rul(
                       bounds=parse_bounds(bounds), results=results, truth=truth, seed=seed,
                       workers=workers, laws=split_names(laws), skip_flagged=skip_flagged,
                       progress=progress, limit_error=limit_error, base_model=base_model,
-                      columns=columns, units=units)
+                      columns=columns, units=units, **extra)
     if json_out is not None:
         res.save(json_out)
     if plots is not None:
@@ -134,6 +151,17 @@ def rul(
     _render_rul(res, results)
     if res.failed:
         raise typer.Exit(1)
+
+
+def _rul_of(check: str, calibration: Optional[Path], trend: str):
+    """The library function of ``eha rul --check`` and its extra keywords."""
+    if check == "fleet" and calibration is None and trend == "identified":
+        from eha.prognostics.jobs import run_rul
+
+        return run_rul, {}
+    from eha.prognostics.change_rul import run_rul_change   # it refuses a bad pair in one line
+
+    return run_rul_change, {"check": check, "calibration": calibration, "trend": trend}
 
 
 def _render_rul(res, results: Path) -> None:
@@ -148,6 +176,8 @@ def _render_rul(res, results: Path) -> None:
                       fmt(last.rul_hi if last else None), (last.driver if last else None)
                       or "-")
     console.print(table)
+    if res.output.get("check") == "change":
+        _render_alarms(res.output)
     if res.metrics:
         f = res.metrics["fleet"]
         pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"  # noqa: E731
@@ -163,6 +193,22 @@ def _render_rul(res, results: Path) -> None:
     print_paths(res.paths, skip=("database",))
     for line in res.failed:
         warn(line, "failed")
+
+
+def _render_alarms(output) -> None:
+    """The change check's first alarm of each fault per actuator (cycles)."""
+    acts = output["actuators"]
+    names = list(output["fit"])
+    table = Table("actuator", "baseline cycle",
+                  *[f"{n} first alarm (confirmed)" for n in names],
+                  title="change check: first alarm since the baseline")
+    fmt = lambda v: "-" if v is None else f"{v:g}"  # noqa: E731
+    for aid, a in acts.items():
+        fa = a.get("first_alarms", {})
+        table.add_row(aid, fmt(a.get("baseline_cycle")),
+                      *[f"{fmt(fa.get(n, {}).get('first_alarm'))} "
+                        f"({fmt(fa.get(n, {}).get('first_confirmed'))})" for n in names])
+    console.print(table)
 
 
 @keywords_as(requirement="--require")

@@ -58,7 +58,8 @@ MAX_ACTUATORS = 10000
 
 
 _SECTION_KEYS = {"command", "commands", "t_end", "actuators", "healthy_actuators", "seed",
-                 "noise", "faults", "base_model", "level", "signals", "noise_p12"}
+                 "noise", "faults", "base_model", "level", "signals", "noise_p12",
+                 "baseline", "nuisances"}
 
 
 def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[str, Any]]:
@@ -75,6 +76,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
         noise = 1e-6                         # m, white sensor noise
         faults = { GM = [0.009, 0.008, 0.007], Clk = [5e-13, 1e-12, 2e-12] }   # optional
         # or faults = ["GM", "Clk"] / "all": the levels declared with each fault
+        baseline = true                      # each actuator a pair; nuisances = {GQ = 0.01}
         base_model = "calibrated"            # LF of the assessment
         level = 0.9
         signals = ["xu", "p12"]              # optional: the check fits the load pressure too
@@ -82,7 +84,7 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
 
     Without ``faults`` every actuator is healthy (a calibration fleet); with it, each fault
     level is injected into ``actuators`` actuators (of their own seeds) and a healthy group is
-    added.
+    added. ``baseline = true``: the change check's pairs (:mod:`eha.health.change_campaign`).
     """
     from eha.models.commands import CommandError, as_command, command_label, pin_command
     from eha.identification.problem import BASE_MODELS
@@ -126,6 +128,9 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
     if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 < level < 1:
         problems.append(f"health.level={level!r}: allowed range (0, 1)")
     signals, noise_p12 = _signals(section, problems)
+    jobs = _change_jobs(section, problems, commands, t_end, n, n_healthy, seed, noise, level)
+    if jobs is not None:                 # baseline = true: pairs judged by the change check
+        return jobs
     groups = _fault_groups(section.get("faults", {}), problems)
     if problems:
         return []
@@ -153,6 +158,25 @@ def health_jobs(section: Mapping[str, Any], problems: list[str]) -> list[dict[st
                                          "estimated_s": 10.0 * float(t_end)}})
             first += size
     return jobs
+
+
+def _change_jobs(section: Mapping[str, Any], problems: list[str], *common: Any
+                 ) -> list[dict[str, Any]] | None:
+    """The jobs of a ``[health]`` section with ``baseline = true`` (each actuator a pair of
+    records, :func:`eha.health.change_campaign.change_jobs`; ``[]`` when ``baseline`` cannot be
+    read), None for a section of the fleet check; its problems appended."""
+    baseline = section.get("baseline", False)
+    if not isinstance(baseline, bool):
+        problems.append(f"health.baseline={baseline!r}: true or false")
+        return []
+    if baseline:
+        from eha.health.change_campaign import change_jobs
+
+        return change_jobs(section, *common, problems)
+    if "nuisances" in section:
+        problems.append("health.nuisances: only with baseline = true (the test-day differences "
+                        "of a pair)")
+    return None
 
 
 def _signals(section: Mapping[str, Any], problems: list[str]) -> tuple[tuple[str, ...], float]:

@@ -279,7 +279,10 @@ def summary_markdown(perf: Mapping[str, Any], alpha: float) -> str:
     for c in commands:
         fa.append(f"| {c} | {perf[c]['false_alarms']['n']} | {perf[c]['false_alarms']['any']:.3f}"
                   f" | {perf[c]['false_alarms_loo']['any']:.3f} |")
-    return ("Minimum detectable deviation from healthy at P_D >= 0.95 (fault unit; '> x': not "
+    what = ("change since the earlier record of each pair (the change check; thresholds "
+            "from the healthy pairs)" if any(perf[c].get("check") == "change" for c in perf)
+            else "deviation from healthy")
+    return (f"Minimum detectable {what} at P_D >= 0.95 (fault unit; '> x': not "
             f"reached at the largest level x), with alpha = {alpha:g} per check; in brackets "
             "the detection rate at each injected level and how many of that fault's records "
             "were isolated as it.\n\n" + "\n".join(lines) + "\n\n" + "\n".join(fa) + "\n")
@@ -298,10 +301,17 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
     from eha.health.plots import plot_confusion, plot_roc
 
     rows = _assessments(results, campaign)
-    if not rows:
-        raise DetectionError(f"{campaign}: no health assessments in {results}/eha.duckdb; run "
-                             f"eha campaign run campaigns/{campaign}.toml first")
-    perf = performance(rows, alpha)
+    if rows:
+        perf = performance(rows, alpha)
+    else:   # a change campaign ([health] baseline = true): its pairs
+        from eha.health.change_campaign import change_rows
+        from eha.health.change_performance import performance_change
+
+        rows = change_rows(results, campaign)
+        if not rows:
+            raise DetectionError(f"{campaign}: no health assessments in {results}/eha.duckdb; "
+                                 f"run eha campaign run campaigns/{campaign}.toml first")
+        perf = performance_change(rows, alpha)
     if not perf:
         raise DetectionError(f"{campaign}: fewer than 5 healthy actuators per command")
     folder = Path(out) if out is not None else Path(results) / "reports" / "health"

@@ -106,20 +106,22 @@ def run_id_of(manifest_path: Path) -> str:
 
 def health_campaign(manifest, bounds: Mapping[str, tuple[float, float]], seed: int = 0,
                     method: str = HEALTH_METHOD, base_model: str | None = None,
-                    columns: Mapping[str, str] | str | None = None, units: str | None = None):
+                    columns: Mapping[str, str] | str | None = None, units: str | None = None,
+                    name: str | None = None):
     """One ``health`` job per manifest record (an :class:`eha.campaigns.files.Campaign`);
     ``base_model``: LF base of the assessment (``eha.identification.problem.BASE_MODELS``; default
     the one ``eha fdi --data`` uses); ``columns`` and ``units``: how every record is read
     (:class:`eha.identification.measured.RecordFile`; a manifest row's own ``columns`` or
     ``units`` override them), carried in each job's spec to the worker (and into its run key:
-    other columns or units are another assessment)."""
+    other columns or units are another assessment); ``name``: the campaign's (default
+    :func:`run_id_of` the manifest)."""
     from eha.campaigns.files import Campaign, Job
     from eha.identification.measured import RecordFile
     from eha.models.simulate import MODEL_VERSION
 
     from eha.identification.problem import BASE_MODELS, DEFAULT_BASE_MODEL, DEFAULT_LEVEL
 
-    name = run_id_of(manifest.source)
+    name = name or run_id_of(manifest.source)
     jobs = []
     fit = {k: [float(v[0]), float(v[1])] for k, v in bounds.items()}
     # the assessment's LF base and interval level, spelled out: a change of the identification's
@@ -282,7 +284,8 @@ def run_rul(manifest_path: str | Path, *, limits: Mapping[str, float],
             columns: Mapping[str, str] | str | None = None,
             units: str | None = None) -> RulResult:
     """Assess, predict, store and (with a truth) evaluate one manifest; the result's
-    ``.save(json_path)``, ``.plot(folder)`` and ``.to_pandas()`` are separate steps.
+    ``.save(json_path)``, ``.plot(folder)`` and ``.to_pandas()`` are separate steps (on the
+    change check: :func:`eha.prognostics.change_rul.run_rul_change`).
 
     Parameters
     ----------
@@ -443,7 +446,7 @@ def evaluate_predictions(preds_all: Mapping[str, list], truth_eol: Mapping[str, 
 
 
 def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list],
-                       limits: Mapping[str, float]) -> None:
+                       limits: Mapping[str, float], reference: str = "fleet") -> None:
     from eha.campaigns.store import replace_rows
 
     now = datetime.now(timezone.utc).replace(tzinfo=None)
@@ -451,7 +454,7 @@ def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list]
              "rul_lo": p.rul_lo, "rul_hi": p.rul_hi, "driver": p.driver,
              "estimates": p.estimates, "intervals": p.intervals, "flagged": p.flagged,
              "crossings": p.crossings, "law_weights": p.law_weights, "limits": dict(limits),
-             "n_used": p.n_used, "seed": p.seed, "created_at": now}
+             "n_used": p.n_used, "seed": p.seed, "created_at": now, "reference": reference}
             for aid, preds in preds_all.items() for p in preds]
     # one transaction: a re-run of the same manifest replaces its predictions
     replace_rows(results, "rul_predictions", rows, {"run_id": run_id})

@@ -47,6 +47,12 @@ RUL_PREDICTIONS = """
             PRIMARY KEY (run_id, actuator, cycle))"""
 
 register_table("health_checks", HEALTH_CHECKS, per_run=True)
-register_table("rul_predictions", RUL_PREDICTIONS)
+#: Added after the first release: the check whose health history a prediction came from
+#: ('fleet': the identification of every record; 'baseline': the change check, each record's
+#: change since the actuator's baseline added to the baseline's identified value). Older rows
+#: read NULL: the fleet check.
+RUL_ADDED = (("reference", "VARCHAR"),)
+
+register_table("rul_predictions", RUL_PREDICTIONS, added=RUL_ADDED)
 
 __all__ = ["HEALTH_CHECKS", "RUL_PREDICTIONS"]

@@ -69,6 +69,13 @@ class Fleet:
         ``{actuator: true end of life or None}`` when a truth file was found.
     truth_source : str or None
         Where the truth was read.
+    reference : str
+        The check the health history came from: ``fleet`` (every record identified) or
+        ``baseline`` (``eha rul --check change``: each record's change since its baseline).
+    changes : pandas.DataFrame or None
+        With the change check: its ``change_checks`` rows (JSON decoded) by actuator and cycle.
+    alarms : dict
+        With the change check: ``{actuator: {fault: first-alarm row}}`` (``change_alarms``).
     """
 
     run_id: str
@@ -77,6 +84,9 @@ class Fleet:
     faults: list[str]
     truth: dict[str, float | None] | None = None
     truth_source: str | None = None
+    reference: str = "fleet"
+    changes: Any = None
+    alarms: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
 
 
 def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
@@ -99,6 +109,7 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
         faults = list(dict.fromkeys(k for e in rows["estimates"] if e for k in e))
         fleet = Fleet(str(run_id), rows, limits, faults)
         _attach_truth(con, fleet, truth)
+        _attach_changes(con, fleet)
         fleets.append(fleet)
     if truth is not None and fleets and not any(f.truth_source == str(truth) for f in fleets):
         from eha.prognostics.degradation import PrognosticsError
@@ -108,6 +119,30 @@ def read_fleets(con, truth: str | Path | None = None) -> list[Fleet]:
                                f"eha rul run in the database (e.g. {', '.join(have[:5])} of "
                                f"{fleets[0].run_id})")
     return fleets
+
+
+#: The JSON columns of a ``change_checks`` row.
+CHANGE_JSON = ("changes", "intervals", "statistics", "thresholds", "degraded", "isolated",
+               "screen")
+
+
+def _attach_changes(con, fleet: Fleet) -> None:
+    """The change check's rows of an ``eha rul --check change`` run (none for another)."""
+    tables = _tables(con)
+    ref = fleet.predictions["reference"].dropna() if "reference" in fleet.predictions else ()
+    if len(ref):
+        fleet.reference = str(ref.iloc[0])
+    if "change_checks" in tables:
+        frame = con.execute("SELECT * FROM change_checks WHERE campaign = ? "
+                            "ORDER BY actuator, cycle", [fleet.run_id]).df()
+        if len(frame):
+            for col in CHANGE_JSON:
+                frame[col] = frame[col].map(_json)
+            fleet.changes, fleet.reference = frame, "baseline"
+    if "change_alarms" in tables:
+        for r in con.execute("SELECT * FROM change_alarms WHERE run_id = ?",
+                             [fleet.run_id]).df().to_dict("records"):
+            fleet.alarms.setdefault(str(r["actuator"]), {})[str(r["fault"])] = r
 
 
 def _attach_truth(con, fleet: Fleet, truth: str | Path | None) -> None:
@@ -255,7 +290,30 @@ def read_health(con) -> Health | None:
             perf = performance(rows, DEFAULT_ALPHA)
             if perf:
                 out.campaigns[str(campaign)] = perf
+    if "health_changes" in tables and _count(con, "health_changes"):
+        _change_campaigns(con, out)
     return out if out.verdicts is not None or out.campaigns else None
+
+
+def _change_campaigns(con, out: Health) -> None:
+    """The change check's campaigns (``[health] baseline = true``), judged against their own
+    healthy pairs as ``eha report health`` does."""
+    from eha.health.change_performance import performance_change
+
+    frame = con.execute("""
+        SELECT r.campaign, h.* FROM health_changes h JOIN runs r USING (run_key)
+        WHERE r.status = 'done' ORDER BY r.campaign, h.seed""").df()
+    for campaign, grp in frame.groupby("campaign", sort=True):
+        rows = []
+        for rec in grp.drop(columns=["campaign"]).to_dict("records"):
+            for k in ("nuisances", "test_day", "hf", "estimates", "intervals", "info",
+                      "noise_factor", "alike", "blind"):
+                rec[k] = _json(rec.get(k))
+            rec["fault"] = rec["fault"] if isinstance(rec.get("fault"), str) else None
+            rows.append(rec)
+        perf = performance_change(rows, out.alpha)
+        if perf:
+            out.campaigns[str(campaign)] = perf
 
 
 # =========================================================================== identification
@@ -332,6 +390,8 @@ def read_campaigns(con) -> dict[str, Any] | None:
         of HF runs with an HF-vs-LF error: campaign, command, faults, rmse_xu_hf_lf,
         rmse_p12_hf_lf); None when no campaign has runs.
     """
+    import pandas as pd
+
     tables = _tables(con)
     if "runs" not in tables or not _count(con, "runs"):
         return None
@@ -340,13 +400,17 @@ def read_campaigns(con) -> dict[str, Any] | None:
                AS description
         FROM runs r LEFT JOIN campaigns c ON c.name = r.campaign
         GROUP BY r.campaign, r.kind, r.status ORDER BY r.campaign, r.kind, r.status""").df()
+    # metrics: created by the first simulation campaign (a folder of health or rul runs only
+    # has none)
     hf_lf = con.execute("""
         SELECT r.campaign, r.command, r.faults, r.seed, m.rmse_xu_hf_lf, m.rmse_p12_hf_lf,
                m.max_err_xu_hf_lf
         FROM runs r JOIN metrics m USING (run_key)
         WHERE r.kind = 'simulate' AND r.model = 'hf' AND r.status = 'done'
           AND m.rmse_xu_hf_lf IS NOT NULL
-        ORDER BY r.campaign, r.command, r.fault_label, r.seed""").df()
+        ORDER BY r.campaign, r.command, r.fault_label, r.seed""").df() if "metrics" in tables \
+        else pd.DataFrame(columns=["campaign", "command", "faults", "seed", "rmse_xu_hf_lf",
+                                   "rmse_p12_hf_lf", "max_err_xu_hf_lf"])
     hf_lf["faults"] = hf_lf["faults"].map(lambda s: _json(s) or {})
     return {"status": status, "hf_lf": hf_lf}
 

@@ -185,6 +185,47 @@ def actuator_figure(fleet: Fleet, aid: str) -> dict:
     return _done(fig, title, height=230 * (len(faults) + 1) + 80)
 
 
+def change_figure(fleet: Fleet, aid: str) -> dict:
+    """One actuator on the change check: each tracked fault's change since the baseline with
+    its interval at every check (red: the fault alarms and the check is isolated to it), and
+    its first alarm."""
+    go = _go()
+    from plotly.subplots import make_subplots
+
+    grp = fleet.changes[fleet.changes["actuator"] == aid].sort_values("cycle")
+    faults = fleet.faults
+    fig = make_subplots(rows=len(faults), cols=1, shared_xaxes=True, vertical_spacing=0.08)
+    cyc = grp["cycle"].to_numpy(float)
+    for i, name in enumerate(faults, start=1):
+        unit, f = unit_of(name)
+        ch = np.array(_none((c or {}).get(name) for c in grp["changes"]))
+        ivs = [(iv or {}).get(name) or (None, None) for iv in grp["intervals"]]
+        lo, hi = np.array(_none(v[0] for v in ivs)), np.array(_none(v[1] for v in ivs))
+        alarm = [bool((d or {}).get(name)) and name in (iso or [])
+                 for d, iso in zip(grp["degraded"], grp["isolated"])]
+        fig.add_trace(go.Scatter(
+            x=cyc, y=f * ch, mode="markers+lines", name="change (90 % interval; red: alarm)",
+            marker={"size": 6, "color": [RED if a else BLUE for a in alarm]},
+            line={"width": 1, "color": BLUE},
+            error_y={"type": "data", "symmetric": False, "color": BLUE,
+                     "array": np.nan_to_num(f * (hi - ch)),
+                     "arrayminus": np.nan_to_num(f * (ch - lo))},
+            customdata=np.c_[f * lo, f * hi],
+            hovertemplate=(f"cycle %{{x:.0f}}: {name} changed by %{{y:.4g}} {unit} "
+                           f"[%{{customdata[0]:.4g}}, %{{customdata[1]:.4g}}] {unit}"
+                           "<extra></extra>"), legendgroup="ch", showlegend=i == 1),
+            row=i, col=1)
+        first = (fleet.alarms.get(aid, {}).get(name) or {}).get("first_alarm")
+        if first is not None and np.isfinite(first):
+            fig.add_vline(x=first, line={"color": RED, "dash": "dot", "width": 1.2},
+                          annotation_text=f"first alarm {first:.0f}", row=i, col=1)
+        fig.add_hline(y=0, line={"color": GREY, "width": 1}, row=i, col=1)
+        fig.update_yaxes(title_text=f"Δ{name} [{unit}]", row=i, col=1)
+    fig.update_xaxes(title_text="cycle", row=len(faults), col=1)
+    return _done(fig, f"Actuator {aid}: change since its baseline (change check)",
+                 height=200 * len(faults) + 100)
+
+
 def alpha_lambda_figure(fleet: Fleet) -> dict | None:
     """Every actuator's RUL (median, 5-95 %) relative to its monitored life against λ, inside
     the α-cone; None without a truth."""
@@ -255,8 +296,14 @@ def verdict_figure(verdicts) -> dict:
             unit, f = unit_of(r.fault)
             if r.threshold is not None and np.isfinite(r.threshold) and r.threshold:
                 z[i, j] = r.statistic / r.threshold
-            text[i, j] = (f"{r.fault} {f * r.estimate:.4g} {unit} [{f * r.lo:.4g}, "
-                          f"{f * r.hi:.4g}] {unit}; healthy {f * r.healthy:.4g} {unit}; "
+            # a change-check row (reference 'baseline'): the change since the baseline
+            change = getattr(r, "reference", None) == "baseline"
+            what = (f"change {f * r.estimate:+.4g} {unit}" if change
+                    else f"{f * r.estimate:.4g} {unit}")
+            base = ("since the baseline" if change or r.healthy is None
+                    or not np.isfinite(r.healthy) else f"healthy {f * r.healthy:.4g} {unit}")
+            text[i, j] = (f"{r.fault} {what} [{f * r.lo:.4g}, {f * r.hi:.4g}] {unit}; "
+                          f"{base}; "
                           + ("degraded" if r.degraded is True else
                              "healthy" if r.degraded is False else "no calibration")
                           + ("; isolated" if r.isolated else ""))
@@ -266,8 +313,9 @@ def verdict_figure(verdicts) -> dict:
         colorbar={"title": {"text": "statistic / threshold"}},
         hovertemplate="%{y}<br>%{text}<br>statistic / threshold %{z:.2f}<extra></extra>"))
     fig.update_xaxes(title_text="fault")
-    return _done(fig, "Health checks: deviation from healthy over the alarm threshold "
-                      "(≥ 1: degraded)", height=max(280, 120 + 30 * len(checks)))
+    return _done(fig, "Health checks: deviation from healthy (or change since the baseline) "
+                      "over the alarm threshold (≥ 1: degraded)",
+                 height=max(280, 120 + 30 * len(checks)))
 
 
 def roc_figure(perf: Mapping[str, Any], command: str, alpha: float) -> dict:

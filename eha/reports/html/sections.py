@@ -51,7 +51,9 @@ def fleet_section(page: Page, fleets: list[Fleet]) -> str:
         limits = ", ".join(f"{n} = {unit_of(n)[1] * v:.4g} {unit_of(n)[0]}"
                            for n, v in fleet.limits.items())
         parts.append(
-            f"<h3>{esc(fleet.run_id)}</h3>"
+            f"<h3>{esc(fleet.run_id)}"
+            + (" (change check: baseline + change)" if fleet.reference == "baseline" else "")
+            + "</h3>"
             f'<p class="note">{len(rows)} actuators, limits {esc(limits)}; units: cycles of '
             "the manifest. Status: <i>end of life</i> a fault beyond its limit, <i>attention"
             "</i> the 5 % RUL within two check spacings, <i>no trend</i> no predicted "
@@ -63,7 +65,59 @@ def fleet_section(page: Page, fleets: list[Fleet]) -> str:
         al = F.alpha_lambda_figure(fleet)
         if al is not None:
             parts.append(page.plot(al))
+        if fleet.changes is not None:
+            parts.append(_changes(page, fleet))
     return "".join(parts)
+
+
+def _changes(page: Page, fleet: Fleet) -> str:
+    """An ``eha rul --check change`` run: per actuator the change of each fault since its
+    baseline at the last check with its interval, its first alarm; the changes' figure."""
+    rows = []
+    for aid, grp in fleet.changes.groupby("actuator", sort=True):
+        last = grp.sort_values("cycle").iloc[-1]
+        row = {"actuator": str(aid), "baseline": str(last["baseline"]).replace(
+            "\\", "/").rsplit("/", 1)[-1], "last_cycle": float(last["cycle"]),
+            "isolated": ", ".join(last["isolated"] or []) or "-"}
+        for name in fleet.faults:
+            unit, f = unit_of(name)
+            ch = (last["changes"] or {}).get(name)
+            lo, hi = (last["intervals"] or {}).get(name) or (None, None)
+            row[name] = ch
+            # an open end: the change is beyond its response's growing range (a bound)
+            ends = ["open" if v is None else fmt_num()(f * v) for v in (lo, hi)]
+            row[f"{name}_text"] = "-" if ch is None else f"{f * ch:+.4g} [{ends[0]}, {ends[1]}]"
+            first = (fleet.alarms.get(str(aid), {}).get(name) or {})
+            row[f"{name}_alarm"] = _num_or_none(first.get("first_alarm"))
+        rows.append(row)
+    cols = [Column("actuator", "actuator", text=True),
+            Column("baseline", "baseline record", text=True),
+            Column("last_cycle", "last check", fmt_int)]
+    for name in fleet.faults:
+        unit, _ = unit_of(name)
+        cols += [Column(name, f"Δ{name} since baseline [{unit}] (90 % interval)",
+                        show=f"{name}_text"),
+                 Column(f"{name}_alarm", f"{name} first alarm", fmt_int)]
+    cols.append(Column("isolated", "last check isolated to", text=True))
+    figs = {r["actuator"]: F.change_figure(fleet, r["actuator"]) for r in rows}
+    choice_html, pid = page.choice("Actuator:", figs, selected=rows[0]["actuator"])
+    return ("<h4>Change check: each record against its actuator's baseline</h4>"
+            '<p class="note">Change of each fault since the baseline record (later minus '
+            "earlier, eha health check --baseline), with its 90 % interval (<i>open</i>: "
+            "beyond the range where the fault's response grows, the change only bounded on "
+            "that side); first alarm: the "
+            "first check at which the fault alarms and the change is isolated to it. Click a "
+            "row to show its actuator below.</p>"
+            + page.table(cols, rows, f"changes {fleet.run_id}", choice=(pid, "actuator"))
+            + choice_html)
+
+
+def _num_or_none(v: Any) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if np.isfinite(f) else None
 
 
 # =========================================================================== health
@@ -77,15 +131,18 @@ def health_section(page: Page, health: Health) -> str:
             degraded = [r.fault for r in grp.itertuples() if r.degraded is True]
             isolated = [r.fault for r in grp.itertuples() if r.isolated]
             calibrated = grp["degraded"].notna().any()
-            rows.append({"record": str(first["record"]), "check_id": cid,
+            change = first.get("reference") == "baseline"
+            rows.append({"check": "change since " + _base_name(first.get("baseline"))
+                         if change else "fleet",
+                         "record": str(first["record"]), "check_id": cid,
                          "created_at": str(first["created_at"])[:19],
                          "verdict": ("degraded" if degraded else "healthy") if calibrated
                          else "no calibration",
                          "degraded": ", ".join(degraded) or "-",
                          "isolated": ", ".join(isolated) or "-",
                          "flagged": bool(grp["flagged"].fillna(False).any())})
-        cols = [Column("record", "record", text=True), Column("created_at", "checked",
-                                                               text=True),
+        cols = [Column("record", "record", text=True), Column("check", "check", text=True),
+                Column("created_at", "checked", text=True),
                 Column("verdict", "verdict", tag), Column("degraded", "degraded faults",
                                                           text=True),
                 Column("isolated", "isolated fault", text=True),
@@ -93,9 +150,14 @@ def health_section(page: Page, health: Health) -> str:
         parts.append("<h3>Health checks (eha health check)</h3>"
                      + page.table(cols, rows, "health checks") + page.plot(F.verdict_figure(v)))
     for camp, perf in health.campaigns.items():
-        parts.append(f"<h3>Detection campaign {esc(camp)}</h3>"
-                     f'<p class="note">Thresholds from each command\'s healthy group for a '
-                     f"false-alarm probability α = {health.alpha:g} (as eha report health).</p>")
+        change = any(c.get("check") == "change" for c in perf.values())
+        parts.append(f"<h3>Detection campaign {esc(camp)}"
+                     + (" (change check: pairs of records)" if change else "") + "</h3>"
+                     f'<p class="note">Thresholds from each command\'s healthy '
+                     + ("pairs" if change else "group") + " for a false-alarm probability "
+                     f"α = {health.alpha:g} (as eha report health)"
+                     + ("; each level is a change since the earlier record" if change else "")
+                     + ".</p>")
         for command, c in perf.items():
             rows = []
             for name, f in c["faults"].items():
