@@ -110,12 +110,15 @@ def design(faults: Sequence[str] | None = None, effects: Sequence[str] = (),
         say(f"no member of the family found is at least as good as the library command "
             f"{cuts[name].label} (cut to the limits) on every target: it is the design")
     command = array_command(t, com, "design")
-    say("final prediction: signatures at the predicted sizes")
-    first = predict(command, targets, limits.duration, **options)
-    # signatures at the predicted sizes, but at the record's own sizes where given (around)
-    refined = with_probes(targets, {n: v for n, v in first.mds.items()
-                                    if math.isfinite(v) and n not in (around or {})})
-    prediction = predict(command, refined, limits.duration, **options)
+    if incumbent is not None:   # the library command's own prediction: the same yardstick
+        refined, prediction = targets, library[incumbent[0]]
+    else:
+        say("final prediction: signatures at the predicted sizes")
+        first = predict(command, targets, limits.duration, **options)
+        # signatures at the predicted sizes, but at the record's own sizes where given
+        refined = with_probes(targets, {n: v for n, v in first.mds.items()
+                                        if math.isfinite(v) and n not in (around or {})})
+        prediction = predict(command, refined, limits.duration, **options)
     alternatives = _alternatives(command, t, com, refined, prediction, limits, options)
     pair_alternatives = _apart(command, com, refined, prediction, pairs, limits, options, say)
     settings = {"faults": [x.name for x in targets if x.kind == "fault"],
