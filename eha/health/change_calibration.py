@@ -26,7 +26,7 @@ import numpy as np
 
 from eha.health.change import (GAIN_SIZES, NUISANCES, GainCurve, Signatures, check_nuisances,
                                draw_test_day, probe)
-from eha.identification.healthy import DetectionError, draw_actuator
+from eha.identification.healthy import DetectionError, built_calibration, draw_actuator
 from eha.models.faults import FAULTS
 
 #: Version of the change calibration's file format.
@@ -92,8 +92,6 @@ class ChangeCalibration:
 def load_change_calibration(path: str | Path) -> ChangeCalibration:
     """Read a change calibration; one-line :class:`DetectionError` on any problem (a fleet
     calibration given to the change check says so)."""
-    from eha.models.simulate import MODEL_VERSION
-
     path = Path(path)
     if path.is_dir():
         raise DetectionError(f"`calibration` {path}: a folder, not a calibration file")
@@ -115,14 +113,8 @@ def load_change_calibration(path: str | Path) -> ChangeCalibration:
             data.get("reference") != "baseline" or not required <= set(data):
         raise DetectionError(f"`calibration` {path}: not a change calibration of format "
                              f"{CHANGE_FORMAT} (make one with eha health calibrate --baseline)")
-    if data.get("model_version") != MODEL_VERSION:
-        raise DetectionError(f"`calibration` {path}: made for model version "
-                             f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
-                             "calibrate again (eha health calibrate --baseline)")
-    try:
-        return ChangeCalibration(**data)
-    except TypeError as exc:
-        raise DetectionError(f"`calibration` {path}: unexpected content ({exc})") from None
+    return built_calibration(ChangeCalibration, data, path,
+                             "eha health calibrate --baseline")
 
 
 # --------------------------------------------------------------------------------------------

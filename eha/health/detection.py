@@ -36,7 +36,8 @@ import numpy as np
 
 from eha.campaigns.jobs import register_job, register_section
 from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
-from eha.identification.healthy import DetectionError, draw_actuator, tail_threshold
+from eha.identification.healthy import (DetectionError, built_calibration, draw_actuator,
+                                        tail_threshold)
 from eha.health.assessment import FAULTS
 from eha.models.faults import core_faults, detection_levels
 from eha.models.simulate import MODEL_VERSION
@@ -368,14 +369,7 @@ def load_calibration(path: str | Path) -> Calibration:
             not required <= set(data):
         raise DetectionError(f"`calibration` {path}: not a calibration file of format "
                              f"{CALIBRATION_FORMAT} (make one with eha health calibrate)")
-    if data.get("model_version") != MODEL_VERSION:
-        raise DetectionError(f"`calibration` {path}: made for model version "
-                             f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
-                             "calibrate again (eha health calibrate)")
-    try:
-        return Calibration(**data)
-    except TypeError as exc:
-        raise DetectionError(f"`calibration` {path}: unexpected content ({exc})") from None
+    return built_calibration(Calibration, data, path, "eha health calibrate")
 
 
 def calibrate_thresholds(rows: Sequence[Mapping[str, Any]], alpha: float = DEFAULT_ALPHA,

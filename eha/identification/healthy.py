@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import math
 from statistics import NormalDist
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -56,6 +56,22 @@ def command_signature(com: np.ndarray) -> str:
     belongs to."""
     q = np.round(np.asarray(com, dtype=np.float64) / 1e-7).astype(np.int64)
     return hashlib.sha256(q.tobytes()).hexdigest()[:16]
+
+
+def built_calibration(cls, data: Mapping[str, Any], path, remake: str):
+    """``cls(**data)`` of a calibration file's content, refused in one line when made for
+    another model version (``remake``: the command that makes one again) or with unexpected
+    keys (shared by the fleet and the change check's calibrations)."""
+    from eha.models.simulate import MODEL_VERSION
+
+    if data.get("model_version") != MODEL_VERSION:
+        raise DetectionError(f"`calibration` {path}: made for model version "
+                             f"{data.get('model_version')!r}, this is {MODEL_VERSION!r}; "
+                             f"calibrate again ({remake})")
+    try:
+        return cls(**data)
+    except TypeError as exc:
+        raise DetectionError(f"`calibration` {path}: unexpected content ({exc})") from None
 
 
 def upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
