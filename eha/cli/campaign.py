@@ -172,11 +172,25 @@ def _write_rows(columns, rows, format: str, limit: int = 0) -> None:
     hidden = len(rows) - limit if 0 < limit < len(rows) else 0
     table = Table(*[str(c) for c in columns])
     for row in rows[:len(rows) - hidden]:
-        table.add_row(*[f"{v:.6g}" if isinstance(v, float) else str(v) for v in row])
+        table.add_row(*[_cell(v) for v in row])
     console.print(table)
     if hidden:
         console.print(f"{hidden} more rows not shown (--limit 0 shows all; --format csv "
                       "or json writes every row)")
+
+
+def _cell(v) -> str:
+    """A value as the table shows it: SQL NULL (pandas' None, NaN, NaT or NA, whichever
+    the column's type made of it) as ``NULL``, never ``nan`` or ``None``."""
+    import pandas as pd
+
+    try:
+        missing = v is None or bool(pd.isna(v))
+    except (TypeError, ValueError):  # a list or an array: a value
+        missing = False
+    if missing:
+        return "NULL"
+    return f"{v:.6g}" if isinstance(v, float) else str(v)
 
 
 def query(sql: str = typer.Argument(..., help="SQL (DuckDB dialect)."),

@@ -82,6 +82,8 @@ _NAME = typer.Option("design", "--name", help="Base name of the files written.")
 _CHECK = typer.Option("fleet", "--check", help="The health check the test is for: fleet "
                       "(against a healthy fleet) or baseline (the change since the "
                       "actuator's own earlier record, eha health check --baseline).")
+_RESULTS_TO = typer.Option(None, "--results", help="Also store the design in this results "
+                          "folder's database (table design_runs; eha report html shows it).")
 
 
 @design_app.callback()
@@ -107,6 +109,7 @@ def design(
     out: Path = _OUT,
     name: str = _NAME,
     check: str = _CHECK,
+    results: Optional[Path] = _RESULTS_TO,
 ):
     """Design a test command: within the test's limits, the command on which the chosen
     faults are detectable at the smallest sizes and the pairs told apart, predicted from the
@@ -128,6 +131,8 @@ def design(
     check_seed(seed)
     check_out_dir(out, "--out")
     _check_name(name)
+    if results is not None:
+        check_out_dir(results, "--results")
     pairs = [tuple(split_names(p)) for p in separate]
     try:
         around_values = _around(around, pairs)
@@ -143,7 +148,13 @@ def design(
     except DesignError as exc:
         fail(_flags(str(exc)))
     _show(result)
-    print_paths(result.save(out, name))
+    paths = result.save(out, name)
+    print_paths(paths)
+    if results is not None:
+        from eha.design.runs import save_design_run
+
+        db, run_id = save_design_run(results, result, paths, name)
+        console.print(f"database: {db} (design_runs, run {run_id})", highlight=False)
 
 
 def _check_name(name: str) -> None:

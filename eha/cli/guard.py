@@ -236,8 +236,14 @@ def _unexpected(exc: BaseException) -> str:
     if isinstance(exc, MemoryError):
         return "out of memory; make the input smaller (shorter t_end, fewer runs)"
     if any("duckdb" in cls.__module__ for cls in type(exc).__mro__):
-        return (f"results database: {first}; if the file is damaged, move it away and run "
-                "the campaign again")
+        if "Catalog Error" in first or type(exc).__name__ == "CatalogException":
+            # a table nothing has written yet: the file is whole, never to be thrown away
+            return (f"results database: {first} (nothing has written that table to this "
+                    "results folder yet; its other results are intact)")
+        if any(w in first for w in ("Corrupt", "checksum", "not a valid DuckDB")):
+            return (f"results database: {first}; the file is damaged: move it away and run "
+                    "the campaign again")
+        return f"results database: {first}"
     return (f"internal error ({type(exc).__name__}: {first}); run again with --debug for "
             "the traceback")
 

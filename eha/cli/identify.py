@@ -16,7 +16,7 @@ from rich.table import Table
 from eha.cli.guard import console, err_console, fail, warn
 from eha.cli import defaults
 from eha.cli.options import (COMMAND_HOLD, PLOT_SUFFIXES, ColumnsOption, CommandHoldOption,
-                             UnitsOption, check_names, check_out_file, check_seed,
+                             UnitsOption, check_names, check_out_dir, check_out_file, check_seed,
                              record_file, split_names,
                              write_json)
 
@@ -47,6 +47,8 @@ JSON_OUT = typer.Option(None, "--json", help="Write the result as JSON.")
 PLOT = typer.Option(None, "--plot", help="PNG: reference vs identified LF.")
 LEVEL = typer.Option(..., "--level", default_factory=defaults.interval_level,
                      help="Nominal coverage of the parameter intervals, in (0, 1).")
+RESULTS_TO = typer.Option(None, "--results", help="Also store the fit in this results "
+                          "folder's database (table fdi_runs; eha report html shows it).")
 BASE_MODEL = typer.Option(None, "--base-model", help="LF model: plain (the thesis') or "
                           "calibrated (by eha explain). Default: plain against an HF "
                           "reference, calibrated on --data.")
@@ -58,13 +60,17 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
         objective: str = OBJECTIVE, t_end: float = T_END, json_out: Optional[Path] = JSON_OUT,
         plot: Optional[Path] = PLOT, level: float = LEVEL,
         base_model: Optional[str] = BASE_MODEL, command_hold: CommandHoldOption = COMMAND_HOLD,
-        columns: ColumnsOption = None, units: UnitsOption = None):
+        columns: ColumnsOption = None, units: UnitsOption = None,
+        results: Optional[Path] = RESULTS_TO):
     """Identify LF fault parameters, each with an interval, from an HF reference or a
     measured record.
 
     Example: eha fdi --command chirp_1cm --set BKL=1e-4 --set FDJ=800 --fit BKL,FDJ --seed 0
 
     Example: eha fdi --data record.csv --fit BKL,FDJ,Clk --level 0.95 --json fit.json
+
+    Example (stored for eha report html): eha fdi --command chirp_1cm --set FDJ=800 --fit FDJ
+    --results results
 
     Example (a record in millimetres, headed time_s,command_mm,position_mm): eha fdi --data
     rec.csv --columns t=time_s,com=command_mm,xu=position_mm
@@ -79,6 +85,8 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
              "driven by its preset)")
     check_out_file(json_out, "--json", (".json",))
     check_out_file(plot, "--plot", PLOT_SUFFIXES)
+    if results is not None:
+        check_out_dir(results, "--results")
     record = record_file(data, columns, units) if data is not None else None
     with err_console.status(f"identifying ({method}) ...") as status:
         def progress(gen: int, best: float) -> None:
@@ -92,6 +100,11 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
                               level=level, base_model=base_model, command_hold=command_hold)
     _render(run)
     write_json(json_out, run.to_dict())
+    if results is not None:
+        from eha.identification.runs import save_fdi_run
+
+        db, run_id = save_fdi_run(results, run)
+        console.print(f"database: {db} (fdi_runs, run {run_id})", highlight=False)
     if plot is not None:
         from eha.reports.plots import plot_traces
 

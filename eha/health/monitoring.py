@@ -28,8 +28,10 @@ RECORD_SECONDS = (0.2, 10.0)
 
 
 def _assessments(results: str | Path, campaign: str):
-    from eha.campaigns.query import query
+    from eha.campaigns.query import query, tables
 
+    if "health_assessments" not in tables(results):
+        return []  # no detection campaign has written to this folder
     frame = query(results, "SELECT h.* FROM health_assessments h JOIN runs r USING (run_key) "
                            "WHERE r.campaign = ? AND r.status = 'done' ORDER BY h.seed",
                   [campaign])
@@ -40,6 +42,18 @@ def _assessments(results: str | Path, campaign: str):
                 rec[k] = json.loads(rec[k])
         rows.append(rec)
     return rows
+
+
+def _campaigns_with_assessments(results: str | Path) -> str:
+    """``" (detection campaigns there: a, b)"`` when the folder holds others, else ``""``."""
+    from eha.campaigns.query import query
+
+    try:
+        names = query(results, "SELECT DISTINCT r.campaign FROM health_assessments h JOIN runs r"
+                               " USING (run_key) ORDER BY 1")["campaign"].tolist()
+    except Exception:  # no such table: none
+        return ""
+    return f" (campaigns with health assessments there: {', '.join(names)})" if names else ""
 
 
 def _command_samples(command: str, t_end: float) -> np.ndarray:
@@ -309,8 +323,9 @@ def health_report(results: str | Path = "results", campaign: str = "health-detec
 
         rows = change_rows(results, campaign)
         if not rows:
-            raise DetectionError(f"{campaign}: no health assessments in {results}/eha.duckdb; "
-                                 f"run eha campaign run campaigns/{campaign}.toml first")
+            raise DetectionError(f"{campaign}: no detection campaign of that name in "
+                                 f"{results}/eha.duckdb{_campaigns_with_assessments(results)}"
+                                 f"; run eha campaign run campaigns/{campaign}.toml first")
         perf = performance_change(rows, alpha)
     if not perf:
         raise DetectionError(f"{campaign}: fewer than 5 healthy actuators per command")

@@ -1,9 +1,11 @@
 """``eha report html``: one self-contained, interactive HTML report of a results folder.
 
 The page (docs/report.md) has a section for whatever the folder's ``eha.duckdb`` holds —
-Fleet (``eha rul``), Health (``eha health check``, detection campaigns), Identification (FDI
-campaigns, the thesis table), Residual loop (``eha explain``), Campaigns (runs by status,
-HF-vs-LF errors) — and leaves out the others. Figures are plotly's, its JavaScript embedded
+Fleet (``eha rul``), Health (``eha health check``, calibrations, detection campaigns),
+Identification (FDI campaigns, the thesis table), Fault identification (``eha fdi
+--results``), Residual loop (``eha explain``), Test design (``eha design --results``),
+Campaigns (runs by status, HF-vs-LF errors) — and names the others, with the command that
+fills each. Figures are plotly's, its JavaScript embedded
 once; tables are plain HTML, sortable and filterable by a few lines of script. It opens from
 disk with no server and makes no request (a Content-Security-Policy forbids any). Nothing is
 embedded per stored trace: every figure aggregates the database's rows.
@@ -23,14 +25,17 @@ from eha.errors import InputError
 
 #: Section ids and headings, in page order.
 SECTIONS = {"fleet": "Fleet", "health": "Health", "identification": "Identification",
-            "explain": "Residual loop", "campaigns": "Campaigns"}
+            "fdi": "Fault identification", "explain": "Residual loop", "design": "Test design",
+            "campaigns": "Campaigns"}
 #: What fills each section (named on the page when the section is absent).
 FILLED_BY = {"fleet": "eha fleet simulate, then eha rul",
              "health": "eha health check (eha health calibrate for verdicts), or the detection "
                        "campaign campaigns/health-detection.toml",
              "identification": "an FDI campaign: eha reproduce, or eha campaign run "
                                "campaigns/thesis-fdi.toml",
+             "fdi": "eha fdi ... --results DIR",
              "explain": "eha explain RECORD",
+             "design": "eha design ... --results DIR",
              "campaigns": "eha campaign run FILE, or eha reproduce"}
 
 
@@ -79,6 +84,7 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     """
     from eha.reports.html import data as D
     from eha.reports.html import sections as S
+    from eha.reports.html import tools as T
     from eha.reports.html.figures import shared_template
     from eha.reports.html.page import Page, esc
     from eha.models.simulate import MODEL_VERSION
@@ -93,12 +99,15 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
         raise ReportError(f"`results` {results}: empty results folder (no {db_path(results).name}"
                           "); run eha reproduce, eha rul or eha campaign run first")
     con = connect(results, read_only=True)
+    unread: dict[str, str] = {}
     try:
-        fleets = D.read_fleets(con, truth)
-        health = D.read_health(con)
-        ident = D.read_identification(con)
-        explain = D.read_explain(con)
-        camps = D.read_campaigns(con)
+        fleets = _read(unread, "fleet", D.read_fleets, con, truth)
+        health = _read(unread, "health", D.read_health, con)
+        ident = _read(unread, "identification", D.read_identification, con)
+        fdi_runs = _read(unread, "fdi", D.read_fdi_runs, con)
+        explain = _read(unread, "explain", D.read_explain, con)
+        designs = _read(unread, "design", D.read_designs, con)
+        camps = _read(unread, "campaigns", D.read_campaigns, con)
     finally:
         con.close()
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -108,7 +117,9 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
     builders = [("fleet", fleets or None, S.fleet_section),
                 ("health", health, S.health_section),
                 ("identification", ident, S.identification_section),
+                ("fdi", fdi_runs, T.fdi_section),
                 ("explain", explain, S.explain_section),
+                ("design", designs, T.design_section),
                 ("campaigns", camps, S.campaigns_section)]
     with shared_template():
         for sid, value, build in builders:
@@ -116,17 +127,32 @@ def build_report(results: str | Path, out: str | Path, truth: str | Path | None 
                 page.add_section(sid, SECTIONS[sid], build(page, value))
     if not page.sections:
         raise ReportError(f"`results` {results}: the database holds no result to report; run "
-                          "eha reproduce, eha rul or eha campaign run first")
+                          "eha reproduce, eha rul, eha campaign run, eha explain, or eha fdi "
+                          "or eha design with --results first")
     absent = [sid for sid in SECTIONS if sid not in {s[0] for s in page.sections}]
     if absent:
         page.subtitle += ("<br>Not in this report (nothing in the database yet): " + "; ".join(
-            f"<b>{esc(SECTIONS[sid])}</b> — {esc(FILLED_BY[sid])}" for sid in absent) + ".")
+            f"<b>{esc(SECTIONS[sid])}</b> — {esc(FILLED_BY[sid])}"
+            + (f" ({esc(unread[sid])})" if sid in unread else "") for sid in absent) + ".")
     text = page.render("Generated by <code>eha report html</code>. Figures: plotly (zoom: drag; "
                        "double-click: reset; hover: values with units). Units SI unless the "
                        "axis says otherwise.")
     _write_atomic(out, text)
     return ReportResult(out, [s[0] for s in page.sections], out.stat().st_size, page.figures,
                         time.perf_counter() - t0)
+
+
+def _read(unread: dict[str, str], sid: str, reader, *args):
+    """``reader(*args)``; a table its section needs and the database lacks (a folder that
+    other commands, or an older version, wrote) leaves the section out, noted in
+    ``unread[sid]``, never a failed report: a missing table is not a damaged database."""
+    import duckdb
+
+    try:
+        return reader(*args)
+    except duckdb.CatalogException as exc:
+        unread[sid] = "the database has no table it needs: " + str(exc).splitlines()[0]
+        return None
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -261,38 +261,64 @@ class Health:
         ``{campaign: eha.health.detection.performance(...)}`` for every campaign with assessments.
     alpha : float
         False-alarm probability of the thresholds of ``campaigns``.
+    thresholds : pandas.DataFrame or None
+        The ``health_thresholds`` rows (``eha health calibrate``), newest calibration first.
+    calibrations : dict
+        ``{campaign: healthy actuators}`` of the campaigns with healthy actuators only (the
+        fleets of ``eha health calibrate``: no fault to detect, shown as calibrations).
+    skipped : dict
+        ``{campaign: why}`` of the detection campaigns whose figures cannot be computed
+        (too few healthy actuators), named on the page rather than failing it.
     """
 
     verdicts: Any = None
     campaigns: dict[str, Any] = field(default_factory=dict)
     alpha: float = 0.01
+    thresholds: Any = None
+    calibrations: dict[str, int] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
 
 
 def read_health(con) -> Health | None:
     """The health section's data, or None when there are neither checks nor assessments."""
-    from eha.health.detection import DEFAULT_ALPHA, performance
+    from eha.health.detection import DEFAULT_ALPHA, DetectionError, performance
 
     tables = _tables(con)
     out = Health(alpha=DEFAULT_ALPHA)
     if "health_verdicts" in tables and _count(con, "health_verdicts"):
         out.verdicts = con.execute("SELECT * FROM health_verdicts ORDER BY created_at DESC, "
                                    "check_id, fault").df()
+    if "health_thresholds" in tables and _count(con, "health_thresholds"):
+        out.thresholds = con.execute("SELECT * FROM health_thresholds ORDER BY created_at "
+                                     "DESC, calibration, fault").df()
     if "health_assessments" in tables and _count(con, "health_assessments"):
         frame = con.execute("""
             SELECT r.campaign, h.* FROM health_assessments h JOIN runs r USING (run_key)
             WHERE r.status = 'done' ORDER BY r.campaign, h.seed""").df()
         for campaign, grp in frame.groupby("campaign", sort=True):
+            if set(grp["grp"]) == {"healthy"}:  # a calibration's fleet: nothing to detect
+                out.calibrations[str(campaign)] = int(len(grp))
+                continue
             rows = []
             for rec in grp.drop(columns=["campaign"]).to_dict("records"):
                 for k in ("truth", "hf", "estimates", "means", "spread", "intervals", "weights"):
                     rec[k] = _json(rec.get(k))
                 rows.append(rec)
-            perf = performance(rows, DEFAULT_ALPHA)
+            try:
+                perf = performance(rows, DEFAULT_ALPHA)
+            except DetectionError as exc:  # a small fleet: named on the page, not fatal
+                out.skipped[str(campaign)] = str(exc)
+                continue
             if perf:
                 out.campaigns[str(campaign)] = perf
+            else:
+                out.skipped[str(campaign)] = (f"fewer than 5 healthy actuators per command "
+                                              f"({int((grp['grp'] == 'healthy').sum())} in all)")
     if "health_changes" in tables and _count(con, "health_changes"):
         _change_campaigns(con, out)
-    return out if out.verdicts is not None or out.campaigns else None
+    found = (out.verdicts is not None or out.campaigns or out.thresholds is not None
+             or out.calibrations or out.skipped)
+    return out if found else None
 
 
 def _change_campaigns(con, out: Health) -> None:
@@ -377,6 +403,29 @@ def read_explain(con) -> dict[str, Any] | None:
     for col in ("params", "faults_before", "faults_after"):
         steps[col] = steps[col].map(_json)
     return {"runs": runs, "steps": steps}
+
+
+# =========================================================================== eha fdi, eha design
+def read_fdi_runs(con) -> Any:
+    """The ``fdi_runs`` rows (``eha fdi --results``), newest first, JSON columns decoded;
+    None when there is none."""
+    if "fdi_runs" not in _tables(con) or not _count(con, "fdi_runs"):
+        return None
+    runs = con.execute("SELECT * FROM fdi_runs ORDER BY created_at DESC, run_id").df()
+    for col in ("names", "bounds", "estimates", "intervals", "truth", "errors_pct"):
+        runs[col] = runs[col].map(_json)
+    return runs
+
+
+def read_designs(con) -> Any:
+    """The ``design_runs`` rows (``eha design --results``), newest first, JSON columns
+    decoded; None when there is none."""
+    if "design_runs" not in _tables(con) or not _count(con, "design_runs"):
+        return None
+    runs = con.execute("SELECT * FROM design_runs ORDER BY created_at DESC, run_id").df()
+    for col in ("settings", "targets", "pairs"):
+        runs[col] = runs[col].map(_json)
+    return runs
 
 
 # =========================================================================== campaigns

@@ -149,6 +149,16 @@ def health_section(page: Page, health: Health) -> str:
                 Column("flagged", "flagged", lambda x: tag("flagged") if x else "")]
         parts.append("<h3>Health checks (eha health check)</h3>"
                      + page.table(cols, rows, "health checks") + page.plot(F.verdict_figure(v)))
+    if health.thresholds is not None:
+        parts.append(_calibrations(page, health))
+    elif health.calibrations:
+        parts.append("<h3>Healthy fleets (eha health calibrate)</h3>"
+                     + '<p class="note">' + esc("; ".join(
+                         f"{c}: {n} healthy actuators" for c, n in health.calibrations.items()))
+                     + ". Their thresholds are in the calibration files.</p>")
+    for camp, why in health.skipped.items():
+        parts.append(f'<p class="note">Detection campaign {esc(camp)}: not shown ({esc(why)}'
+                     ").</p>")
     for camp, perf in health.campaigns.items():
         change = any(c.get("check") == "change" for c in perf.values())
         parts.append(f"<h3>Detection campaign {esc(camp)}"
@@ -184,6 +194,35 @@ def health_section(page: Page, health: Health) -> str:
                                                                          command))
                          + "</div></div>")
     return "".join(parts)
+
+
+def _calibrations(page: Page, health: Health) -> str:
+    """The thresholds of each calibration (``health_thresholds``), in each fault's display
+    unit: the healthy fleet's statistic (a deviation from the nominal value, in the direction
+    of degradation) and the alarm threshold of that same statistic."""
+    rows = []
+    for r in health.thresholds.to_dict("records"):
+        unit, k = unit_of(str(r["fault"]))
+        rows.append({"calibration": str(r["calibration"]), "command": str(r["command"]),
+                     "fault": str(r["fault"]), "unit": unit or "-",
+                     "mean": None if r["mean"] is None else k * r["mean"],
+                     "std": None if r["std"] is None else k * r["std"],
+                     "threshold": None if r["threshold"] is None else k * r["threshold"],
+                     "n": r["n"], "alpha": r["alpha"]})
+    cols = [Column("calibration", "calibration file", text=True),
+            Column("command", "command", text=True), Column("fault", "fault", text=True),
+            Column("unit", "unit", text=True),
+            Column("mean", "healthy mean of the deviation", fmt_num(4)),
+            Column("std", "healthy std", fmt_num(3)),
+            Column("threshold", "alarm when the deviation exceeds", fmt_num(4)),
+            Column("n", "healthy actuators", fmt_int), Column("alpha", "α (any alarm)",
+                                                              fmt_num(3))]
+    fleets = "".join(f"; {esc(c)}: {n} healthy actuators" for c, n in
+                     health.calibrations.items())
+    return ("<h3>Calibrations (eha health calibrate)</h3>"
+            '<p class="note">Per fault, the detection statistic is the deviation from the '
+            "nominal value in the direction of degradation (display unit of the fault)"
+            f"{fleets}.</p>" + page.table(cols, rows, "calibrations"))
 
 
 # =========================================================================== identification
