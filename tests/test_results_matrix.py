@@ -36,7 +36,7 @@ FDI_CAMPAIGN = """
     description = "one small case"
     kind = "fdi"
     [fdi]
-    fit = ["FDJ"]
+    fit = ["BKL", "FDJ"]
     method = "lm"
     objective = "rmse"
     seeds = [0]
@@ -44,8 +44,8 @@ FDI_CAMPAIGN = """
     [[fdi.cases]]
     case = 1
     command = "step_1mm"
-    faults = { FDJ = 800 }
-    bounds = { FDJ = [200, 4000] }
+    faults = { BKL = 1e-4, FDJ = 800 }
+    bounds = { BKL = [0, 1e-3], FDJ = [200, 4000] }
     pop = 4
 """
 

@@ -77,8 +77,20 @@ TOP_KEYS = ("name", "description", "kind")
 #: The kind of a file that names none: a simulation campaign (:mod:`eha.simulations.expand`).
 DEFAULT_KIND = "simulate"
 # The name is also a folder under traces/: it starts with a letter or digit, so "." and ".."
-# (which would put traces outside that folder) and hidden names are refused.
+# (which would put traces outside that folder) and hidden names are refused, as is any path
+# separator. The one rule of every campaign name (files, fleets, programs): name_problem.
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,79}$")
+#: The rule, as the messages state it.
+NAME_RULE = ("1-80 characters from letters, digits, '_', '.', '-', starting with a letter or "
+             "digit")
+
+
+def name_problem(name: Any, field: str = "name") -> str | None:
+    """Why ``name`` cannot name a campaign (it becomes the folder ``traces/<name>/``), as one
+    line starting with ``field``; None when it can."""
+    if isinstance(name, str) and _NAME_RE.match(name):
+        return None
+    return f"{field}: {name!r} is not a valid campaign name; required, {NAME_RULE}"
 
 
 class CampaignError(InputError):
@@ -206,13 +218,10 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
                             f"{', '.join(allowed)}")
     name = table.get("name")
     if name is None:
-        problems.append("name: missing; required, 1-80 characters from letters, digits, "
-                        "'_', '.', '-', starting with a letter or digit")
+        problems.append(f"name: missing; required, {NAME_RULE}")
         name = "?"
-    elif not isinstance(name, str) or not _NAME_RE.match(name):
-        problems.append(f"name: {name!r} is not a valid campaign name; required, 1-80 "
-                        "characters from letters, digits, '_', '.', '-', starting with a "
-                        "letter or digit")
+    elif name_problem(name) is not None:
+        problems.append(name_problem(name))
         name = "?"
     description = table.get("description", "")
     if not isinstance(description, str):
@@ -249,7 +258,16 @@ def make_campaign(name: str, drafts: Sequence[JobDraft], description: str = "",
                   ) -> Campaign:
     """A campaign of the jobs ``drafts`` (what a kind's expander returns, or what a program
     builds: a fleet's records): the run keys, the de-duplication and the recorded version of
-    a campaign file's jobs (:func:`build_campaign`, which ends here)."""
+    a campaign file's jobs (:func:`build_campaign`, which ends here).
+
+    Raises
+    ------
+    CampaignError
+        ``name`` breaks the campaign-name rule (:func:`name_problem`): it becomes a folder.
+    """
+    problem = name_problem(name)
+    if problem is not None:
+        raise CampaignError([problem])
     jobs: list[Job] = []
     seen: dict[str, Job] = {}
     shared: dict[int, str] = {}

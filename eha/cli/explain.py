@@ -9,6 +9,8 @@ the command builds one and the guard prints its problems (``--min-gain nan: allo
 
 from __future__ import annotations
 
+import math
+import time
 from pathlib import Path
 from typing import List, Optional
 
@@ -172,22 +174,48 @@ def _next_test(res, json_out: Optional[Path]) -> None:
                   f"record with: eha explain TEST.csv --prior {around}", highlight=False)
 
 
+#: Off a terminal, at most one progress line per this many seconds [s] (a log stays short).
+LINE_EVERY_S = 5.0
+
+
 class _progress_bar:
-    """A transient spinner on stderr counting the fits; yields the ``on_progress`` callback."""
+    """A transient spinner on stderr counting the fits; yields the ``on_progress`` callback.
+
+    Off a terminal (stderr to a file or a pipe) a spinner shows nothing, and the loop can run
+    minutes (the healthy null of a new command): there, each new phase is a line on stderr
+    instead, at most one per :data:`LINE_EVERY_S`."""
 
     def __init__(self, enabled: bool):
         from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+        self.lines = enabled and not err_console.is_terminal
         self.bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
                             TextColumn("[dim]{task.completed} steps"), TimeElapsedColumn(),
-                            console=err_console, disable=not enabled, transient=True)
+                            console=err_console, disable=not enabled or self.lines,
+                            transient=True)
+        self.last, self.printed = "", -math.inf
+
+    def _line(self, message: str) -> None:
+        now = time.monotonic()
+        if message != self.last and now - self.printed >= LINE_EVERY_S:
+            err_console.print(f"{message} ...", highlight=False, markup=False, soft_wrap=True)
+            self.last, self.printed = message, now
 
     def __enter__(self):
         self.bar.__enter__()
-        task = self.bar.add_task("reading the record, loading the models", total=None)
-        return lambda message: self.bar.update(task, description=message, advance=1)
+        if self.lines:
+            self.printed = time.monotonic()  # a quick error (bad input) stays one line
+            return self._line
+        self.task = self.bar.add_task("reading the record, loading the models", total=None)
+        return lambda message: self.bar.update(self.task, description=message, advance=1)
 
     def __exit__(self, *exc):
+        if not self.lines and not self.bar.disable:
+            # the spinner drawn away before it stops: rich ends a drawn line with a newline
+            # it then moves back over, an empty line above the error where a terminal (or
+            # its log) does not move the cursor
+            self.bar.update(self.task, visible=False)
+            self.bar.refresh()
         return self.bar.__exit__(*exc)
 
 

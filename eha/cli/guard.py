@@ -35,9 +35,33 @@ def _on_broken_pipe(self) -> None:
 
 
 Console.on_broken_pipe = _on_broken_pipe
+
+#: Width of standard output off a terminal (a file, a pipe) when ``COLUMNS`` sets none: rich
+#: would take 80 and cut every wider table ("estima…"); there is no screen to fit.
+WIDTH_OFF_TERMINAL = 1000
+
+
+class _Output(Console):
+    """Rich's console, as wide as :data:`WIDTH_OFF_TERMINAL` when its file is not a terminal
+    and neither ``COLUMNS`` nor a width was given (a terminal, or ``COLUMNS``, as rich
+    measures them)."""
+
+    @property
+    def size(self):
+        size = Console.size.fget(self)
+        if self._width is None and not self.is_terminal and \
+                not str(self._environ.get("COLUMNS", "")).isdigit():
+            return size._replace(width=WIDTH_OFF_TERMINAL)
+        return size
+
+    @size.setter
+    def size(self, new_size) -> None:
+        Console.size.fset(self, new_size)
+
+
 #: Standard output: text, never console markup (issue 43: an actuator id ``x[/]`` or ``[bold]``
-#: in a name is data, printed as it is, in tables too).
-console = Console(markup=False)
+#: in a name is data, printed as it is, in tables too); whole off a terminal (issue 61).
+console = _Output(markup=False)
 err_console = Console(stderr=True)
 
 # The option parser's exceptions: click's, or the copy of click that typer >= 0.20 vendors.

@@ -21,7 +21,7 @@ from eha.health.detection import (DEFAULT_ALPHA, MAX_ACTUATORS, MIN_HEALTHY, Cal
                                   performance, verdicts)
 from eha.identification.healthy import DISPERSION, DetectionError, command_signature
 from eha.identification.problem import BASE_MODELS, DEFAULT_LEVEL
-from eha.models.commands import CommandError, command_label, pin_command
+from eha.models.commands import CommandError, as_command, command_label, pin_command
 
 #: Records the health check accepts [s] (the bank runs 6 identifications of the whole record).
 RECORD_SECONDS = (0.2, 10.0)
@@ -86,6 +86,7 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
 
     _check_calibration_inputs(actuators, alpha)
     try:  # a command file is named by its content (the calibration checks its signature)
+        as_command(command)  # an unknown name or a folder is said as such, before the name
         command, label = pin_command(command), command_label(command)
     except CommandError as exc:
         raise DetectionError(f"`command`: {exc}") from None

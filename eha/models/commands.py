@@ -233,6 +233,9 @@ def make_command(name: str, **overrides: float) -> Command:
         return load_command_file(name)
     if name in PRESETS:
         kind, params, _ = PRESETS[name]
+    elif isinstance(name, str) and Path(name).is_dir():
+        raise CommandError(f"command {name}: a folder, not a command file (give a FILE.csv "
+                           "with columns t,com)")
     elif name in KINDS and name != "array":
         kind, params = name, {}
     else:

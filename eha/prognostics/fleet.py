@@ -54,7 +54,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +61,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from eha.campaigns.files import name_problem
 from eha.campaigns.jobs import register_job
 from eha.errors import InputError
 
@@ -71,7 +71,6 @@ TOP_KEYS = ("name", "description", "seed", "actuators", "command", "t_end", "noi
             "faults")
 FAULT_KEYS = ("initial", "laws", "rate", "tau", "exponent", "t_scale", "process_noise")
 FORMATS = ("csv", "parquet")
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]{1,80}$")
 
 
 class FleetError(InputError):
@@ -207,9 +206,8 @@ def parse_fleet(table: Mapping[str, Any], source: str = "<dict>") -> Fleet:
         if key not in TOP_KEYS:
             p.append(f"{key}: unknown key; allowed: {', '.join(TOP_KEYS)}")
     name = table.get("name")
-    if not isinstance(name, str) or not _NAME_RE.match(name):
-        p.append(f"name: {name!r}; required, 1-80 characters from letters, digits, '_', '.', "
-                 "'-'")
+    if name_problem(name) is not None:  # the campaign's name, and its folder's
+        p.append(name_problem(name))
     seed = _num("seed", table.get("seed", 0), 0, 2**32 - 1, p, integer=True)
     n = _num("actuators", table.get("actuators"), 1, 10000, p, integer=True)
     cmd = table.get("command", "chirp_1cm")

@@ -383,6 +383,7 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, laws, limit_err
         RecordFile(manifest.source, columns, units)
     except MeasuredDataError as exc:
         raise PrognosticsError(exc.problems) from None
+    _check_records(manifest, columns, units)
     if limit_error is not None and not 0 <= limit_error < 1:
         raise PrognosticsError(f"`limit_error` {limit_error:g}: allowed range [0, 1) "
                                "(relative standard deviation)")
@@ -404,6 +405,30 @@ def _check_rul_inputs(manifest_path, limits, fit, bounds, truth, laws, limit_err
         raise PrognosticsError(f"`base_model` {base_model!r}: allowed {', '.join(BASE_MODELS)}")
     truth_eol = load_truth(truth) if truth is not None else None
     return manifest, names, chosen, truth_eol
+
+
+def _check_records(manifest, columns, units) -> None:
+    """Read every record the manifest names, as its job will (a row's own columns and units
+    over the options), before anything is written: a record the loader refuses (a NaN, too
+    short, a column missing) is one line naming its manifest line, not a failed run found
+    after the others were assessed and stored.
+
+    Raises
+    ------
+    PrognosticsError
+        One line per refused record.
+    """
+    from eha.identification.measured import MeasuredDataError, RecordFile, load
+
+    problems = []
+    for c in manifest.checks:
+        try:
+            load(RecordFile(c.record, c.columns or columns, c.units or units))
+        except MeasuredDataError as exc:
+            problems.append(f"{manifest.source.name} line {c.line} (actuator {c.actuator}, "
+                            f"cycle {c.cycle:g}): {exc}")
+    if problems:
+        raise PrognosticsError(problems)
 
 
 def _predict_all(actuators, hist, limits, seed, laws, limit_error):

@@ -123,6 +123,10 @@ def read_manifest(path: str | Path, check_files: bool = True) -> Manifest:
         With one line per problem (all problems of the file).
     """
     path = Path(path)
+    if path.is_dir():
+        hint = " (it holds manifest.csv: give that)" if (path / "manifest.csv").is_file() \
+            else ""
+        raise ManifestError(path, [f"a folder, not a manifest file{hint}"])
     if not path.is_file():
         raise ManifestError(path, ["file not found"])
     try:

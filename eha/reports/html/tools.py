@@ -9,7 +9,7 @@ import math
 from typing import Any
 
 from eha.reports.html.data import unit_of
-from eha.reports.html.page import Column, Page, esc, fmt_int, fmt_num, tag
+from eha.reports.html.page import Column, Page, fmt_int, fmt_num, tag
 
 
 def _value(name: str, v: Any, digits: int = 4) -> str:
