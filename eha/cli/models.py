@@ -24,26 +24,30 @@ def simulate(
     set_: List[str] = typer.Option([], "--set", help="Parameter NAME=VALUE (repeatable)."),
     t_end: float = typer.Option(1.0, "--t-end", help="Simulated time in s."),
     seed: int = typer.Option(0, "--seed", help="Dither seed (HF)."),
-    out: Path = typer.Option(..., "--out", help="Trace file (.parquet)."),
+    out: Path = typer.Option(..., "--out", help="Trace file: .parquet, or .csv (columns t, "
+                             "com, xu, ... in SI, cor in mA; for Matlab's readtable)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Also write a PNG plot."),
 ):
     """Simulate one model on one command and save the trace.
 
     Example: eha simulate --model hf --command chirp_1cm --set BKL=1e-4 --set FDJ=800
     --out results/chirp.parquet --plot results/chirp.png
+
+    Example (CSV): eha simulate --command step_1mm --out step.csv
     """
     from eha.models.params import parse_assignments
     from eha.models.simulate import simulate as run
 
-    if out.suffix != ".parquet":
-        fail(f"--out {out}: the trace file must end in .parquet")
-    check_out_file(out, "--out")
+    check_out_file(out, "--out", (".parquet", ".csv"))
     check_out_file(plot, "--plot", PLOT_SUFFIXES)
     check_seed(seed)
     trace = run(model, command, parse_assignments(set_, "--set"), t_end=t_end, seed=seed)
-    from eha.campaigns.traces import write_trace
+    from eha.campaigns.traces import write_table_file, write_trace
 
-    write_trace(trace, out)
+    if out.suffix.lower() == ".csv":  # what `eha fdi --data` and `eha explain` read back
+        write_table_file(trace.to_pandas(), out, "csv")
+    else:
+        write_trace(trace, out)
     if plot is not None:
         from eha.reports.plots import plot_traces
 

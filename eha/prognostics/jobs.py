@@ -425,7 +425,7 @@ def _check_records(manifest, columns, units) -> None:
         try:
             load(RecordFile(c.record, c.columns or columns, c.units or units))
         except MeasuredDataError as exc:
-            problems.append(f"{manifest.source.name} line {c.line} (actuator {c.actuator}, "
+            problems.append(f"{manifest.source.name} line {c.row} (actuator {c.actuator}, "
                             f"cycle {c.cycle:g}): {exc}")
     if problems:
         raise PrognosticsError(problems)

@@ -1,0 +1,187 @@
+"""What a new user met (issue 61, items 4-6 and the drift): output off a terminal, inputs
+refused before anything is written, folders where files are expected, the campaign-name
+rule, CSV out of ``eha simulate``, command files. Each test failed before its change."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from helpers import error_line, files_under, invoke_eha
+
+
+def _record(path: Path, t_end: float = 0.2, nan_at: int | None = None) -> Path:
+    """A measured record (HF, step_1mm, t,com,xu in SI) as CSV; a NaN at row ``nan_at``."""
+    import eha
+    from eha.campaigns.traces import write_table_file
+
+    frame = eha.simulate("hf", "step_1mm", {}, t_end=t_end, seed=0).to_pandas()[
+        ["t", "com", "xu"]]
+    if nan_at is not None:
+        frame.loc[nan_at, "xu"] = np.nan
+    write_table_file(frame, path, "csv")
+    return path
+
+
+def _env_without_columns() -> dict:
+    return {k: v for k, v in os.environ.items() if k != "COLUMNS"}
+
+
+# ----------------------------------------------------------------------- off a terminal
+def test_output_to_a_pipe_is_not_cut_at_80_columns():
+    """Without COLUMNS, to a pipe: rich took 80 columns and wrapped or cut every wider line
+    ("(lm, \\nseed 0)", "estima…")."""
+    proc = subprocess.run([sys.executable, "-m", "eha", "fdi", "--command", "step_1mm",
+                           "--set", "FDJ=800", "--fit", "FDJ", "--method", "lm", "--t-end",
+                           "0.1"], capture_output=True, text=True, env=_env_without_columns(),
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    last = [ln for ln in proc.stdout.splitlines() if "evaluations" in ln]
+    assert len(last) == 1 and last[0].rstrip().endswith("seed 0)"), proc.stdout
+    assert "…" not in proc.stdout
+
+
+def test_explain_progress_off_a_terminal_is_lines_on_stderr(capsys, monkeypatch):
+    """A spinner shows nothing off a terminal: the phases are lines (at most one per
+    LINE_EVERY_S), none before the first LINE_EVERY_S (a quick error stays one line)."""
+    import eha.cli.explain as E
+
+    clock = [100.0]
+    monkeypatch.setattr(E.time, "monotonic", lambda: clock[0])
+    with E._progress_bar(True) as step:
+        step("healthy null: actuator 1 of 30 done")          # at once: not printed
+        clock[0] += E.LINE_EVERY_S
+        step("healthy null: actuator 2 of 30 done")
+        step("healthy null: actuator 3 of 30 done")          # too soon: not printed
+        clock[0] += E.LINE_EVERY_S
+        step("round 1: fitting the candidates")
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["healthy null: actuator 2 of 30 done ...",
+                   "round 1: fitting the candidates ..."]
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX pseudo-terminal")
+def test_an_explain_error_on_a_terminal_has_no_empty_line_above_it(tmp_path):
+    """On a terminal the spinner was stopped with a newline that rich then moved back over:
+    an empty line above the error wherever the cursor does not move (a log of the terminal)."""
+    import pty
+    import select
+
+    record = _record(tmp_path / "nan.csv", nan_at=5)
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "eha", "explain", str(record), "--results",
+                             str(tmp_path / "r")], stdin=slave, stdout=slave, stderr=slave,
+                            env={**os.environ, "COLUMNS": "200", "TERM": "xterm"})
+    os.close(slave)
+    out = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 120)
+        if not ready:
+            break
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # the terminal's other end closed (the process ended)
+            break
+        if not chunk:
+            break
+        out += chunk
+    proc.wait(timeout=60)
+    os.close(master)
+    assert proc.returncode == 2, out
+    before = out[:out.index(b"error:")]
+    assert b"\n" not in before, before[-200:]
+
+
+# ----------------------------------------------------------------------- validation first
+def test_a_nan_record_in_a_rul_manifest_is_refused_before_anything_is_written(tmp_path):
+    records = tmp_path / "records"
+    records.mkdir()
+    _record(records / "a0.csv")
+    _record(records / "a1.csv", nan_at=7)
+    (tmp_path / "manifest.csv").write_text("actuator,cycle,record\nA,0,records/a0.csv\n"
+                                           "A,100,records/a1.csv\n")
+    results = tmp_path / "results"
+    line = error_line(invoke_eha("rul", tmp_path / "manifest.csv", "--limit", "FDJ=1500",
+                                 "--fit", "FDJ", "--results", results, "--no-progress",
+                                 "--workers", "1"), 2)
+    assert "line 3" in line and "cycle 100" in line and "not finite" in line
+    assert not results.exists()
+
+
+@pytest.mark.parametrize("args, said", [
+    (lambda d: ["rul", d, "--limit", "FDJ=1500"], "a folder, not a manifest file"),
+    (lambda d: ["simulate", "--command", d, "--out", d.parent / "x.parquet"],
+     "a folder, not a command file"),
+    (lambda d: ["fdi", "--command", d], "a folder, not a command file"),
+    (lambda d: ["health", "calibrate", "--command", d, "--actuators", "5"],
+     "a folder, not a command file"),
+])
+def test_a_folder_where_a_file_is_expected_says_it_is_a_folder(tmp_path, args, said):
+    folder = tmp_path / "dir"
+    folder.mkdir()
+    before = files_under(tmp_path)
+    line = error_line(invoke_eha(*args(folder), cwd=tmp_path), 2)
+    assert said in line and "campaign name" not in line and "unknown command" not in line
+    assert files_under(tmp_path) == before
+
+
+def test_a_fleet_folder_given_to_rul_points_at_its_manifest(tmp_path):
+    (tmp_path / "manifest.csv").write_text("actuator,cycle,record\n")
+    line = error_line(invoke_eha("rul", tmp_path, "--limit", "FDJ=1500"), 2)
+    assert "holds manifest.csv" in line
+
+
+# ----------------------------------------------------------------------- campaign names
+@pytest.mark.parametrize("name", [".", "..", "a/b", "..\\x", ".hidden", "", "x" * 81])
+def test_the_campaign_name_rule_is_one_and_refuses_what_is_not_a_folder_name(name):
+    from eha.campaigns.files import CampaignError, make_campaign, name_problem
+    from eha.prognostics.fleet import FleetError, parse_fleet
+
+    assert name_problem(name) is not None
+    with pytest.raises(CampaignError, match="not a valid campaign name"):
+        make_campaign(name, [])
+    with pytest.raises(FleetError) as err:
+        parse_fleet({"name": name, "actuators": 2, "limits": {"FDJ": 1500},
+                     "faults": {"FDJ": {"initial": 200, "laws": ["linear"],
+                                        "rate": {"median": 1.0, "sigma": 0.0}}}})
+    assert "not a valid campaign name" in str(err.value)
+
+
+def test_a_good_campaign_name_passes_everywhere():
+    from eha.campaigns.files import make_campaign, name_problem
+
+    assert name_problem("thesis-fdi.v2_x") is None
+    assert make_campaign("thesis-fdi.v2_x", []).name == "thesis-fdi.v2_x"
+
+
+# ----------------------------------------------------------------------- formats
+def test_simulate_writes_csv_that_the_record_readers_take_back(tmp_path):
+    out = tmp_path / "x.csv"
+    proc = invoke_eha("simulate", "--command", "step_1mm", "--t-end", "0.1", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    from eha.identification.measured import load
+
+    import pandas as pd
+
+    frame = pd.read_csv(out)
+    assert list(frame.columns)[:3] == ["t", "com", "xu"] and len(frame) == 101
+    rec = load(out)
+    assert np.allclose(rec.xu, frame["xu"].to_numpy(), rtol=0, atol=1e-12)
+    line = error_line(invoke_eha("simulate", "--out", tmp_path / "x.mat"), 2)
+    assert ".parquet, .csv" in line
+
+
+def test_query_shows_null_not_nan_or_none(tmp_path):
+    from helpers import small_campaign
+
+    results = tmp_path / "results"
+    assert invoke_eha("campaign", "run", small_campaign(tmp_path, 0.02), "--results", results,
+                      "--workers", "1").returncode == 0
+    out = invoke_eha("query", "DESCRIBE runs", "--results", results).stdout
+    cells = {c.strip() for ln in out.splitlines() for c in ln.split("│")}
+    assert "NULL" in cells and "nan" not in cells and "None" not in cells
