@@ -185,3 +185,32 @@ def test_query_shows_null_not_nan_or_none(tmp_path):
     out = invoke_eha("query", "DESCRIBE runs", "--results", results).stdout
     cells = {c.strip() for ln in out.splitlines() for c in ln.split("│")}
     assert "NULL" in cells and "nan" not in cells and "None" not in cells
+
+
+# ----------------------------------------------------------------------- command files
+def test_a_record_is_its_own_command_and_lasts_its_own_length(tmp_path):
+    """A record's t and com columns are a command (``t,com,xu`` was refused: "header must be
+    't,com'"), and a command file runs for its own length unless told otherwise (a 0.2-s
+    command was simulated for 1 s, most of it at rest)."""
+    import pandas as pd
+
+    record = _record(tmp_path / "rec.csv", t_end=0.2)
+    out = tmp_path / "again.csv"
+    proc = invoke_eha("simulate", "--command", record, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    again, first = pd.read_csv(out), pd.read_csv(record)
+    assert len(again) == len(first) == 201
+    assert np.allclose(again["com"], first["com"], rtol=0, atol=1e-12)
+    proc = invoke_eha("simulate", "--command", record, "--t-end", "0.3", "--out", out)
+    assert proc.returncode == 0 and len(pd.read_csv(out)) == 301
+    (tmp_path / "bad.csv").write_text("time,position\n0,0\n0.1,0\n")
+    line = error_line(invoke_eha("simulate", "--command", tmp_path / "bad.csv", "--out", out),
+                      2)
+    assert "columns t and com" in line
+
+
+def test_the_default_duration_of_a_command():
+    from eha.models.commands import default_duration
+
+    assert default_duration("chirp_1cm") == 1.0
+    assert default_duration("chirp_1cm", 2.5) == 2.5

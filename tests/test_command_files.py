@@ -39,9 +39,9 @@ def test_a_command_file_round_trips_and_is_named_by_its_content(tmp_path):
     ("t,com\n0,0\n0.1,0.5\n", "data row 2: com = 0.5 m is beyond the stroke; allowed range "
                               "[-0.2, 0.2] m"),
     ("t,com\n0.2,0\n0.3,0\n", "t must start at 0 s"),
-    ("time,x\n0,0\n1,0\n", "header 't,com'"),
+    ("time,x\n0,0\n1,0\n", "header with the columns t and com"),
     ("t,com\n0,0\n", "at least 2 samples"),
-    ("t,com\n0,0\n0.1,abc\n", "data row 2: expected two numbers"),
+    ("t,com\n0,0\n0.1,abc\n", "data row 2: expected 2 numbers"),
 ])
 def test_a_bad_command_file_is_one_line(tmp_path, text, message):
     path = tmp_path / "bad.csv"

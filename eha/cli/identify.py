@@ -42,7 +42,8 @@ POP = typer.Option(..., "--pop", default_factory=defaults.fdi_population,
 SEED = typer.Option(0, "--seed", help="Optimizer seed (and HF dither seed).")
 OBJECTIVE = typer.Option("rmse", "--objective", help="rmse or objfcn (the thesis' mean "
                          "absolute error).")
-T_END = typer.Option(1.0, "--t-end", help="Simulated time of the HF reference, in seconds.")
+T_END = typer.Option(None, "--t-end", help="Simulated time of the HF reference, in seconds "
+                     "(default: a command file's own length, else 1).")
 JSON_OUT = typer.Option(None, "--json", help="Write the result as JSON.")
 PLOT = typer.Option(None, "--plot", help="PNG: reference vs identified LF.")
 LEVEL = typer.Option(..., "--level", default_factory=defaults.interval_level,
@@ -57,7 +58,7 @@ BASE_MODEL = typer.Option(None, "--base-model", help="LF model: plain (the thesi
 def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
         data: Optional[Path] = DATA, fit: str = FIT, bounds: List[str] = BOUNDS,
         base: List[str] = BASE, method: str = METHOD, pop: int = POP, seed: int = SEED,
-        objective: str = OBJECTIVE, t_end: float = T_END, json_out: Optional[Path] = JSON_OUT,
+        objective: str = OBJECTIVE, t_end: Optional[float] = T_END, json_out: Optional[Path] = JSON_OUT,
         plot: Optional[Path] = PLOT, level: float = LEVEL,
         base_model: Optional[str] = BASE_MODEL, command_hold: CommandHoldOption = COMMAND_HOLD,
         columns: ColumnsOption = None, units: UnitsOption = None,
@@ -88,6 +89,10 @@ def fdi(command: Optional[str] = COMMAND, set_: List[str] = FAULTS,
     if results is not None:
         check_out_dir(results, "--results")
     record = record_file(data, columns, units) if data is not None else None
+    if t_end is None:
+        from eha.models.commands import default_duration
+
+        t_end = default_duration(command) if command is not None else 1.0
     with err_console.status(f"identifying ({method}) ...") as status:
         def progress(gen: int, best: float) -> None:
             status.update(f"identifying ({method}): generation {gen}, best "

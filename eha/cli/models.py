@@ -22,7 +22,8 @@ def simulate(
     model: str = typer.Option("hf", "--model", help="hf (detailed) or lf (monitoring)."),
     command: str = typer.Option("mixed", "--command", help="Preset or kind (see `eha commands`)."),
     set_: List[str] = typer.Option([], "--set", help="Parameter NAME=VALUE (repeatable)."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Simulated time in s."),
+    t_end: Optional[float] = typer.Option(None, "--t-end", help="Simulated time in s "
+                                          "(default: a command file's own length, else 1)."),
     seed: int = typer.Option(0, "--seed", help="Dither seed (HF)."),
     out: Path = typer.Option(..., "--out", help="Trace file: .parquet, or .csv (columns t, "
                              "com, xu, ... in SI, cor in mA; for Matlab's readtable)."),
@@ -41,6 +42,10 @@ def simulate(
     check_out_file(out, "--out", (".parquet", ".csv"))
     check_out_file(plot, "--plot", PLOT_SUFFIXES)
     check_seed(seed)
+    if t_end is None:
+        from eha.models.commands import default_duration
+
+        t_end = default_duration(command)
     trace = run(model, command, parse_assignments(set_, "--set"), t_end=t_end, seed=seed)
     from eha.campaigns.traces import write_table_file, write_trace
 

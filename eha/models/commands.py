@@ -387,19 +387,23 @@ def load_command_file(name: str) -> Command:
     except UnicodeDecodeError:
         raise CommandError(f"{where}: not UTF-8 text") from None
     rows = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
-    if not rows or [c.strip() for c in rows[0].split(",")] != ["t", "com"]:
-        raise CommandError(f"{where}: the first line after the comments must be the header "
-                           "'t,com' (time [s], command [m])")
+    # any record's t and com columns (a record t,com,xu is its own command); others ignored
+    header = [c.strip().lower() for c in rows[0].split(",")] if rows else []
+    if "t" not in header or "com" not in header:
+        raise CommandError(f"{where}: the first line after the comments must be a header "
+                           "with the columns t and com (time [s], command [m]), e.g. 't,com' "
+                           "or a record's 't,com,xu'")
+    it, ic = header.index("t"), header.index("com")
     values = []
     for i, line in enumerate(rows[1:], start=1):
         cells = line.split(",")
         try:
-            if len(cells) != 2 or "_" in line:  # float() reads 1_0e-4 as 1e-3
+            if len(cells) != len(header) or "_" in line:  # float() reads 1_0e-4 as 1e-3
                 raise ValueError
-            values.append((float(cells[0]), float(cells[1])))
+            values.append((float(cells[it]), float(cells[ic])))
         except ValueError:
-            raise CommandError(f"{where}: data row {i}: expected two numbers 't,com', got "
-                               f"{line[:40]!r}") from None
+            raise CommandError(f"{where}: data row {i}: expected {len(header)} numbers "
+                               f"({','.join(header)}), got {line[:40]!r}") from None
     arr = np.array(values, dtype=np.float64).reshape(-1, 2)
     t, com = arr[:, 0], arr[:, 1]
     if t.size < 2:
@@ -420,6 +424,18 @@ def load_command_file(name: str) -> Command:
                            f"the stroke; allowed range [-{MAX_FILE_STROKE:g}, "
                            f"{MAX_FILE_STROKE:g}] m")
     return Command("array", {}, f"{path.stem}-{digest[:8]}", (t, com), "linear")
+
+
+def default_duration(command: "Command | str", fallback: float = 1.0) -> float:
+    """How long to run ``command`` when no duration is given [s]: a command file's own length
+    (a 0.5-s design is simulated and checked for 0.5 s, not half of it at rest), else
+    ``fallback``."""
+    if isinstance(command, str) and not is_command_file(command):
+        return fallback
+    cmd = as_command(command)
+    if cmd.kind == "array" and cmd.samples is not None:
+        return float(cmd.samples[0][-1])
+    return fallback
 
 
 def write_command_file(path: str | Path, t: np.ndarray, com: np.ndarray,
