@@ -214,3 +214,48 @@ def test_the_default_duration_of_a_command():
 
     assert default_duration("chirp_1cm") == 1.0
     assert default_duration("chirp_1cm", 2.5) == 2.5
+
+
+# ----------------------------------------------------------------------- design's words
+def test_library_commands_beyond_the_users_limits_are_named():
+    """`eha design --max-stroke 0.005 --duration 0.5` ranked its design against chirp_1cm
+    (5.07 mm) and sine (10 mm) without saying they exceed the limits given."""
+    from types import SimpleNamespace
+
+    from eha.design.headlines import beyond_limits, beyond_limits_lines
+
+    result = SimpleNamespace(settings={"duration": 0.5, "max_stroke": 0.005, "max_rate": 0.1,
+                                       "max_freq": 20.0},
+                             library={"chirp_1cm": None, "sine": None},
+                             t=np.arange(501) * 1e-3)
+    beyond = beyond_limits(result)
+    assert beyond["chirp_1cm"] == "reaches 5.07 mm (stroke 5 mm)"
+    assert beyond["sine"] == "reaches 10 mm (stroke 5 mm)"
+    (line,) = beyond_limits_lines(result)
+    assert "beyond your limits" in line and "0.5 s" in line and "chirp_1cm" in line
+
+
+def test_the_verification_says_its_finding_first_in_units():
+    """`eha design verify` printed a bare table in SI (BKL in m); it now starts with the
+    finding per fault in the fault's display unit, the prediction beside it."""
+    from eha.design.headlines import verification_headline
+    from eha.design.verify import Verification
+
+    def fault(md, top, lowest=False):
+        return {"min_detectable": md, "at_lowest_level": lowest,
+                "levels": [{"deviation": top, "p_detect": 1.0, "isolated": 1.0, "n": 3}]}
+
+    fa = {"n": 20, "alarms": 1, "rate": 0.05, "upper_95": 0.2}
+    v = Verification({"design-x": {"faults": {"BKL": fault(2e-5, 8e-5), "FDJ": fault(None, 391.0)},
+                                   "false_alarms": fa},
+                      "chirp_1cm": {"faults": {"BKL": fault(4e-5, 8e-5, True),
+                                               "FDJ": fault(300.0, 391.0)},
+                                    "false_alarms": fa}},
+                     {"design": {"BKL": 1.5e-5, "FDJ": 97.7}}, {"library": ["chirp_1cm"]},
+                     "verify-x", "results")
+    lines = verification_headline(v)
+    assert lines[0] == ("BKL detected (P_D >= 0.95) from a change of: the design: 20 µm "
+                        "(predicted 15 µm); chirp_1cm: at most 40 µm")
+    assert lines[1].startswith("FDJ detected") and "not detected up to 391 N (predicted " \
+        "97.7 N)" in lines[1] and "chirp_1cm: 300 N" in lines[1]
+    assert "1 of 20" in lines[2] and "BKL m" in lines[2]

@@ -96,14 +96,26 @@ def _health(results: Path, work: Path) -> None:
 
 def _verify(results: Path, work: Path) -> None:
     design = _design(work / "design-db", work, "verified")
-    _ok("design", "verify", design, "--healthy", 6, "--calibration", 5, "--per-level", 1,
-        "--library", "step_1mm", "--results", results, "--workers", 1, "--no-progress")
+    proc = invoke_eha("design", "verify", design, "--healthy", 6, "--calibration", 5,
+                      "--per-level", 1, "--library", "step_1mm", "--results", results,
+                      "--workers", 1, "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    # the finding first, in the fault's unit (it printed a bare SI table)
+    assert proc.stdout.startswith("FDJ detected (P_D >= 0.95) from a change of: the design: ")
+    assert " N" in proc.stdout.splitlines()[0]
 
 
 def _explain(results: Path, work: Path) -> None:
     record = work / "record.parquet"
     _ok("simulate", "--command", "step_1mm", "--t-end", 0.3, "--set", "FDJ=800", "--out", record)
-    _ok("explain", record, "--fit", "FDJ", "--pop", 8, "--results", results)
+    import eha.cli.explain
+
+    with pytest.MonkeyPatch.context() as mp:  # every phase a line, however fast (a cache)
+        mp.setattr(eha.cli.explain, "LINE_EVERY_S", 0.0)
+        proc = invoke_eha("explain", record, "--fit", "FDJ", "--pop", 8, "--results", results)
+    assert proc.returncode == 0, proc.stderr
+    # off a terminal its phases are lines on stderr (a spinner showed nothing for a minute)
+    assert "round" in proc.stderr and " ..." in proc.stderr
 
 
 def _fdi_campaign(results: Path, work: Path) -> None:

@@ -200,6 +200,10 @@ def _show(result) -> None:
         on_library = f"{t.shown(ref)} ({lib})" if ref < t.limit else "not detectable"
         table.add_row(t.name, shown, on_library, f"{result.ratio(t.name):.2f}")
     console.print(table)
+    from eha.design.headlines import beyond_limits_lines
+
+    for line in beyond_limits_lines(result):
+        console.print(line, highlight=False)
     if result.settings.get("check") == "baseline":
         console.print("for the change check (each actuator against its own earlier record); "
                       f"chosen: {result.settings['chosen']}", highlight=False)
@@ -275,5 +279,9 @@ def verify(
     v.save(out)
     md = out.with_suffix(".md")
     write_atomic(md, v.markdown())
+    from eha.design.headlines import verification_headline
+
+    for line in verification_headline(v):
+        console.print(line, highlight=False)
     console.print(v.markdown(), highlight=False)
     print_paths({"json": out, "table": md})

@@ -1,0 +1,88 @@
+"""What ``eha design`` and ``eha design verify`` say before their tables: the library commands
+that go beyond the user's own limits (the design is ranked against them all the same), and
+the verification's finding per fault, in each fault's display unit.
+
+Text only: nothing here computes a figure that the design or its verification did not.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+from eha.models.faults import FAULTS
+
+
+def beyond_limits(result: Any) -> dict[str, str]:
+    """``{library command: why}`` for each library command of ``result`` (a
+    :class:`eha.design.api.DesignResult`) outside the design's limits, as run: on the design's
+    record length (a longer library command is cut there), beyond the stroke or the rate, not
+    at rest at the ends, or above the highest frequency
+    (:func:`eha.design.family.outside_limits`)."""
+    from eha.design.family import Limits, outside_limits
+    from eha.models.commands import make_command
+
+    s = result.settings
+    limits = Limits(float(s["duration"]), float(s["max_stroke"]), float(s["max_rate"]),
+                    float(s["max_freq"]))
+    out = {}
+    for name in result.library:
+        why = outside_limits(make_command(name).sample(result.t), limits)
+        if why is not None:
+            out[name] = why
+    return out
+
+
+def beyond_limits_lines(result: Any) -> list[str]:
+    """The lines under the design's table naming each library command it was compared with
+    that the user's limits would not allow (marked ``*`` in no table: said once, here)."""
+    beyond = beyond_limits(result)
+    if not beyond:
+        return []
+    d = float(result.settings["duration"])
+    return [f"library commands beyond your limits, compared on the same {d:g} s all the same: "
+            + "; ".join(f"{name} {why}" for name, why in beyond.items())]
+
+
+def _size(name: str, value: float | None) -> str:
+    """A deviation from the nominal value in the fault's display unit (``97.7 N``)."""
+    unit, k = FAULTS[name].display_unit
+    return f"{k * value:.3g} {unit}".strip()
+
+
+def verification_headline(v: Any) -> list[str]:
+    """The finding of a :class:`eha.design.verify.Verification` first: per fault, the
+    measured minimum detectable deviation from nominal on the design and on the best library
+    command, in the fault's unit, with the prediction beside it; then what the table's numbers
+    are (their unit) and the false alarms in one line."""
+    from eha.design.verify import P_DETECT
+
+    commands = list(v.figures)
+    design = next((c for c in commands if c not in v.settings.get("library", [])), None)
+    lines = []
+    for name in FAULTS:
+        per = {c: v.figures[c]["faults"].get(name) for c in commands}
+        if all(f is None for f in per.values()):
+            continue
+        shown = []
+        for c, f in per.items():
+            if f is None:
+                continue
+            md = f["min_detectable"]
+            top = f["levels"][-1]["deviation"] if f["levels"] else math.nan
+            text = (("at most " if f.get("at_lowest_level") else "") + _size(name, md)
+                    if md is not None else f"not detected up to {_size(name, top)}")
+            predicted = (v.predicted.get("design") or {}).get(name) if c == design else None
+            pred = f" (predicted {_size(name, predicted)})" if predicted is not None else ""
+            shown.append(f"{'the design' if c == design else c}: {text}{pred}")
+        lines.append(f"{name} detected (P_D >= {P_DETECT:g}) from a change of: "
+                     f"{'; '.join(shown)}")
+    units = ", ".join(f"{n} {FAULTS[n].unit}" for n in FAULTS if FAULTS[n].unit)
+    alarms = "; ".join(f"{c}: {fa['alarms']} of {fa['n']}" for c, fa in
+                       ((c, v.figures[c]["false_alarms"]) for c in commands))
+    lines.append(f"false alarms on held-out healthy actuators: {alarms}; the table below: "
+                 f"the smallest change from nominal detected, in SI ({units})")
+    return lines
+
+
+__all__ = ["beyond_limits", "beyond_limits_lines", "verification_headline"]
