@@ -259,3 +259,51 @@ def test_the_verification_says_its_finding_first_in_units():
     assert lines[1].startswith("FDJ detected") and "not detected up to 391 N (predicted " \
         "97.7 N)" in lines[1] and "chirp_1cm: 300 N" in lines[1]
     assert "1 of 20" in lines[2] and "BKL m" in lines[2]
+
+
+# ----------------------------------------------------------------------- units
+def test_a_derived_limit_is_printed_with_its_unit_and_nominal():
+    """`eha limits` printed "FDJ limit ...: 6000.78" with no unit."""
+    proc = invoke_eha("limits", "--fault", "FDJ", "--require", "lag(mixed) > 0.02", "--lo",
+                      "200", "--hi", "20000", "--tol", "0.05", "--t-end", "0.5")
+    assert proc.returncode == 0, proc.stderr
+    line = proc.stdout.strip().splitlines()[0]
+    value = float(line.split("': ")[1].split(" N")[0])
+    assert f"{value:g} N, {100 * (value - 200) / 200:+.0f} % of its nominal 200 N" in line
+    assert "bracket [200, 20000] N" in line
+
+
+def test_a_pair_named_and_read_from_around_is_one_pair(tmp_path):
+    """`eha design --separate external_load,offset --around f01.json` printed the pair's
+    separation block twice: once named, once read from the explain JSON."""
+    import json
+
+    from eha.cli.design import _around
+
+    doc = {"steps": [{"effect": "external_load", "params": {"FRC": 800.0}}],
+           "not_excluded": [{"effect": "offset", "value": -0.009}]}
+    path = tmp_path / "f01.json"
+    path.write_text(json.dumps(doc))
+    for named in ([("external_load", "offset")], [("offset", "external_load")], []):
+        pairs = list(named)
+        values = _around(path, pairs)
+        assert len(pairs) == 1, pairs
+        assert values == {"external_load": 800.0, "offset": -0.009}
+
+
+def test_the_fdi_plot_names_no_signal_the_record_lacks(tmp_path, monkeypatch):
+    """The fdi plot's P12 and spool legends listed "MEASURED" for a record of t,com,xu."""
+    import eha.reports.plots as P
+    from eha.identification.fdi import identify_source
+
+    run = identify_source(data=_record(tmp_path / "r.csv"), fit=["FDJ"], method="lm")
+    figs = []
+    monkeypatch.setattr(P, "_save", lambda fig, path, dpi=110: figs.append(fig) or Path(path))
+    P.plot_traces([run.reference, run.fitted], tmp_path / "fit.png")
+    axes = figs[0].axes
+    by_label = {ax.get_ylabel(): [t.get_text() for t in (ax.get_legend().get_texts()
+                                                         if ax.get_legend() else [])]
+                for ax in axes}
+    for panel in ("P12 [bar]", "spool xs [mm]"):
+        assert by_label[panel] and not any("MEASURED" in t for t in by_label[panel]), by_label
+    assert any("MEASURED" in t for t in by_label["position [mm]"])

@@ -81,8 +81,10 @@ def _fleet(work: Path) -> Path:
 
 def _rul(results: Path, work: Path) -> None:
     fleet = _fleet(work)
-    _ok("rul", fleet / "manifest.csv", "--limit", "FDJ=1500", "--fit", "FDJ", "--results",
-        results, "--no-progress", "--workers", 1)
+    proc = invoke_eha("rul", fleet / "manifest.csv", "--limit", "FDJ=1500", "--fit", "FDJ",
+                      "--results", results, "--no-progress", "--workers", 1)
+    assert proc.returncode == 0, proc.stderr
+    assert "RUL median [cycles]" in proc.stdout        # the unit of the manifest's cycles
 
 
 def _health(results: Path, work: Path) -> None:

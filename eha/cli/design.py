@@ -178,7 +178,9 @@ def _around(path: Optional[Path], pairs: list) -> Optional[dict]:
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # e.g. 100 000 [
         fail(f"--around {path}: not a readable eha explain JSON")
     more, values = from_explain(doc)
-    pairs += more
+    # a pair the user named too is one pair (its block was printed twice)
+    pairs += [p for p in more if tuple(p) not in {tuple(q) for q in pairs}
+              and tuple(reversed(tuple(p))) not in {tuple(q) for q in pairs}]
     return values
 
 

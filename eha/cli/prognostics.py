@@ -166,8 +166,9 @@ def _rul_of(check: str, calibration: Optional[Path], trend: str):
 
 def _render_rul(res, results: Path) -> None:
     """The last prediction of each actuator, the fleet's metrics, the files, the failures."""
-    table = Table("actuator", "checks", "last cycle", "RUL median", "RUL 5 %", "RUL 95 %",
-                  "driver")
+    # cycles: the unit of the manifest's cycle column (cycles or hours), the RUL's too
+    table = Table("actuator", "checks", "last check [cycles]", "RUL median [cycles]",
+                  "RUL 5 % [cycles]", "RUL 95 % [cycles]", "driver")
     fmt = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
     for aid, preds in res.predictions.items():
         last = preds[-1] if preds else None
@@ -236,8 +237,17 @@ def limits(
     check_seed(seed)
     res = derive_limit(fault, require, lo, hi, base=parse_assignments(set_, "--set"), tol=tol,
                        seed=seed, t_end=t_end)
-    console.print(f"{fault} limit for '{res.requirement}': {res.limit:.6g} "
-                  f"({len(res.points)} HF runs, bracket [{lo:g}, {hi:g}], tol {tol:g})")
+    from eha.models.params import SPECS
+
+    unit = f" {SPECS[fault].unit}" if fault in SPECS and SPECS[fault].unit not in ("", "-") \
+        else ""
+    nominal = SPECS[fault].nominal if fault in SPECS else None
+    change = (f", {100 * (res.limit - nominal) / nominal:+.0f} % of its nominal {nominal:g}"
+              f"{unit}" if nominal else f", nominal {nominal:g}{unit}"
+              if nominal is not None else "")
+    console.print(f"{fault} limit for '{res.requirement}': {res.limit:.6g}{unit}{change} "
+                  f"({len(res.points)} HF runs, bracket [{lo:g}, {hi:g}]{unit}, tol {tol:g})",
+                  highlight=False)
     if json_out is not None:
         write_json(json_out, res.to_dict(), indent=1)
         console.print(f"json: {json_out}")

@@ -46,8 +46,10 @@ def plot_traces(traces: Sequence[Trace], path: str | Path, title: str | None = N
         if i > 0 and len(tr) == len(first):
             axes[1].plot(tr.t, 1e6 * (tr.xu - first.xu), ls, lw=1.2,
                          label=f"{_label(tr)} − {_label(first)}")
-        axes[2].plot(tr.t, 1e-5 * tr["p12"], ls, lw=1.2, label=_label(tr))
-        axes[3].plot(tr.t, 1e3 * tr["xs"], ls, lw=1.2, label=_label(tr))
+        # a record without P12 or the spool (NaN throughout) draws nothing: no legend entry
+        for ax, key, k in ((axes[2], "p12", 1e-5), (axes[3], "xs", 1e3)):
+            if np.isfinite(tr[key]).any():
+                ax.plot(tr.t, k * tr[key], ls, lw=1.2, label=_label(tr))
     axes[0].set_ylabel("position [mm]")
     if axes[1] is not None:
         axes[1].set_ylabel("Δxu [µm]")
