@@ -307,3 +307,29 @@ def test_the_fdi_plot_names_no_signal_the_record_lacks(tmp_path, monkeypatch):
     for panel in ("P12 [bar]", "spool xs [mm]"):
         assert by_label[panel] and not any("MEASURED" in t for t in by_label[panel]), by_label
     assert any("MEASURED" in t for t in by_label["position [mm]"])
+
+
+def test_an_interval_that_is_the_search_bounds_is_said_why():
+    """The report showed the thesis cases 1-2's search bounds as their 90 % interval and did
+    not say why."""
+    from types import SimpleNamespace
+
+    from eha.reports.html.sections import _bounds_note
+
+    def row(case, iv, flagged):
+        return SimpleNamespace(case=case, intervals={"BKL": iv}, flagged=flagged,
+                               bounds={"BKL": [0.0, 5e-3]})
+
+    rows = [row(1, (0.0, 5e-3), True), row(2, (0.0, 5e-3), False), row(3, (1e-4, 2e-4), False)]
+    note = _bounds_note(rows, ["BKL"])
+    assert "cases 1, 2 the 90 % interval is the search bounds" in note
+    assert "flagged on case 1:" in note and "3" not in note.split("search bounds")[0]
+    assert _bounds_note(rows[2:], ["BKL"]) == ""
+
+
+def test_the_explain_spinner_counts_fits_without_1_steps():
+    import eha.cli.explain as E
+
+    texts = [getattr(c, "text_format", "") for c in E._progress_bar(True).bar.columns]
+    assert "[dim]fits done: {task.completed}" in texts
+    assert not any("} steps" in t for t in texts)

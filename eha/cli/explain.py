@@ -190,7 +190,7 @@ class _progress_bar:
 
         self.lines = enabled and not err_console.is_terminal
         self.bar = Progress(SpinnerColumn(), TextColumn("{task.description}"),
-                            TextColumn("[dim]{task.completed} steps"), TimeElapsedColumn(),
+                            TextColumn("[dim]fits done: {task.completed}"), TimeElapsedColumn(),
                             console=err_console, disable=not enabled or self.lines,
                             transient=True)
         self.last, self.printed = "", -math.inf

@@ -261,6 +261,7 @@ def identification_section(page: Page, ident: Identification) -> str:
                 "faults' |error|, as the thesis' Figure 6.17."
                 + (f" At least as accurate as the thesis on <b>{better}/{len(table)}</b> "
                    "cases." if has_thesis else ""))
+        note += _bounds_note(ident.rows[name], fits)
         parts.append(f"<h3>{esc(name)}</h3><p class=\"note\">{note}</p>"
                      + page.table(cols, rows, f"fdi {name}")
                      + page.plot(F.mean_error_figure(table, name)))
@@ -270,6 +271,32 @@ def identification_section(page: Page, ident: Identification) -> str:
                          "against the LF model with the identified faults (lowest seed, "
                          "re-simulated).</p>" + page.choice("Case:", fits)[0])
     return "".join(parts)
+
+
+def _bounds_note(rows, fits) -> str:
+    """Why some cases' 90 % interval is their search bounds (the thesis' cases 1 and 2): the
+    interval of a parameter the record does not constrain, or of a flagged fit (residual well
+    above the noise), is widened to the bounds searched; said once, with the cases."""
+    cases: dict[int, bool] = {}
+    for r in rows:
+        for n in fits:
+            lo, hi = (r.intervals or {}).get(n, (None, None))
+            b = (r.bounds or {}).get(n)
+            if lo is None or hi is None or not b:
+                continue
+            span = abs(float(b[1]) - float(b[0])) or 1.0
+            if lo <= float(b[0]) + 1e-6 * span and hi >= float(b[1]) - 1e-6 * span:
+                cases[int(r.case)] = cases.get(int(r.case), False) or bool(r.flagged)
+    if not cases:
+        return ""
+    listed = ", ".join(str(c) for c in sorted(cases))
+    flagged = [c for c, f in sorted(cases.items()) if f]
+    why = (f" (flagged on case{'s' if len(flagged) > 1 else ''} "
+           f"{', '.join(map(str, flagged))}: the residual stays well above the noise)"
+           if flagged else "")
+    return (f" On case{'s' if len(cases) > 1 else ''} {esc(listed)} the 90 % interval is the "
+            "search bounds: the record does not constrain the parameter there" + esc(why)
+            + ", so the interval is widened to all it could be.")
 
 
 # =========================================================================== residual loop
