@@ -128,11 +128,7 @@ def design(
         return
     from eha.design import DesignError, Limits, design as run_design
 
-    check_seed(seed)
-    check_out_dir(out, "--out")
-    _check_name(name)
-    if results is not None:
-        check_out_dir(results, "--results")
+    _check_outputs(seed, out, name, results)
     pairs = [tuple(split_names(p)) for p in separate]
     try:
         around_values = _around(around, pairs)
@@ -148,6 +144,19 @@ def design(
     except DesignError as exc:
         fail(_flags(str(exc)))
     _show(result)
+    _save(result, out, name, results)
+
+
+def _check_outputs(seed: int, out: Path, name: str, results: Optional[Path]) -> None:
+    """Before any work: the seed, the output folders and the base name of the files."""
+    check_seed(seed)
+    check_out_dir(out, "--out")
+    check_out_dir(results, "--results")
+    _check_name(name)
+
+
+def _save(result, out: Path, name: str, results: Optional[Path]) -> None:
+    """The command file, JSON and figure; with ``--results``, the design's row there."""
     paths = result.save(out, name)
     print_paths(paths)
     if results is not None:
