@@ -333,3 +333,18 @@ def test_the_explain_spinner_counts_fits_without_1_steps():
     texts = [getattr(c, "text_format", "") for c in E._progress_bar(True).bar.columns]
     assert "[dim]fits done: {task.completed}" in texts
     assert not any("} steps" in t for t in texts)
+
+
+def test_the_explain_table_says_what_its_symbols_are():
+    """The steps table named SNF, ZF, GQ and "(structure)" without saying what they are."""
+    from types import SimpleNamespace
+
+    from eha.cli.explain import _symbols
+
+    steps = [SimpleNamespace(effect="flapper_dynamics")]
+    res = SimpleNamespace(faults_before={"FDJ": 586.0, "GQ": 0.198}, steps=steps,
+                          final_params=lambda s: {"SNF": 2568.0, "ZF": 0.61})
+    line = _symbols(res)
+    assert line.startswith("symbols: FDJ jack dynamic friction; GQ valve flow gain; SNF "
+                           "flapper natural frequency; ZF flapper damping ratio")
+    assert "(structure): what the LF model lacks on any actuator" in line

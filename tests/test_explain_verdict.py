@@ -284,5 +284,6 @@ def test_an_effect_of_two_parameters_names_each_in_its_unit():
                params=LFParams().replace(PSR=1.71e7, XSSK=0.0, orifice_law=1.0),
                steps=[step("orifice_law"), step("supply_pressure", {"PSR": 1.8e7, "XSSK": 0})],
                intervals={"PSR": (1.68e7, 1.74e7), "XSSK": (0.0, 0.1)})
-    assert r.verdict.startswith("explained: found supply pressure PSR 17.1 MPa [16.8, 17.4], "
+    assert r.verdict.startswith("explained: found supply pressure PSR 17.1 MPa (-14 % of its "
+                                "nominal 20 MPa) [16.8, 17.4], "
                                 "XSSK 0 [0, 0.1] (90 %); residual 1 µm"), r.verdict

@@ -232,6 +232,7 @@ def _render(res) -> None:
         console.print(f"the first record's rivals, on this one: {res.settled['text']}",
                       highlight=False)
     console.print(_steps_table(res))
+    console.print(_symbols(res), highlight=False)
     note = structure_note(res)
     for line in ([note] if note else []) + _notes(res):
         console.print(line, highlight=False)
@@ -276,6 +277,20 @@ def _warn(res) -> None:
         err_console.print("warning: the residual is above the noise level: the effects added "
                           "are tentative, and an effect below this command's healthy band may "
                           "be missing", highlight=False)
+
+
+def _symbols(res) -> str:
+    """What the table's parameter symbols are (``SNF: flapper natural frequency``, ...) and
+    what "(structure)" means: the table names parameters by their symbols only."""
+    from eha.explain.settings import STRUCTURAL
+    from eha.models.params import SPECS
+
+    names = dict.fromkeys([*res.faults_before, *(k for s in res.steps
+                                                  for k in res.final_params(s))])
+    said = [f"{k} {SPECS[k].description.split(' (')[0]}" for k in names if k in SPECS]
+    if any(s.effect in STRUCTURAL for s in res.steps):
+        said.append("(structure): what the LF model lacks on any actuator, not a finding")
+    return "symbols: " + "; ".join(said) if said else ""
 
 
 def _steps_table(res) -> Table:

@@ -304,8 +304,8 @@ class Rounds:
                 if other != name:
                     free.update(EFFECTS[other].bounds)
             start = effect.switch_off(params)
-            refitted = self.refit(start, free, f"round {len(self.rounds) - 1}: "
-                                  f"{best.effect} without {name}", method="ps")
+            refitted = self.refit(start, free, f"round {len(self.rounds) - 1}: is {name} "
+                                  f"needed in {best.effect}? (refit without it)", method="ps")
             without = min(self.evaluate([start, refitted]), key=ranking_score)
             keep, loss, p = keeps_effect(ev.rmse_score, without.rmse_score,
                                          len(effect.params), ev.n_eff, s)

@@ -114,10 +114,23 @@ def _found(res) -> list[dict[str, Any]]:
         for name, value in res.final_params(step).items():
             lo_hi = res.intervals.get(name)
             out.append({"effect": step.effect, "param": name, "value": value,
-                        "text": show(name, value),
+                        "text": show(name, value) + _change(name, value),
                         "interval": list(lo_hi) if lo_hi is not None else None,
                         "interval_text": show_interval(name, *lo_hi) if lo_hi else ""})
     return out
+
+
+def _change(name: str, value: float) -> str:
+    """`` (-10 % of its nominal 0.01 N/mA)`` for a parameter whose nominal is not zero (a
+    motor gain, a supply pressure: the value alone does not say how far it moved); else
+    nothing."""
+    from eha.models.params import SPECS
+
+    spec = SPECS.get(name)
+    nominal = spec.nominal_for("lf") if spec is not None and "lf" in spec.models else None
+    if not nominal or not math.isfinite(value):
+        return ""
+    return f" ({100 * (value - nominal) / nominal:+.0f} % of its nominal {show(name, nominal)})"
 
 
 def _effects_text(found: list[dict[str, Any]], level: float | None) -> str:
