@@ -57,8 +57,11 @@ def verification_headline(v: Any) -> list[str]:
     are (their unit) and the false alarms in one line."""
     from eha.design.verify import P_DETECT
 
-    commands = list(v.figures)
-    design = next((c for c in commands if c not in v.settings.get("library", [])), None)
+    library = v.settings.get("library", [])
+    # the design first, then the library commands in the order given
+    commands = sorted(v.figures, key=lambda c: (c in library, library.index(c)
+                                                if c in library else 0))
+    design = next((c for c in commands if c not in library), None)
     lines = []
     for name in FAULTS:
         per = {c: v.figures[c]["faults"].get(name) for c in commands}
