@@ -218,21 +218,28 @@ def test_the_default_duration_of_a_command():
 
 # ----------------------------------------------------------------------- design's words
 def test_library_commands_beyond_the_users_limits_are_named():
-    """`eha design --max-stroke 0.005 --duration 0.5` ranked its design against chirp_1cm
-    (5.07 mm) and sine (10 mm) without saying they exceed the limits given."""
+    """`eha design --max-stroke 0.005 --duration 0.5` ranked its design against library
+    commands beyond the limits given without saying so; they are compared cut to the limits
+    (eha.design.library) and the line under the table says how, and which stay beyond."""
     from types import SimpleNamespace
 
+    from eha.design.family import Limits
     from eha.design.headlines import beyond_limits, beyond_limits_lines
+    from eha.design.library import cut_to_limits
 
-    result = SimpleNamespace(settings={"duration": 0.5, "max_stroke": 0.005, "max_rate": 0.1,
-                                       "max_freq": 20.0},
-                             library={"chirp_1cm": None, "sine": None},
-                             t=np.arange(501) * 1e-3)
+    limits = Limits(0.5, 0.005, 0.1, 20.0)
+    cuts = {n: cut_to_limits(n, limits) for n in ("chirp_1cm", "test")}
+    result = SimpleNamespace(settings={"duration": 0.5, "library_cut": {
+        n: {"scale": c.scale, "beyond": c.beyond} for n, c in cuts.items()}})
     beyond = beyond_limits(result)
-    assert beyond["chirp_1cm"] == "reaches 5.07 mm (stroke 5 mm)"
-    assert beyond["sine"] == "reaches 10 mm (stroke 5 mm)"
+    assert beyond["chirp_1cm"] == f"scaled to x{cuts['chirp_1cm'].scale:.2f}"
+    assert cuts["test"].beyond and beyond["test"].endswith(
+        f"still beyond them: {cuts['test'].beyond}")
     (line,) = beyond_limits_lines(result)
-    assert "beyond your limits" in line and "0.5 s" in line and "chirp_1cm" in line
+    assert line.startswith("library commands compared within your limits (each cut to 0.5 s)")
+    within = SimpleNamespace(settings={"duration": 1.0, "library_cut": {
+        "chirp_1cm": {"scale": 1.0, "beyond": None}}})
+    assert beyond_limits_lines(within) == []
 
 
 def test_the_verification_says_its_finding_first_in_units():

@@ -1,6 +1,6 @@
-"""What ``eha design`` and ``eha design verify`` say before their tables: the library commands
-that go beyond the user's own limits (the design is ranked against them all the same), and
-the verification's finding per fault, in each fault's display unit.
+"""What ``eha design`` and ``eha design verify`` say around their tables: how the library
+commands were brought within the user's own limits for the comparison, and the verification's
+finding per fault, in each fault's display unit.
 
 Text only: nothing here computes a figure that the design or its verification did not.
 """
@@ -8,39 +8,37 @@ Text only: nothing here computes a figure that the design or its verification di
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Any
 
 from eha.models.faults import FAULTS
 
 
 def beyond_limits(result: Any) -> dict[str, str]:
     """``{library command: why}`` for each library command of ``result`` (a
-    :class:`eha.design.api.DesignResult`) outside the design's limits, as run: on the design's
-    record length (a longer library command is cut there), beyond the stroke or the rate, not
-    at rest at the ends, or above the highest frequency
-    (:func:`eha.design.family.outside_limits`)."""
-    from eha.design.family import Limits, outside_limits
-    from eha.models.commands import make_command
-
-    s = result.settings
-    limits = Limits(float(s["duration"]), float(s["max_stroke"]), float(s["max_rate"]),
-                    float(s["max_freq"]))
+    :class:`eha.design.api.DesignResult`) that the comparison changed or could not bring
+    within the design's limits: scaled down to the stroke and rate (``cut to x0.49``), or
+    still beyond them once cut (its frequency content; never offered as the design), as
+    :func:`eha.design.library.cut_to_limits` recorded in ``settings["library_cut"]``."""
     out = {}
-    for name in result.library:
-        why = outside_limits(make_command(name).sample(result.t), limits)
-        if why is not None:
-            out[name] = why
+    for name, cut in (result.settings.get("library_cut") or {}).items():
+        why = []
+        if cut.get("scale", 1.0) < 0.999:
+            why.append(f"scaled to x{cut['scale']:.2f}")
+        if cut.get("beyond"):
+            why.append(f"still beyond them: {cut['beyond']}")
+        if why:
+            out[name] = ", ".join(why)
     return out
 
 
 def beyond_limits_lines(result: Any) -> list[str]:
-    """The lines under the design's table naming each library command it was compared with
-    that the user's limits would not allow (marked ``*`` in no table: said once, here)."""
+    """The line under the design's table saying how the library commands it was compared
+    with were brought within the user's limits (every one cut to the design's length)."""
     beyond = beyond_limits(result)
     if not beyond:
         return []
     d = float(result.settings["duration"])
-    return [f"library commands beyond your limits, compared on the same {d:g} s all the same: "
+    return [f"library commands compared within your limits (each cut to {d:g} s): "
             + "; ".join(f"{name} {why}" for name, why in beyond.items())]
 
 

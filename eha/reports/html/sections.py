@@ -203,15 +203,17 @@ def _calibrations(page: Page, health: Health) -> str:
     rows = []
     for r in health.thresholds.to_dict("records"):
         unit, k = unit_of(str(r["fault"]))
+        reference = r.get("reference")
         rows.append({"calibration": str(r["calibration"]), "command": str(r["command"]),
+                     "check": reference if isinstance(reference, str) else "fleet",
                      "fault": str(r["fault"]), "unit": unit or "-",
                      "mean": None if r["mean"] is None else k * r["mean"],
                      "std": None if r["std"] is None else k * r["std"],
                      "threshold": None if r["threshold"] is None else k * r["threshold"],
                      "n": r["n"], "alpha": r["alpha"]})
     cols = [Column("calibration", "calibration file", text=True),
-            Column("command", "command", text=True), Column("fault", "fault", text=True),
-            Column("unit", "unit", text=True),
+            Column("command", "command", text=True), Column("check", "check", text=True),
+            Column("fault", "fault", text=True), Column("unit", "unit", text=True),
             Column("mean", "healthy mean of the deviation", fmt_num(4)),
             Column("std", "healthy std", fmt_num(3)),
             Column("threshold", "alarm when the deviation exceeds", fmt_num(4)),
@@ -221,7 +223,9 @@ def _calibrations(page: Page, health: Health) -> str:
                      health.calibrations.items())
     return ("<h3>Calibrations (eha health calibrate)</h3>"
             '<p class="note">Per fault, the detection statistic is the deviation from the '
-            "nominal value in the direction of degradation (display unit of the fault)"
+            "nominal value in the direction of degradation (check <i>fleet</i>), or the "
+            "change since the actuator's own earlier record (check <i>baseline</i>), in the "
+            "display unit of the fault"
             f"{fleets}.</p>" + page.table(cols, rows, "calibrations"))
 
 
