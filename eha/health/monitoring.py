@@ -88,8 +88,11 @@ def calibrate_fleet(command: str = "chirp_1cm", actuators: int = 30, seed: int =
     try:  # a command file is named by its content (the calibration checks its signature)
         as_command(command)  # an unknown name or a folder is said as such, before the name
         command, label = pin_command(command), command_label(command)
-    except CommandError as exc:
-        raise DetectionError(f"`command`: {exc}") from None
+    except CommandError as exc:  # "command: unknown ...", "command DIR: a folder ..."
+        text = str(exc)
+        raise DetectionError(re.sub(r"^command(?=[: ])", "`command`", text)
+                             if re.match(r"command(:| (?!file ))", text)
+                             else f"`command`: {text}") from None
     section = {"commands": [command], "t_end": t_end, "actuators": actuators, "seed": seed,
                "noise": noise, "base_model": base_model, "level": level}
     if "p12" in signals:          # a position-only calibration keeps its campaign name
