@@ -184,6 +184,9 @@ def test_the_html_report_shows_what_the_folder_holds_and_names_the_rest(folders,
 
     shown = {sid for sid in SECTIONS if f'<section id="{sid}"' in text}
     assert SHOWN[name] <= shown, (name, shown)
+    for sid in SHOWN[name]:  # every section it shows has a figure
+        section = text.split(f'<section id="{sid}"')[1].split("</section>")[0]
+        assert 'class="plot"' in section, (name, sid)
     absent = set(SECTIONS) - shown
     assert absent and "Not in this report" in text         # what it lacks, by name
     from eha.reports.html import FILLED_BY
@@ -308,3 +311,16 @@ def test_fdi_and_design_rows_are_what_the_commands_printed(folders):
     assert targets["FDJ"]["min_detectable"] == doc["targets"]["FDJ"]["min_detectable"]
     assert design["duration"].iloc[0] == pytest.approx(0.3)
     assert Path(design["command_file"].iloc[0]).is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(BUILDERS))
+def test_each_folders_report_opens_in_headless_chromium(folders, name, tmp_path):
+    """The report of each folder in a browser: no console error, no request but the file,
+    every figure drawn (tests/browser.py; skipped where Chromium is missing, but in CI)."""
+    from browser import check_page
+
+    out = tmp_path / "report.html"
+    proc = invoke_eha("report", "html", "--results", folders(name), "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert check_page(out, tmp_path)["plots"] >= 1

@@ -9,7 +9,11 @@ import math
 from typing import Any
 
 from eha.reports.html.data import unit_of
+from eha.reports.html.figures import BLUE, RED, _done, _go
 from eha.reports.html.page import Column, Page, fmt_int, fmt_num, tag
+
+#: At most this many parameters get a figure of their identified values (one figure each).
+MAX_FDI_FIGURES = 4
 
 
 def _value(name: str, v: Any, digits: int = 4) -> str:
@@ -54,11 +58,47 @@ def fdi_section(page: Page, runs) -> str:
             Column("rmse_um", "fit objective [µm]", fmt_num(3)),
             Column("flagged", "flagged", lambda v: tag("flagged") if v else ""),
             Column("seconds", "time [s]", fmt_num(3))]
+    names = list(dict.fromkeys(n for r in runs["names"] for n in (r or [])))
+    figures = "".join(page.plot(fdi_figure(runs, n)) for n in names[:MAX_FDI_FIGURES])
     return ('<p class="note">Each <code>eha fdi --results</code> run (table '
             "<code>fdi_runs</code>), newest first. Mean error = mean of |injected − "
             "identified| / injected × 100 (HF references only); <i>flagged</i>: the residual "
             "stays well above the record's noise, the intervals are widened.</p>"
-            + page.table(cols, rows, "fdi runs"))
+            + page.table(cols, rows, "fdi runs") + figures)
+
+
+def _run_label(r) -> str:
+    source = str(r["source"]).replace("\\", "/").rsplit("/", 1)[-1]
+    return f"{source[:40]} ({str(r['run_id'])[:6]})"
+
+
+def fdi_figure(runs, name: str) -> dict:
+    """Parameter ``name`` of every run that fitted it: the identified value with its interval
+    and, for an HF reference, the injected value, in the parameter's display unit."""
+    go = _go()
+    unit, k = unit_of(name)
+    rows = [r for r in runs.to_dict("records") if name in (r["names"] or [])]
+    x = [_run_label(r) for r in rows]
+    est = [k * float((r["estimates"] or {}).get(name, math.nan)) for r in rows]
+    ivs = [(r["intervals"] or {}).get(name) or (math.nan, math.nan) for r in rows]
+    lo = [e - k * float(iv[0]) for e, iv in zip(est, ivs)]
+    hi = [k * float(iv[1]) - e for e, iv in zip(est, ivs)]
+    fig = go.Figure()
+    fig.add_trace(go.Scatter(x=x, y=est, mode="markers", name="identified (interval)",
+                             marker={"color": BLUE, "size": 9},
+                             error_y={"type": "data", "symmetric": False, "array": hi,
+                                      "arrayminus": lo},
+                             hovertemplate=f"%{{x}}: %{{y:.4g}} {unit}<extra></extra>"))
+    truth = [k * float(t[name]) if t and name in t else math.nan
+             for t in (r["truth"] for r in rows)]
+    if any(math.isfinite(v) for v in truth):
+        fig.add_trace(go.Scatter(x=x, y=truth, mode="markers", name="injected",
+                                 marker={"color": RED, "symbol": "x", "size": 10},
+                                 hovertemplate=f"%{{x}}: injected %{{y:.4g}} {unit}"
+                                               "<extra></extra>"))
+    fig.update_yaxes(title_text=f"{name} [{unit}]" if unit else name)
+    fig.update_xaxes(title_text="identification (reference, run)", type="category")
+    return _done(fig, f"{name}: identified value with its interval, per eha fdi run", 380)
 
 
 def design_section(page: Page, runs) -> str:
@@ -94,7 +134,29 @@ def design_section(page: Page, runs) -> str:
     return ('<p class="note">Each <code>eha design --results</code> run (table '
             "<code>design_runs</code>), newest first: sizes predicted from the HF model's "
             "signatures (<code>eha design verify</code> measures them: its campaign is under "
-            "Health).</p>" + page.table(cols, rows, "designs"))
+            "Health).</p>" + page.table(cols, rows, "designs")
+            + page.plot(design_figure(runs)))
 
 
-__all__ = ["fdi_section", "design_section"]
+def design_figure(runs) -> dict:
+    """Per design and target, the predicted minimum detectable size on the design over the
+    best library command's (log scale; below 1: the design shows the target at a smaller
+    size)."""
+    go = _go()
+    fig = go.Figure()
+    for r in runs.to_dict("records"):
+        targets = r["targets"] or {}
+        names = list(targets)
+        ratio = [targets[n].get("ratio_to_best_library") for n in names]
+        fig.add_trace(go.Bar(x=names, y=[math.nan if v is None else float(v) for v in ratio],
+                             name=f"{r['name']} ({str(r['run_id'])[:6]})",
+                             hovertemplate="%{x}: %{y:.3g}x the best library command's size"
+                                           "<extra></extra>"))
+    fig.add_hline(y=1.0, line={"dash": "dash", "color": "#7f7f7f"})
+    fig.update_yaxes(type="log", title_text="design / best library command (detectable size)")
+    fig.update_xaxes(title_text="target", type="category")
+    return _done(fig, "Predicted minimum detectable size, design over the best library command",
+                 380)
+
+
+__all__ = ["fdi_section", "design_section", "fdi_figure", "design_figure"]
