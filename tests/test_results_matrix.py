@@ -29,7 +29,7 @@ SHOWN = {"campaign": {"campaigns"}, "fdi": {"fdi"}, "design": {"design"},
          "explain": {"explain"}, "fdi_campaign": {"identification"},
          "mix": {"campaigns", "fdi", "design"}}
 
-#: A one-case FDI campaign named as the thesis' (what `eha reproduce` runs for `eha report
+#: A three-case FDI campaign named as the thesis' (what `eha reproduce` runs for `eha report
 #: thesis`), 0.1 s, one seed, least squares.
 FDI_CAMPAIGN = """
     name = "thesis-fdi"
@@ -45,6 +45,18 @@ FDI_CAMPAIGN = """
     case = 1
     command = "step_1mm"
     faults = { BKL = 1e-4, FDJ = 800 }
+    bounds = { BKL = [0, 1e-3], FDJ = [200, 4000] }
+    pop = 4
+    [[fdi.cases]]
+    case = 2
+    command = "chirp_1mm"
+    faults = { BKL = 5e-5, FDJ = 1600 }
+    bounds = { BKL = [0, 1e-3], FDJ = [200, 4000] }
+    pop = 4
+    [[fdi.cases]]
+    case = 3
+    command = "mixed"
+    faults = { BKL = 2e-4, FDJ = 400 }
     bounds = { BKL = [0, 1e-3], FDJ = [200, 4000] }
     pop = 4
 """

@@ -148,10 +148,14 @@ def design_figure(runs) -> dict:
         targets = r["targets"] or {}
         names = list(targets)
         ratio = [targets[n].get("ratio_to_best_library") for n in names]
-        fig.add_trace(go.Bar(x=names, y=[math.nan if v is None else float(v) for v in ratio],
-                             name=f"{r['name']} ({str(r['run_id'])[:6]})",
-                             hovertemplate="%{x}: %{y:.3g}x the best library command's size"
-                                           "<extra></extra>"))
+        y = [math.nan if v is None else float(v) for v in ratio]
+        # markers, not bars: a bar on a log axis starts at an arbitrary floor
+        fig.add_trace(go.Scatter(x=names, y=y, mode="markers+text", marker={"size": 12},
+                                 text=[f"{v:.2f}x" if math.isfinite(v) else "" for v in y],
+                                 textposition="middle right",
+                                 name=f"{r['name']} ({str(r['run_id'])[:6]})",
+                                 hovertemplate="%{x}: %{y:.3g}x the best library command's "
+                                               "size<extra></extra>"))
     fig.add_hline(y=1.0, line={"dash": "dash", "color": "#7f7f7f"})
     fig.update_yaxes(type="log", title_text="design / best library command (detectable size)")
     fig.update_xaxes(title_text="target", type="category")
