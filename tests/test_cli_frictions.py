@@ -230,11 +230,14 @@ def test_library_commands_beyond_the_users_limits_are_named():
     limits = Limits(0.5, 0.005, 0.1, 20.0)
     cuts = {n: cut_to_limits(n, limits) for n in ("chirp_1cm", "test")}
     result = SimpleNamespace(settings={"duration": 0.5, "library_cut": {
-        n: {"scale": c.scale, "beyond": c.beyond} for n, c in cuts.items()}})
+        n: {"scale": c.scale, "beyond": c.beyond} for n, c in cuts.items()}},
+        library={"chirp_1cm": None})
     beyond = beyond_limits(result)
     assert beyond["chirp_1cm"] == f"scaled to x{cuts['chirp_1cm'].scale:.2f}"
     assert cuts["test"].beyond and beyond["test"].endswith(
-        f"still beyond them: {cuts['test'].beyond}")
+        f"still beyond them ({cuts['test'].beyond}), not compared")
+    result.library["test"] = None  # none fits: every one compared, said so
+    assert beyond_limits(result)["test"].endswith("compared all the same")
     (line,) = beyond_limits_lines(result)
     assert line.startswith("library commands compared within your limits (each cut to 0.5 s)")
     within = SimpleNamespace(settings={"duration": 1.0, "library_cut": {

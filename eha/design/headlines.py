@@ -19,13 +19,16 @@ def beyond_limits(result: Any) -> dict[str, str]:
     within the design's limits: scaled down to the stroke and rate (``cut to x0.49``), or
     still beyond them once cut (its frequency content; never offered as the design), as
     :func:`eha.design.library.cut_to_limits` recorded in ``settings["library_cut"]``."""
+    compared = getattr(result, "library", None) or {}
     out = {}
     for name, cut in (result.settings.get("library_cut") or {}).items():
         why = []
         if cut.get("scale", 1.0) < 0.999:
             why.append(f"scaled to x{cut['scale']:.2f}")
         if cut.get("beyond"):
-            why.append(f"still beyond them: {cut['beyond']}")
+            # left out of the comparison, unless no library command fits (then all are in)
+            why.append(f"still beyond them ({cut['beyond']})"
+                       + (", compared all the same" if name in compared else ", not compared"))
         if why:
             out[name] = ", ".join(why)
     return out
