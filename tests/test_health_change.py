@@ -269,3 +269,20 @@ def test_design_check_baseline_refuses_what_the_change_check_does_not_judge(tmp_
     proc = invoke_eha("design", "--check", "nope", "--out", tmp_path / "o")
     assert "allowed fleet or baseline" in error_line(proc, 2)
     assert files_under(tmp_path) == []
+
+
+def test_calibration_folder_and_command_file_length(tmp_path):
+    """`--calibration DIR` says it is a folder; a command file's own length is the default
+    record length of a calibration (a 0.4-s command calibrated for 0.4 s)."""
+    from eha.models.commands import make_command, write_command_file
+
+    proc = invoke_eha("health", "check", tmp_path / "r.csv", "--calibration", tmp_path)
+    assert "a folder, not a calibration file" in error_line(proc, 2)
+    t = np.arange(401) * 1e-3
+    cmd = write_command_file(tmp_path / "short.csv", t, make_command("chirp_1cm").sample(t)
+                             * np.where(t < 0.35, 1.0, 0.0), {"eha": "test"})
+    out = tmp_path / "cal.json"
+    proc = invoke_eha("health", "calibrate", "--baseline", "--command", cmd, "--actuators",
+                      "5", "--out", out, "--results", tmp_path / "res", "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(out.read_text())["t_end"] == pytest.approx(0.4)

@@ -131,7 +131,7 @@ def test_an_actuator_id_with_brackets_is_printed_as_it_is(capsys):
     pred = SimpleNamespace(cycle=3.0, rul=10.0, rul_lo=5.0, rul_hi=20.0, driver="[bold]BKL")
     res = SimpleNamespace(predictions={"x[/]": [pred], "[bold]a1": [pred]}, metrics=None,
                           assessed=2, reused=0, seconds={"total": 1.0}, run_id="r[/]",
-                          paths={"json": "out/[red]x.json"}, failed=[])
+                          paths={"json": "out/[red]x.json"}, failed=[], output={})
     _render_rul(res, "results[/]")
     out = capsys.readouterr().out
     for text in ("x[/]", "[bold]a1", "[bold]BKL", "results[/]", "out/[red]x.json"):

@@ -35,7 +35,8 @@ def health_calibrate(
     alpha: float = typer.Option(
         ..., "--alpha", default_factory=defaults.health_alpha,
         help="Probability that a healthy check raises any alarm, in (0, 1)."),
-    t_end: float = typer.Option(1.0, "--t-end", help="Record length in s, 0.2 to 10."),
+    t_end: Optional[float] = typer.Option(None, "--t-end", help="Record length in s, 0.2 to "
+                                          "10 (default: a command file's own length, else 1)."),
     noise: float = typer.Option(1e-6, "--noise", help="Sensor noise std of the records in m."),
     signals: str = typer.Option("xu", "--signals", help="What the checks fit: xu (the "
                                 "position) or xu,p12 (and the load pressure; the records "
@@ -74,6 +75,8 @@ def health_calibrate(
     check_seed(seed)
     check_out_file(out, "--out", (".json",))
     check_out_dir(results, "--results")
+    if t_end is None:
+        t_end = _own_length(command)
     if baseline or nuisance:
         _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance, out,
                             results, progress, baseline)
@@ -86,6 +89,16 @@ def health_calibrate(
                               workers=workers, progress=progress,
                               signals=tuple(signals.split(",")), noise_p12=noise_p12)
     _render_calibration(res, actuators, command, alpha, results)
+
+
+def _own_length(command: str) -> float:
+    """A command file's own length, else 1 s (a 0.5-s design is calibrated for 0.5 s)."""
+    from eha.models.commands import CommandError, default_duration
+
+    try:
+        return default_duration(command)
+    except (CommandError, ValueError, OSError):
+        return 1.0    # the calibration itself names what is wrong with the command
 
 
 def _parse_nuisances(items: Optional[list[str]]) -> dict[str, float]:
@@ -196,6 +209,9 @@ def health_check(
     from eha.health.monitoring import check_record
 
     check_seed(seed)
+    if calibration is not None and calibration.is_dir():
+        fail(f"--calibration {calibration}: a folder, not a calibration file (give the JSON "
+             "eha health calibrate wrote)")
     if calibration is not None and not calibration.is_file():
         fail(f"--calibration {calibration}: no such file; make one with eha health calibrate "
              f"--command COMMAND (it writes RESULTS/health/calibration-COMMAND.json)")
