@@ -75,14 +75,11 @@ def health_calibrate(
     check_seed(seed)
     check_out_file(out, "--out", (".json",))
     check_out_dir(results, "--results")
-    if t_end is None:
-        t_end = _own_length(command)
+    t_end = _own_length(command) if t_end is None else t_end
     if baseline or nuisance:
-        _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance, out,
-                            results, progress, baseline)
-        return
+        return _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance,
+                                   out, results, progress, baseline)
     from eha.health.monitoring import calibrate_fleet
-
     with resumable("finished assessments are saved, re-run the same command to resume"):
         res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
                               noise=noise, alpha=alpha, out=out, results=results,
