@@ -220,6 +220,97 @@ def test_every_script_runs_from_the_repository_root(script):
     assert "usage" in proc.stdout.lower(), proc.stdout[-500:]
 
 
+def _defined_at_top(path: Path) -> set[str]:
+    """The names a script defines at its top level (functions, classes, assignments,
+    imports): what a sibling may import from it."""
+    import ast
+
+    names = set()
+    for node in ast.parse(path.read_text("utf-8")).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for t in targets:
+                names |= {n.id for n in ast.walk(t) if isinstance(n, ast.Name)}
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+    return names
+
+
+def _stale_names(script: Path) -> list[str]:
+    """What ``script`` takes from the package or a sibling script and no longer exists: every
+    ``from eha.x import y`` and ``import eha.x`` (at the top or inside a function: most scripts
+    import the package only where a study needs it, so ``--help`` never reaches them), every
+    ``from sibling import y``, and every ``alias.attr.attr`` read through a name so imported
+    (``loop_module.ResidualLoop.result``)."""
+    import ast
+
+    tree = ast.parse(script.read_text("utf-8"))
+    siblings = {p.stem: p for p in [*script.parent.glob("*.py"), ROOT / "tools" / "_results.py"]}
+    aliases: dict[str, str] = {}   # local name -> the dotted eha name it is bound to
+    stale = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            root = node.module.split(".")[0]
+            for a in node.names:
+                if root == "eha":
+                    ref = f"{node.module}.{a.name}"
+                    aliases[a.asname or a.name] = ref
+                    if not _resolves(ref):
+                        stale.append(ref)
+                elif node.module in siblings and a.name not in _defined_at_top(
+                        siblings[node.module]):
+                    stale.append(f"{node.module}.{a.name}")
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "eha":
+                    if not _resolves(a.name):
+                        stale.append(a.name)
+                    aliases[a.asname or "eha"] = a.name if a.asname else "eha"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and not isinstance(node.value, ast.Attribute):
+            continue   # only the outermost attribute of a chain is resolved
+        if not isinstance(node, ast.Attribute):
+            continue
+        parts, inner = [], node
+        while isinstance(inner, ast.Attribute):
+            parts.append(inner.attr)
+            inner = inner.value
+        if isinstance(inner, ast.Name) and inner.id in aliases:
+            ref = ".".join([aliases[inner.id], *reversed(parts)])
+            if not _resolves(ref):
+                stale.append(ref)
+    return sorted(set(stale))
+
+
+@pytest.mark.parametrize("script", sorted(
+    f"{folder}/{p.name}" for folder in FOLDERS for p in (ROOT / folder).glob("*.py")))
+def test_every_name_a_script_takes_from_the_package_exists(script):
+    """The scripts are run by hand, for minutes to hours, so a renamed or removed function of
+    the package (many reach into the loop's internals) would break one silently: every name a
+    script imports from ``eha`` or from a sibling script, wherever the import is, and every
+    attribute it reads through such a name, exists (a static check: nothing is run)."""
+    assert _stale_names(ROOT / script) == []
+
+
+def test_the_script_check_catches_a_stale_name_wherever_it_is(tmp_path):
+    (tmp_path / "sibling.py").write_text("A = 1\n\ndef helper():\n    pass\n")
+    script = tmp_path / "study.py"
+    script.write_text(
+        "from eha.explain import explain\n"
+        "from sibling import A, helper, gone\n"
+        "def main():\n"
+        "    from eha.explain.loop import _no_such_function\n"
+        "    from eha.explain import loop as loop_module\n"
+        "    import eha.no_such_module\n"
+        "    loop_module.ResidualLoop.run\n"
+        "    loop_module.ResidualLoop.no_such_method\n")
+    assert _stale_names(script) == ["eha.explain.loop.ResidualLoop.no_such_method",
+                                    "eha.explain.loop._no_such_function",
+                                    "eha.no_such_module", "sibling.gone"]
+
+
 def test_every_result_file_has_its_provenance():
     import json
 
