@@ -28,6 +28,12 @@ FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0,
 #: For records the LF model made: no healthy scatter and no structure to tell from an effect,
 #: so no null (an effect is refused only when its fit switches it off).
 FAST_LF = {**FAST, "null": None}
+#: For the tests that check which effects the loop adds and their values only: no HF
+#: re-simulations of the final model (its intervals' replicate term and the rival check run
+#: after the rounds and change neither the effects nor their values; the CLI tests and
+#: tests/test_explain_replicates.py check them).
+FIRST = {**FAST, "interval_replicates": 0, "rival_replicates": 0}
+FIRST_LF = {**FIRST, "null": None}
 #: The structural differences of HF from LF at the HF's values (docs/model.md §2 vs §6): the prior of
 #: the injected-effect tests, so that the undeclared effect is the only thing left to find.
 HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
@@ -183,7 +189,7 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(record, tmp_path
 def test_nominal_hf_on_steps_adds_the_structural_pair(record):
     """On the step-rich 'test' command the orifice law and the flapper dynamics each explain
     little alone; tried together (eha.explain.effects.COMBINATIONS) they are added as two steps."""
-    res = explain(load(record("test", 0.6)), **FAST)
+    res = explain(load(record("test", 0.6)), **FIRST)
     assert res.effects[:2] == ["orifice_law", "flapper_dynamics"], res.stop_reason
     assert res.rmse_before >= 3 * res.rmse_after
     assert res.steps[0].rmse_after == pytest.approx(res.steps[1].rmse_before)
@@ -199,7 +205,7 @@ def test_nominal_hf_on_steps_adds_the_structural_pair(record):
 def test_undeclared_effect_is_found_first(record, effect, overrides, param, rel):
     data = load(record("test", 0.6, overrides))
     # one step: only the first effect added is checked (and it alone must cut the RMSE 3x)
-    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FAST)
+    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FIRST)
     assert res.effects[0] == effect, res.stop_reason
     assert res.steps[0].params[param] == pytest.approx(overrides[param], rel=rel)
     assert res.rmse_before >= 3 * res.rmse_after
@@ -219,12 +225,12 @@ def test_leakage_is_found_first_with_its_order_of_magnitude(record, tmp_path):
     frame.to_csv(path, index=False)
     data = load(path)
     res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, p12_weight=0.0,
-                  **FAST)
+                  **FIRST)
     assert res.effects[0] == "leakage", res.stop_reason
     assert 5e-12 / 3 <= res.steps[0].params["Clk"] <= 5e-12 * 3
     assert res.rmse_before >= 3 * res.rmse_after
     assert not res.to_json()["p12_in_fit"]
-    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FAST)
+    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FIRST)
     assert res.to_json()["p12_in_fit"]
     # the noise (2e4 Pa) or the floor, a fraction of P12's spread, whichever is larger
     assert res.facts.p12_noise_pa == pytest.approx(
@@ -258,7 +264,7 @@ def test_p12_weight_measures_each_signal_in_its_noise():
 def test_validation_record_instead_of_holdout(record):
     data = load(record("test", 0.6, {"sensor_bias": -1e-4}))
     check = load(record("mixed", 0.5, {"sensor_bias": -1e-4}, seed=2))
-    res = explain(data, base=augmented_base(HF_STRUCTURE), validate=check, **FAST)
+    res = explain(data, base=augmented_base(HF_STRUCTURE), validate=check, **FIRST)
     assert "validation record" in res.holdout
     assert res.effects[0] == "sensor_bias"
     assert res.steps[0].params["sensor_bias"] == pytest.approx(-1e-4, rel=0.05)
@@ -269,11 +275,11 @@ def test_noise_only_adds_nothing(record):
     """An LF record (the model is exact) plus noise: nothing to explain."""
     data = load(record("mixed", 1.0, model="lf"))
     assert noise_level(data.xu) == pytest.approx(NOISE, rel=0.2)
-    res = explain(data, **FAST_LF)
+    res = explain(data, **FIRST_LF)
     assert res.steps == [] and "noise level" in res.stop_reason
     assert res.rmse_after == res.rmse_before < 1.3 * NOISE
     # without the noise-floor stop, the significance test alone rejects every candidate
-    res = explain(data, noise_factor=0.0, max_steps=3, **FAST_LF)
+    res = explain(data, noise_factor=0.0, max_steps=3, **FIRST_LF)
     assert res.steps == [] and res.rmse_after == res.rmse_before
     assert "noise level" not in res.stop_reason
     # refitted: the best-ranked singles, the orifice_law+flapper_dynamics combination, and
@@ -302,7 +308,7 @@ def test_undeclared_effect_without_a_prior(record, name, command, t_end, overrid
     measured: FRC 2080 N with population 20). Tolerances as the prior tests: 10 % load,
     5 % bias; RMSE falls >= 3x."""
     data = load(record(command, t_end, overrides))
-    res = explain(data, **FAST)
+    res = explain(data, **FIRST)
     doc = res.to_json()
     effects = [s["effect"] for s in doc["steps"]]
     assert effects[:2] == ["orifice_law", {"FRC": "external_load"}.get(param, param)]
@@ -376,7 +382,7 @@ def test_max_steps_holds_when_a_combination_wins(record):
     """A combination adds one step per member, so it is only tried when there is room:
     nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two)."""
     data = load(record("test", 0.6))
-    res = explain(data, max_steps=1, **FAST)
+    res = explain(data, max_steps=1, **FIRST)
     assert len(res.steps) == 1
     assert not any("+" in c.effect for c in res.rounds[0].candidates)
 
@@ -388,8 +394,9 @@ def test_known_parameters_are_neither_fitted_nor_candidates(record):
         explain(data, fixed=["BKL"], **FAST)
     with pytest.raises(ExplainError, match="`fixed` XJ0"):
         explain(data, fixed=["XJ0"], **FAST)
-    # FRC held at 0 (its off value): external_load must still not be a candidate
-    res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
+    # FRC held at 0 (its off value): external_load must still not be a candidate (the
+    # candidates are the loop's pool: no healthy null needed to list them)
+    res = explain(data, fixed=["FRC"], max_steps=0, **FIRST_LF)
     assert "external_load" not in res.facts.candidates
     assert "offset" in res.facts.candidates
 
@@ -830,7 +837,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(rec
 
     data = load(record("mixed", 0.6, {"GM": 0.008}, model="lf"))
     res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
-                  **FAST_LF)
+                  **FIRST_LF)
     assert res.facts.flow_gain_released == \
         "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
     assert res.to_json()["flow_gain_released"] == res.facts.flow_gain_released
@@ -849,7 +856,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(rec
 
     monkeypatch.setattr(api, "_passes", passes)
     monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
-    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST_LF)
+    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FIRST_LF)
     assert spreads == [0.1, 0.0]
     assert again.facts.flow_gain_released == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1
@@ -866,10 +873,10 @@ def test_healthy_flow_gain_is_fitted_where_the_valve_saturates(tmp_path):
     path = tmp_path / "sine.csv"
     synthetic_record("sine", truth, t_end=1.0, noise=NOISE, seed=6001).to_csv(path, index=False)
     data = load(path)
-    fitted = explain(data, flow_gain_spread=0.1, **FAST)
+    fitted = explain(data, flow_gain_spread=0.1, **FIRST)
     assert not fitted.beyond_healthy, fitted.verdict
     assert set(fitted.effects) <= {"orifice_law", "flapper_dynamics"}
     assert fitted.faults_after["GQ"] == pytest.approx(0.206, rel=0.015)
     assert fitted.faults_after["FDJ"] == pytest.approx(219.0, rel=0.10)
-    nominal = explain(data, flow_gain_spread=0.0, **FAST)
+    nominal = explain(data, flow_gain_spread=0.0, **FIRST)
     assert nominal.beyond_healthy or abs(nominal.faults_after["FDJ"] / 219.0 - 1) > 0.3
