@@ -377,14 +377,43 @@ def test_batch_runs_start_at_the_recorded_position():
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
 
 
+def scripted(loop):
+    """Replace the loop's fitter by a script: every fit returns its start (the declared
+    faults where they start, a candidate's effects at their probe values) at no cost. For the
+    tests of the loop's control flow (which candidates a round refits, when it stops), as
+    tests/test_explain_decide.py runs the decision rule on canned numbers: the LF runs that
+    score the fits are real. Returns the labels of the fits asked for."""
+    asked = []
+
+    def fit(start, free, label, *args, **kwargs):
+        asked.append(label)
+        return start, 0.0
+
+    loop.fit_with_cost = fit
+    return asked
+
+
 @pytest.mark.slow
 def test_max_steps_holds_when_a_combination_wins(record):
     """A combination adds one step per member, so it is only tried when there is room:
-    nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two)."""
+    nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two); with room for
+    two the orifice law + flapper pair is tried and added as two steps. On a scripted fitter
+    (control flow; was a whole explain() with its GA fits and healthy null)."""
+    from eha.explain import ResidualLoop
+
     data = load(record("test", 0.6))
-    res = explain(data, max_steps=1, **FIRST)
-    assert len(res.steps) == 1
-    assert not any("+" in c.effect for c in res.rounds[0].candidates)
+    for max_steps in (1, 2):
+        loop = ResidualLoop(data, settings=LoopSettings(candidates=4, max_steps=max_steps))
+        asked = scripted(loop)
+        loop.baseline()
+        stop = loop.rounds_until_stop()
+        pairs = [c.effect for c in loop.rounds[0].candidates if "+" in c.effect]
+        assert asked and stop == f"reached max_steps={max_steps}"
+        if max_steps == 1:
+            assert len(loop.steps) == 1 and pairs == []
+        else:
+            assert "orifice_law+flapper_dynamics" in pairs
+            assert [st.effect for st in loop.steps] == ["orifice_law", "flapper_dynamics"]
 
 
 @pytest.mark.slow
