@@ -209,15 +209,88 @@ def test_the_validation_studies_and_the_speed_benchmarks_are_apart():
         == ["tools/_results.py"]
 
 
-@pytest.mark.parametrize("script", sorted(
-    f"{folder}/{p.name}" for folder in FOLDERS for p in (ROOT / folder).glob("*.py")))
-def test_every_script_runs_from_the_repository_root(script):
-    """``python <folder>/<script>.py --help`` from the root: its imports (the shared helper, a
-    sibling script) resolve."""
-    proc = subprocess.run([sys.executable, script, "--help"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "usage" in proc.stdout.lower(), proc.stdout[-500:]
+#: ``python -c HELP_OF_EACH SCRIPT...`` (from the root): each script's ``--help`` as ``python
+#: SCRIPT --help`` runs it (its folder first on sys.path, the shared helper and its siblings
+#: imported afresh, none left from the script before), in one process: a process per script
+#: imported numpy, pandas and the package 25 times, a tenth of the quick suite's CPU.
+HELP_OF_EACH = """
+import contextlib, io, json, runpy, sys
+from pathlib import Path
+
+root = Path.cwd().resolve()
+folders = [root / f for f in ("benchmarks", "validation", "tools")]
+path0, known = list(sys.path), set(sys.modules)
+
+
+def a_script(module):
+    file = getattr(module, "__file__", None) or ""
+    return any(Path(file).resolve().is_relative_to(f) for f in folders)
+
+
+out = {}
+for script in sys.argv[1:]:
+    for name in [m for m in sys.modules if m not in known and a_script(sys.modules[m])]:
+        del sys.modules[name]
+    sys.path[:] = [str((root / script).parent), *path0[1:]]
+    sys.argv = [script, "--help"]
+    stdout, stderr, code = io.StringIO(), io.StringIO(), 0
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            runpy.run_path(script, run_name="__main__")
+    except SystemExit as exc:
+        code = exc.code or 0
+    except BaseException as exc:
+        code = f"{type(exc).__name__}: {exc}"
+    out[script] = [code, stdout.getvalue()[:1000], stderr.getvalue()[-2000:]]
+print(json.dumps(out))
+"""
+
+
+def _scripts() -> list[str]:
+    return sorted(f"{folder}/{p.name}" for folder in FOLDERS for p in (ROOT / folder).glob("*.py"))
+
+
+def test_every_script_runs_from_the_repository_root():
+    """``python <folder>/<script>.py --help`` from the root, for every script: its imports
+    (the shared helper, a sibling script) resolve and it prints its usage."""
+    import json
+
+    scripts = _scripts()
+    proc = subprocess.run([sys.executable, "-c", HELP_OF_EACH, *scripts], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert sorted(runs) == scripts
+    failed = {s: (code, err or out) for s, (code, out, err) in runs.items()
+              if code != 0 or "usage" not in out.lower()}
+    assert failed == {}
+
+
+def test_a_script_that_imports_what_is_not_there_fails_the_help_check(tmp_path):
+    """The one-process ``--help`` check sees a failing import, a sibling only another
+    script's folder holds (nothing leaks from one script to the next), and a missing
+    usage."""
+    import json
+
+    for folder, files in {"a": {"one.py": "import argparse\nargparse.ArgumentParser()"
+                                          ".parse_args()\n",
+                                "sibling.py": "X = 1\n"},
+                          "b": {"two.py": "import sibling\n",
+                                "three.py": "from eha.no_such_module import x\n",
+                                "four.py": "print('no parser')\n"}}.items():
+        (tmp_path / folder).mkdir()
+        for name, text in files.items():
+            (tmp_path / folder / name).write_text(text)
+    (tmp_path / "tools").mkdir()
+    scripts = ["a/one.py", "b/two.py", "b/three.py", "b/four.py"]
+    proc = subprocess.run([sys.executable, "-c", HELP_OF_EACH.replace(
+        '("benchmarks", "validation", "tools")', '("a", "b", "tools")'), *scripts],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs["a/one.py"][0] == 0 and "usage" in runs["a/one.py"][1]
+    assert runs["b/two.py"][0].startswith("ModuleNotFoundError")
+    assert runs["b/three.py"][0].startswith("ModuleNotFoundError")
+    assert runs["b/four.py"][0] == 0 and "usage" not in runs["b/four.py"][1]
 
 
 def _defined_at_top(path: Path) -> set[str]:
@@ -284,8 +357,7 @@ def _stale_names(script: Path) -> list[str]:
     return sorted(set(stale))
 
 
-@pytest.mark.parametrize("script", sorted(
-    f"{folder}/{p.name}" for folder in FOLDERS for p in (ROOT / folder).glob("*.py")))
+@pytest.mark.parametrize("script", _scripts())
 def test_every_name_a_script_takes_from_the_package_exists(script):
     """The scripts are run by hand, for minutes to hours, so a renamed or removed function of
     the package (many reach into the loop's internals) would break one silently: every name a
