@@ -1,6 +1,7 @@
 """The public API (``eha/__init__.py``, ``docs/api.md``): every exported name loads, each has
 a runnable example in docs/api.md, and the examples run as written, in order, in an empty
-folder (the blocks after an ``<!-- api-test: slow -->`` line only in the full suite)."""
+folder (the blocks after an ``<!-- api-test: slow -->`` line are the slow ones; all run in
+one slow test)."""
 
 from __future__ import annotations
 
@@ -72,18 +73,15 @@ def test_every_exported_function_has_an_example():
     assert missing == []
 
 
-@pytest.mark.slow   # end to end: the examples run as written (a campaign, a pool)
-def test_api_doc_quick_examples_run(tmp_path):
-    quick = [c for slow, c in _blocks() if not slow]
-    assert len(quick) >= 4
-    out = _run("\n".join(quick), tmp_path)
-    assert "runs done" in out
-
-
-@pytest.mark.slow
-def test_api_doc_all_examples_run(tmp_path):
-    out = _run("\n".join(c for _, c in _blocks()), tmp_path, 600)
-    assert "RUL" in out
+@pytest.mark.slow   # end to end: the examples run as written (a campaign, a pool, the loop)
+def test_api_doc_examples_run(tmp_path):
+    """Every block in order, in one process (the quick blocks, then the slow ones: what
+    test_api_doc_quick_examples_run ran on its own before is the start of this run, so it
+    was merged into this test: the suite ran those blocks twice)."""
+    blocks = _blocks()
+    assert sum(not slow for slow, _ in blocks) >= 4
+    out = _run("\n".join(c for _, c in blocks), tmp_path, 600)
+    assert "runs done" in out and "RUL" in out
 
 
 def test_identification_and_assessment_go_to_pandas_with_units():

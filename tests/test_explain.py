@@ -28,6 +28,12 @@ FAST = {"pop": 12, "candidates": 4, "max_gen": 20, "stall": 5, "seed": 0,
 #: For records the LF model made: no healthy scatter and no structure to tell from an effect,
 #: so no null (an effect is refused only when its fit switches it off).
 FAST_LF = {**FAST, "null": None}
+#: For the tests that check which effects the loop adds and their values only: no HF
+#: re-simulations of the final model (its intervals' replicate term and the rival check run
+#: after the rounds and change neither the effects nor their values; the CLI tests and
+#: tests/test_explain_replicates.py check them).
+FIRST = {**FAST, "interval_replicates": 0, "rival_replicates": 0}
+FIRST_LF = {**FIRST, "null": None}
 #: The structural differences of HF from LF at the HF's values (docs/model.md §2 vs §6): the prior of
 #: the injected-effect tests, so that the undeclared effect is the only thing left to find.
 HF_STRUCTURE = [{"effect": "orifice_law", "params": {}},
@@ -48,10 +54,30 @@ def assert_effects_are_the_model(res):
 
 
 def _record(tmp_path, name, command, t_end, overrides=None, model="hf", seed=1):
+    """A CSV record of FAULTS (and ``overrides``) with NOISE at ``tmp_path/name.csv`` (also
+    read by tests/test_explain_null.py)."""
     path = tmp_path / f"{name}.csv"
     synthetic_record(command, {**FAULTS, **(overrides or {})}, t_end=t_end, noise=NOISE,
                      seed=seed, model=model).to_csv(path, index=False)
     return path
+
+
+@pytest.fixture(scope="session")
+def record(tmp_path_factory):
+    """``record(command, t_end, overrides=None, model="hf", seed=1)``: the path of a CSV
+    record (:func:`_record`), made once per session and shared by the tests that read the
+    same record (read-only: a test that changes one copies it first)."""
+    folder = tmp_path_factory.mktemp("explain-records")
+    made = {}
+
+    def make(command, t_end, overrides=None, model="hf", seed=1):
+        key = (command, t_end, tuple(sorted({**FAULTS, **(overrides or {})}.items())), model,
+               seed)
+        if key not in made:
+            made[key] = _record(folder, f"record{len(made)}", command, t_end, overrides,
+                                model, seed)
+        return made[key]
+    return make
 
 
 def _accept_by_hand(loop, *names):
@@ -66,10 +92,10 @@ def _accept_by_hand(loop, *names):
 
 
 @pytest.mark.slow
-def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
+def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(record, tmp_path):
     """Plain nominal HF data: the missing physics is the orifice law (the 'mixed' command
     opens the spool beyond XSS); found first, RMSE falls >= 3x; all outputs written."""
-    data = _record(tmp_path, "nominal", "mixed", 1.0)
+    data = record("mixed", 1.0)
     js, out, res = tmp_path / "r.json", tmp_path / "out", tmp_path / "results"
     result = CliRunner().invoke(app, ["explain", str(data), "--fit", "BKL,FDJ", "--pop", "12",
                                       "--candidates", "4", "--null-actuators", "5",
@@ -160,10 +186,10 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(tmp_path):
 
 
 @pytest.mark.slow
-def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
+def test_nominal_hf_on_steps_adds_the_structural_pair(record):
     """On the step-rich 'test' command the orifice law and the flapper dynamics each explain
     little alone; tried together (eha.explain.effects.COMBINATIONS) they are added as two steps."""
-    res = explain(load(_record(tmp_path, "nominal_test", "test", 0.6)), **FAST)
+    res = explain(load(record("test", 0.6)), **FIRST)
     assert res.effects[:2] == ["orifice_law", "flapper_dynamics"], res.stop_reason
     assert res.rmse_before >= 3 * res.rmse_after
     assert res.steps[0].rmse_after == pytest.approx(res.steps[1].rmse_before)
@@ -176,10 +202,10 @@ def test_nominal_hf_on_steps_adds_the_structural_pair(tmp_path):
     ("sensor_bias", {"sensor_bias": 1e-4}, "sensor_bias", 0.05),
 ])
 @pytest.mark.slow
-def test_undeclared_effect_is_found_first(tmp_path, effect, overrides, param, rel):
-    data = load(_record(tmp_path, effect, "test", 0.6, overrides))
+def test_undeclared_effect_is_found_first(record, effect, overrides, param, rel):
+    data = load(record("test", 0.6, overrides))
     # one step: only the first effect added is checked (and it alone must cut the RMSE 3x)
-    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FAST)
+    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FIRST)
     assert res.effects[0] == effect, res.stop_reason
     assert res.steps[0].params[param] == pytest.approx(overrides[param], rel=rel)
     assert res.rmse_before >= 3 * res.rmse_after
@@ -187,24 +213,24 @@ def test_undeclared_effect_is_found_first(tmp_path, effect, overrides, param, re
 
 
 @pytest.mark.slow
-def test_leakage_is_found_first_with_its_order_of_magnitude(tmp_path):
+def test_leakage_is_found_first_with_its_order_of_magnitude(record, tmp_path):
     """From the position alone, leakage trades off against jack friction (both soften the
     position loop), so the GA estimates Clk only to within a factor of 3 (docs/explain.md,
     limits; measured: Clk 38 % and FDJ 34 % off). The measured P12 tells them apart (a leak
     lowers the pressure a friction raises): Clk within 10 %, FDJ within 3 % (measured 1.0 %
     and 0.6 %)."""
-    path = _record(tmp_path, "leakage", "mixed", 1.0, {"Clk": 5e-12})
-    frame = pd.read_csv(path)
+    frame = pd.read_csv(record("mixed", 1.0, {"Clk": 5e-12}))
     frame["p12"] += np.random.default_rng(5).normal(0.0, 2e4, len(frame))   # 0.2 bar noise
+    path = tmp_path / "leakage.csv"     # a copy: the shared record is read-only
     frame.to_csv(path, index=False)
     data = load(path)
     res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, p12_weight=0.0,
-                  **FAST)
+                  **FIRST)
     assert res.effects[0] == "leakage", res.stop_reason
     assert 5e-12 / 3 <= res.steps[0].params["Clk"] <= 5e-12 * 3
     assert res.rmse_before >= 3 * res.rmse_after
     assert not res.to_json()["p12_in_fit"]
-    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FAST)
+    res = explain(data, base=augmented_base(HF_STRUCTURE), max_steps=1, **FIRST)
     assert res.to_json()["p12_in_fit"]
     # the noise (2e4 Pa) or the floor, a fraction of P12's spread, whichever is larger
     assert res.facts.p12_noise_pa == pytest.approx(
@@ -235,25 +261,25 @@ def test_p12_weight_measures_each_signal_in_its_noise():
 
 
 @pytest.mark.slow
-def test_validation_record_instead_of_holdout(tmp_path):
-    data = load(_record(tmp_path, "bias", "test", 0.6, {"sensor_bias": -1e-4}))
-    check = load(_record(tmp_path, "bias2", "mixed", 0.5, {"sensor_bias": -1e-4}, seed=2))
-    res = explain(data, base=augmented_base(HF_STRUCTURE), validate=check, **FAST)
+def test_validation_record_instead_of_holdout(record):
+    data = load(record("test", 0.6, {"sensor_bias": -1e-4}))
+    check = load(record("mixed", 0.5, {"sensor_bias": -1e-4}, seed=2))
+    res = explain(data, base=augmented_base(HF_STRUCTURE), validate=check, **FIRST)
     assert "validation record" in res.holdout
     assert res.effects[0] == "sensor_bias"
     assert res.steps[0].params["sensor_bias"] == pytest.approx(-1e-4, rel=0.05)
 
 
 @pytest.mark.slow
-def test_noise_only_adds_nothing(tmp_path):
+def test_noise_only_adds_nothing(record):
     """An LF record (the model is exact) plus noise: nothing to explain."""
-    data = load(_record(tmp_path, "noise", "mixed", 1.0, model="lf"))
+    data = load(record("mixed", 1.0, model="lf"))
     assert noise_level(data.xu) == pytest.approx(NOISE, rel=0.2)
-    res = explain(data, **FAST_LF)
+    res = explain(data, **FIRST_LF)
     assert res.steps == [] and "noise level" in res.stop_reason
     assert res.rmse_after == res.rmse_before < 1.3 * NOISE
     # without the noise-floor stop, the significance test alone rejects every candidate
-    res = explain(data, noise_factor=0.0, max_steps=3, **FAST_LF)
+    res = explain(data, noise_factor=0.0, max_steps=3, **FIRST_LF)
     assert res.steps == [] and res.rmse_after == res.rmse_before
     assert "noise level" not in res.stop_reason
     # refitted: the best-ranked singles, the orifice_law+flapper_dynamics combination, and
@@ -274,15 +300,15 @@ def test_noise_only_adds_nothing(tmp_path):
     ("bias_step", "step_1cm", 0.5, {"sensor_bias": 2e-4}, "sensor_bias", 0.05),
 ])
 @pytest.mark.slow
-def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overrides, param,
+def test_undeclared_effect_without_a_prior(record, name, command, t_end, overrides, param,
                                            tol):
     """No prior: the HF-LF structure and the undeclared effect are found together (the
     orifice law first, as the parameter-free switch, then the effect). On 'mixed' a load is
     only told from a motor offset once the orifice law is in the model (docs/explain.md,
     measured: FRC 2080 N with population 20). Tolerances as the prior tests: 10 % load,
     5 % bias; RMSE falls >= 3x."""
-    data = load(_record(tmp_path, name, command, t_end, overrides))
-    res = explain(data, **FAST)
+    data = load(record(command, t_end, overrides))
+    res = explain(data, **FIRST)
     doc = res.to_json()
     effects = [s["effect"] for s in doc["steps"]]
     assert effects[:2] == ["orifice_law", {"FRC": "external_load"}.get(param, param)]
@@ -291,13 +317,13 @@ def test_undeclared_effect_without_a_prior(tmp_path, name, command, t_end, overr
     assert_effects_are_the_model(res)
 
 
-def test_bad_inputs_raise_one_line(tmp_path):
+def test_bad_inputs_raise_one_line(record):
     assert parse_fit("BKL=0:1e-3, FDJ") == {"BKL": (0.0, 1e-3), "FDJ": (0.0, 8000.0)}
     for spec, match in [("BKL=1e-3", "LOW:HIGH"), ("XYZ", "unknown"), ("BKL,BKL", "twice"),
                         ("", "no parameter")]:
         with pytest.raises(ExplainError, match=match):
             parse_fit(spec)
-    data = load(_record(tmp_path, "short", "step_1mm", 0.1))
+    data = load(record("step_1mm", 0.1))
     with pytest.raises(ExplainError, match="holdout"):
         explain(data, holdout=0.9)
     with pytest.raises(ExplainError, match="prior"):
@@ -305,12 +331,13 @@ def test_bad_inputs_raise_one_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_load_test_calibration_keeps_the_nominal_leakage_healthy_through_the_cli(tmp_path):
+def test_load_test_calibration_keeps_the_nominal_leakage_healthy_through_the_cli(record,
+                                                                               tmp_path):
     """A healthy actuator's record under a known 4 kN test load, declared with --set: the
     known load is not a candidate, and the HF's nominal leakage (Clk = 1e-13, visible under
     a load because the leakage flow is Clk*P12) is a healthy actuator's: the null, simulated
     under the same known load, has it (Clk 0.7-1.4e-13), so it is not added. FDJ within 10 %."""
-    data = _record(tmp_path, "loadtest", "mixed", 1.0, {"FRC": 4000.0})
+    data = record("mixed", 1.0, {"FRC": 4000.0})
     js = tmp_path / "cal.json"
     result = CliRunner().invoke(app, ["explain", str(data), "--set", "FRC=4000", "--pop", "12",
                                       "--candidates", "4", "--null-actuators", "5",
@@ -350,38 +377,68 @@ def test_batch_runs_start_at_the_recorded_position():
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
 
 
+def scripted(loop):
+    """Replace the loop's fitter by a script: every fit returns its start (the declared
+    faults where they start, a candidate's effects at their probe values) at no cost. For the
+    tests of the loop's control flow (which candidates a round refits, when it stops), as
+    tests/test_explain_decide.py runs the decision rule on canned numbers: the LF runs that
+    score the fits are real. Returns the labels of the fits asked for."""
+    asked = []
+
+    def fit(start, free, label, *args, **kwargs):
+        asked.append(label)
+        return start, 0.0
+
+    loop.fit_with_cost = fit
+    return asked
+
+
 @pytest.mark.slow
-def test_max_steps_holds_when_a_combination_wins(tmp_path):
+def test_max_steps_holds_when_a_combination_wins(record):
     """A combination adds one step per member, so it is only tried when there is room:
-    nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two)."""
-    data = load(_record(tmp_path, "nominal_test", "test", 0.6))
-    res = explain(data, max_steps=1, **FAST)
-    assert len(res.steps) == 1
-    assert not any("+" in c.effect for c in res.rounds[0].candidates)
+    nominal HF on 'test' with max_steps=1 adds one effect (the pair needs two); with room for
+    two the orifice law + flapper pair is tried and added as two steps. On a scripted fitter
+    (control flow; was a whole explain() with its GA fits and healthy null)."""
+    from eha.explain import ResidualLoop
+
+    data = load(record("test", 0.6))
+    for max_steps in (1, 2):
+        loop = ResidualLoop(data, settings=LoopSettings(candidates=4, max_steps=max_steps))
+        asked = scripted(loop)
+        loop.baseline()
+        stop = loop.rounds_until_stop()
+        pairs = [c.effect for c in loop.rounds[0].candidates if "+" in c.effect]
+        assert asked and stop == f"reached max_steps={max_steps}"
+        if max_steps == 1:
+            assert len(loop.steps) == 1 and pairs == []
+        else:
+            assert "orifice_law+flapper_dynamics" in pairs
+            assert [st.effect for st in loop.steps] == ["orifice_law", "flapper_dynamics"]
 
 
 @pytest.mark.slow
-def test_known_parameters_are_neither_fitted_nor_candidates(tmp_path):
-    data = load(_record(tmp_path, "nominal", "mixed", 0.3))
+def test_known_parameters_are_neither_fitted_nor_candidates(record):
+    data = load(record("mixed", 0.3))
     with pytest.raises(ExplainError, match="`fixed` BKL: also a fitted fault"):
         explain(data, fixed=["BKL"], **FAST)
     with pytest.raises(ExplainError, match="`fixed` XJ0"):
         explain(data, fixed=["XJ0"], **FAST)
-    # FRC held at 0 (its off value): external_load must still not be a candidate
-    res = explain(data, fixed=["FRC"], max_steps=0, **FAST)
+    # FRC held at 0 (its off value): external_load must still not be a candidate (the
+    # candidates are the loop's pool: no healthy null needed to list them)
+    res = explain(data, fixed=["FRC"], max_steps=0, **FIRST_LF)
     assert "external_load" not in res.facts.candidates
     assert "offset" in res.facts.candidates
 
 
 @pytest.mark.slow
-def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(tmp_path):
+def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(record):
     """An LF record (the model is exact) with a 2 kN load: a motor offset is accepted first (a
     stand-in: in the linear regime it moves the position like a load), then the load. The
     final check leaves each out and refits the rest: the offset no longer pays and is removed
     — switched off in the model, not only in the report — and the load stays within 2 %."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="offset,external_load",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "offset", "external_load")
@@ -395,14 +452,14 @@ def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(tmp_p
 
 
 @pytest.mark.slow
-def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(tmp_path):
+def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(record):
     """An LF record with a 1 ms position delay on `mixed`: a motor-gain change is accepted by
     hand (on `mixed` it stands in for the delay). The final check's swap tries the effects
     whose signature is most like the motor gain's contribution and puts the delay in its
     place (within 5 %); the motor gain is listed as dismissed, replaced by the delay."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "delay_lf", "mixed", 1.0, {"sensor_delay": 1e-3},
+    data = load(record("mixed", 1.0, {"sensor_delay": 1e-3},
                         model="lf"))
     loop = ResidualLoop(data, effects="motor_gain,delay,offset,sensor_bias,external_load",
                         settings=LoopSettings(pop=12, seed=0, flow_gain_spread=0.0), max_gen=20, stall=5)
@@ -415,7 +472,7 @@ def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(tmp_path):
 
 
 @pytest.mark.slow
-def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(tmp_path):
+def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(record):
     """An LF record with a 2 kN load on `mixed`: a motor offset and a sensor bias are accepted
     by hand (together they stand in for the load). The final check's two-for-one tries single
     effects in the pair's place: the load alone fits as well with one parameter less, so the
@@ -423,7 +480,7 @@ def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(tmp_
     dismissed, replaced by the load."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="offset,sensor_bias,external_load,delay,motor_gain",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "offset", "sensor_bias")
@@ -437,7 +494,7 @@ def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(tmp_
 
 
 @pytest.mark.slow
-def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
+def test_final_estimates_refit_everything_on_the_whole_record(record):
     """An LF record with a load and a motor offset on `mixed`: the loop's model with both
     effects, its estimates left off the truth (load +10 %, offset -30 %, FDJ +5 %: where a
     search on the first 70 % stopped on the HF bench record load+offset+leak). The final
@@ -445,7 +502,7 @@ def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
     whole record's objective fell."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "load_offset_lf", "mixed", 0.6,
+    data = load(record("mixed", 0.6,
                         {"FRC": 2000.0, "Ofs": 0.3}, model="lf"))
     loop = ResidualLoop(data, effects="external_load,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
@@ -462,14 +519,14 @@ def test_final_estimates_refit_everything_on_the_whole_record(tmp_path):
 
 
 @pytest.mark.slow
-def test_supply_pressure_is_tried_with_the_orifice_law_it_requires(tmp_path):
+def test_supply_pressure_is_tried_with_the_orifice_law_it_requires(record):
     """An LF record with the orifice law, a 2 kN load (known, --set) and a 16 MPa supply on
     `chirp_1cm`. With the linear law the supply pressure only clamps P12, so alone it cannot
     act: the round traces and refits it as `orifice_law+supply_pressure`, which recovers the
     pressure within 2 % and gains most of the round."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "supply_lf", "chirp_1cm", 0.6,
+    data = load(record("chirp_1cm", 0.6,
                         {"orifice_law": 1.0, "PSR": 1.6e7, "FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="orifice_law,supply_pressure,motor_gain,offset",
                         base=LFParams().replace(FRC=2000.0), fixed=["FRC"],
@@ -490,7 +547,7 @@ def test_supply_pressure_is_tried_with_the_orifice_law_it_requires(tmp_path):
 
 
 @pytest.mark.slow
-def test_look_ahead_finds_the_pair_that_stands_out_together(tmp_path):
+def test_look_ahead_finds_the_pair_that_stands_out_together(record):
     """An LF record with a sensor bias, torque-motor hysteresis and an aerodynamic hinge moment
     on `chirp_1cm`, the bias already in the model (by hand). Suppose the round set hysteresis
     aside as unspecific (on the HF bench record a clogging matched it): the look-ahead traces
@@ -499,7 +556,7 @@ def test_look_ahead_finds_the_pair_that_stands_out_together(tmp_path):
     from eha.explain import Candidate, Choice, ResidualLoop
     from eha.explain.settings import SPECIFIC_GAIN
 
-    data = load(_record(tmp_path, "bhh_lf", "chirp_1cm", 0.6,
+    data = load(record("chirp_1cm", 0.6,
                         {"sensor_bias": 1e-4, "His": 0.2, "Kaer": 1.5e5}, model="lf"))
     loop = ResidualLoop(data, effects="sensor_bias,hysteresis,hinge_moment,delay,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
@@ -516,7 +573,7 @@ def test_look_ahead_finds_the_pair_that_stands_out_together(tmp_path):
 
 
 @pytest.mark.slow
-def test_final_check_far_from_the_noise_searches_the_swap_globally(tmp_path, monkeypatch):
+def test_final_check_far_from_the_noise_searches_the_swap_globally(record, monkeypatch):
     """An LF record with the orifice law, seal wear (Clk 5e-12) and a viscous jack (CJ 16000)
     on `test`: a low supply pressure and a leak are accepted by hand (on the HF bench record
     leak+viscous@test the rounds took that path: the supply pressure stands in for the
@@ -540,7 +597,7 @@ def test_final_check_far_from_the_noise_searches_the_swap_globally(tmp_path, mon
         supply, bounds={"PSR": supply.bounds["PSR"]}, probe={"PSR": supply.probe["PSR"]},
         other_starts=(), statistic=""))
 
-    data = load(_record(tmp_path, "viscous_lf", "test", 0.6,
+    data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "Clk": 5e-12, "CJ": 1.6e4}, model="lf"))
     loop = ResidualLoop(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
                         "motor_gain,delay", settings=LoopSettings(pop=20, seed=0))
@@ -556,7 +613,7 @@ def test_final_check_far_from_the_noise_searches_the_swap_globally(tmp_path, mon
 
 
 @pytest.mark.slow
-def test_final_estimates_restart_the_structure_from_its_physical_values(tmp_path):
+def test_final_estimates_restart_the_structure_from_its_physical_values(record):
     """An LF record with the orifice law, the thesis' flapper (2513 rad/s, 0.6), seal wear
     and a viscous jack on `test`; the loop's model is left where a round's GA left it on the
     HF bench record leak+viscous@test (flapper at 1750 rad/s and 0.32, the faults and
@@ -565,7 +622,7 @@ def test_final_estimates_restart_the_structure_from_its_physical_values(tmp_path
     values and keep the better fit: faults within 3 %, the flapper within 10 %."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "viscous_flapper_lf", "test", 0.6,
+    data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "SNF": 2513.0, "ZF": 0.6, "Clk": 5e-12,
                          "CJ": 1.6e4}, model="lf"))
     loop = ResidualLoop(data, effects="orifice_law,flapper_dynamics,leakage,viscous_friction",
@@ -584,14 +641,14 @@ def test_final_estimates_restart_the_structure_from_its_physical_values(tmp_path
 
 
 @pytest.mark.slow
-def test_faults_without_the_tentative_effects(tmp_path):
+def test_faults_without_the_tentative_effects(record):
     """The span of an unexplained record's fault intervals: the declared faults refitted with
     every added effect that is not the structure switched off (an LF load record with the load
     accepted: without it the faults move far from their values with it); a model with only
     the structure added has no tentative effect to leave out."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "load_lf", "mixed", 0.6, {"FRC": 2000.0}, model="lf"))
+    data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
     loop = ResidualLoop(data, effects="external_load,orifice_law,flapper_dynamics",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "external_load")
@@ -606,14 +663,14 @@ def test_faults_without_the_tentative_effects(tmp_path):
 
 
 @pytest.mark.slow
-def test_pinned_structure_is_the_first_step_and_held_through_the_rounds(tmp_path):
+def test_pinned_structure_is_the_first_step_and_held_through_the_rounds(record):
     """The second pass's start (:meth:`ResidualLoop.pin_structure`): on a nominal HF `test`
     record the structure is put in at its physical values (the thesis' flapper) and reported
     as the first steps; the result's "before" stays the plain LF fit of the declared faults;
     the structure is no candidate and its parameters are not refitted by the rounds."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "nominal", "test", 0.6))
+    data = load(record("test", 0.6))
     loop = ResidualLoop(data, settings=LoopSettings(pop=12, seed=0), pin_structure=True,
                         max_gen=20, stall=5)
     before = loop.baseline()
@@ -651,7 +708,7 @@ def test_second_pass_replaces_the_first_only_by_the_rule_for_adding_an_effect():
 
 
 @pytest.mark.slow
-def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
+def test_global_refits_are_finished_by_least_squares(record, monkeypatch):
     """A short GA (population 8, 6 generations) on 7 parameters (faults, load, leak, motor
     gain, flapper) of an LF `test` record, warm-started near the truth with the flapper at
     its probe (the flapper candidate of the bench record load+leak+motor_gain@steps): finished
@@ -666,7 +723,7 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
 
     truth = {"orifice_law": 1.0, "SNF": 2513.0, "ZF": 0.6, "FRC": 2000.0, "Clk": 5e-12,
              "GM": 0.008}
-    data = load(_record(tmp_path, "flapper_lf", "test", 0.6, truth, model="lf"))
+    data = load(record("test", 0.6, truth, model="lf"))
     loop = ResidualLoop(data, settings=LoopSettings(pop=8, seed=0, flow_gain_spread=0.0), max_gen=6, stall=3)
     free = {**loop.bounds, "FRC": (-8000.0, 8000.0), "SNF": (300.0, 2e4), "ZF": (0.1, 2.0),
             "Clk": (0.0, 2e-11), "GM": (0.002, 0.02)}
@@ -683,7 +740,7 @@ def test_global_refits_are_finished_by_least_squares(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_final_check_far_from_the_noise_swaps_one_effect_for_two(tmp_path):
+def test_final_check_far_from_the_noise_swaps_one_effect_for_two(record):
     """An LF record with the orifice law, seal wear (Clk 5e-12) and a viscous jack (CJ 16000)
     on `test`; only a low supply pressure is accepted by hand (on the HF bench record
     leak+viscous@test of seed block 1 the rounds took that path and stopped at 20 µm: the
@@ -693,7 +750,7 @@ def test_final_check_far_from_the_noise_swaps_one_effect_for_two(tmp_path):
     from eha.explain.effects import EFFECTS
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "viscous_leak_lf", "test", 0.6,
+    data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "Clk": 5e-12, "CJ": 1.6e4}, model="lf"))
     loop = ResidualLoop(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
                         "delay", settings=LoopSettings(pop=20, seed=0))
@@ -727,14 +784,14 @@ class SimpleLoopResult:
         self.dismissed = loop.dismissed
 
 
-def test_a_candidate_that_trades_the_position_for_p12_is_not_added(tmp_path):
+def test_a_candidate_that_trades_the_position_for_p12_is_not_added(record):
     """The refit of a candidate is replaced by a seal-wear leak 40x the LF's truth on an LF
     `test` record with P12: the position gets far worse than the current model's (the truth),
     and the candidate is switched off (score -inf), not merely scored low; without P12 in the
     fit the same candidate keeps its (negative) score."""
     from eha.explain import Candidate, ResidualLoop
 
-    data = load(_record(tmp_path, "lf_test", "test", 0.6, model="lf"))
+    data = load(record("test", 0.6, model="lf"))
     assert data.p12 is not None
     truth = LFParams().replace(**FAULTS)
     for weight, switched_off in ((1.0, True), (0.0, False)):
@@ -747,14 +804,14 @@ def test_a_candidate_that_trades_the_position_for_p12_is_not_added(tmp_path):
         assert (cand.score == -math.inf) is switched_off, (weight, cand.score)
 
 
-def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off(tmp_path):
+def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off(record):
     """With --flow-gain-spread 0.1 the healthy flow gain GQ joins the declared faults within
     +-10 % of the base's value (default +-4 %), to 6 significant digits as typed; not when the
     spread is 0, not when GQ is known (--set) or declared with its own bounds (--fit), and out of range is one
     line."""
     from eha.explain import ResidualLoop
 
-    data = load(_record(tmp_path, "lf_test", "test", 0.6, model="lf"))
+    data = load(record("test", 0.6, model="lf"))
     spread = LoopSettings(flow_gain_spread=0.1)
     assert ResidualLoop(data, settings=spread).bounds == {
         "BKL": (0.0, 2e-3), "FDJ": (0.0, 8000.0), "GQ": (0.18, 0.22)}
@@ -767,7 +824,7 @@ def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off
     assert wide.bounds["GQ"] == (0.2, 0.3)
     with pytest.raises(ExplainError, match=r"`flow_gain_spread` 0.6: allowed range \[0, 0.5\]"):
         LoopSettings(flow_gain_spread=0.6)
-    result = CliRunner().invoke(app, ["explain", str(tmp_path / "lf_test.csv"),
+    result = CliRunner().invoke(app, ["explain", str(record("test", 0.6, model="lf")),
                                       "--flow-gain-spread", "-1", "--no-progress"])
     assert result.exit_code != 0
     assert "--flow-gain-spread -1.0: allowed range [0, 0.5]" in result.output
@@ -797,7 +854,7 @@ def test_flow_gain_at_the_edge_of_its_spread_is_read_as_a_flow_loss():
 
 
 @pytest.mark.slow
-def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp_path,
+def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(record,
                                                                               monkeypatch):
     """A torque motor at 80 % of its gain (GM 0.008) on an LF record. With --flow-gain-spread
     0.1 the declared faults' fit takes the flow gain to its bound (0.18); left free it would
@@ -807,9 +864,9 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
     the loop again with the flow gain at nominal."""
     import eha.explain.api as api
 
-    data = load(_record(tmp_path, "weak_motor", "mixed", 0.6, {"GM": 0.008}, model="lf"))
+    data = load(record("mixed", 0.6, {"GM": 0.008}, model="lf"))
     res = explain(data, effects="motor_gain,leakage,external_load", flow_gain_spread=0.1,
-                  **FAST_LF)
+                  **FIRST_LF)
     assert res.facts.flow_gain_released == \
         "GQ 0.18 at the lower bound of its healthy spread 0.18-0.22"
     assert res.to_json()["flow_gain_released"] == res.facts.flow_gain_released
@@ -828,7 +885,7 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(tmp
 
     monkeypatch.setattr(api, "_passes", passes)
     monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
-    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FAST_LF)
+    again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FIRST_LF)
     assert spreads == [0.1, 0.0]
     assert again.facts.flow_gain_released == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1
@@ -845,10 +902,10 @@ def test_healthy_flow_gain_is_fitted_where_the_valve_saturates(tmp_path):
     path = tmp_path / "sine.csv"
     synthetic_record("sine", truth, t_end=1.0, noise=NOISE, seed=6001).to_csv(path, index=False)
     data = load(path)
-    fitted = explain(data, flow_gain_spread=0.1, **FAST)
+    fitted = explain(data, flow_gain_spread=0.1, **FIRST)
     assert not fitted.beyond_healthy, fitted.verdict
     assert set(fitted.effects) <= {"orifice_law", "flapper_dynamics"}
     assert fitted.faults_after["GQ"] == pytest.approx(0.206, rel=0.015)
     assert fitted.faults_after["FDJ"] == pytest.approx(219.0, rel=0.10)
-    nominal = explain(data, flow_gain_spread=0.0, **FAST)
+    nominal = explain(data, flow_gain_spread=0.0, **FIRST)
     assert nominal.beyond_healthy or abs(nominal.faults_after["FDJ"] / 219.0 - 1) > 0.3

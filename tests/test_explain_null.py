@@ -288,8 +288,8 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
                                                                         monkeypatch):
     """Five healthy actuators on a 0.4 s sine (the tests' small GA): every testable effect
     gets five statistics; the second call reads the cache (same object, no new fit).
-    Reproducible: the same seed gives the same statistics (two calibrations, the cache
-    off)."""
+    Reproducible: the same seed gives the same statistics (actuator 0 recomputed alone); the
+    cache off, each actuator is calibrated again."""
     from eha.explain.effects import EFFECTS
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.healthy_fleet import healthy_statistics
@@ -316,9 +316,23 @@ def test_simulated_null_round_trip_is_cached_and_passes_a_healthy_record(tmp_pat
     again = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
                            workers=1, fdi_options=opts)
     assert again.statistics == null.statistics and again.created_at == null.created_at
+    # reproducible: actuator 0 again, on its own, gives its statistics (was a second
+    # calibration of all five, the cache off)
+    import eha.explain.null as null_module
+
+    job = (data, dict(DEFAULT_FAULT_BOUNDS), names, settings, 0, None, (), opts)
+    shifts0, gains0, ratio0 = null_module._fleet_member(job)
+    assert shifts0 == {k: v[0] for k, v in null.statistics.items()}
+    assert gains0 == {k: v[0] for k, v in null.gains.items()}
+    assert ratio0 == null.residual_ratios[0]
+    # the cache off: every actuator is calibrated afresh (canned here), not read back
+    called = []
+    monkeypatch.setattr(null_module, "_fleet_member",
+                        lambda job: called.append(job[4]) or (shifts0, gains0, ratio0))
     fresh = simulated_null(data, DEFAULT_FAULT_BOUNDS, names, settings, actuators=5,
                            workers=1, fdi_options=opts, use_cache=False)
-    assert fresh.statistics == null.statistics
+    assert called == [0, 1, 2, 3, 4]
+    assert fresh.statistics == {k: [v] * 5 for k, v in shifts0.items()}
     # a healthy record of another seed gets statistics of the same kind (the rate at which
     # such records pass a gate is a benchmark's to measure on many records, not this test's)
     healthy, _ = healthy_record(data, DEFAULT_FAULT_BOUNDS, 777)

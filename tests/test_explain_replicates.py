@@ -25,28 +25,38 @@ from eha.identification.synthetic import synthetic_record
 TRUTH = {"BKL": 1e-4, "FDJ": 800.0, "Kaer": 8270.0}
 
 
-def _fitted(tmp_path, replicates: int = 3):
-    """A loop on a 1-s chirp record of TRUTH whose model has the structure and the hinge
-    moment, refitted by least squares from the truth: (loop, bounds)."""
-    path = tmp_path / "hinge.csv"
+@pytest.fixture(scope="module")
+def right_model(tmp_path_factory):
+    """A 1-s chirp record of TRUTH and its right model (the structure and the hinge moment),
+    refitted by least squares from the truth: (record path, parameters, bounds). Made once
+    for the module: each test starts its own loop from it (:func:`_fitted`)."""
+    path = tmp_path_factory.mktemp("replicates") / "hinge.csv"
     synthetic_record("chirp_1cm", TRUTH, t_end=1.0, noise=1e-6, seed=3).to_csv(path,
                                                                              index=False)
-    loop = ResidualLoop(load(path), fit="BKL,FDJ",
-                        settings=LoopSettings(interval_replicates=replicates))
+    loop = ResidualLoop(load(path), fit="BKL,FDJ", settings=LoopSettings(interval_replicates=3))
     params, bounds = loop.base.replace(BKL=TRUTH["BKL"], FDJ=TRUTH["FDJ"]), dict(loop.bounds)
     for name in ("orifice_law", "flapper_dynamics", "hinge_moment"):
         effect = EFFECTS[name]
         params = effect.switch_on(params, {"Kaer": TRUTH["Kaer"]} if name == "hinge_moment"
                                   else None)
         bounds.update(effect.bounds)
-    loop.current = loop.refit(params, bounds, "right model", method="lm", whole=True)
-    return loop, bounds
+    return path, loop.refit(params, bounds, "right model", method="lm", whole=True), bounds
 
 
-def test_the_replicate_spread_is_reproducible_and_finite(tmp_path):
+def _fitted(right_model, replicates: int = 3):
+    """A fresh loop on the record of ``right_model`` whose model is that right model:
+    (loop, bounds)."""
+    path, params, bounds = right_model
+    loop = ResidualLoop(load(path), fit="BKL,FDJ",
+                        settings=LoopSettings(interval_replicates=replicates))
+    loop.current = params
+    return loop, dict(bounds)
+
+
+def test_the_replicate_spread_is_reproducible_and_finite(right_model):
     """The same seed gives the same spread (the re-simulations' seeds are recorded), a
     positive finite RMS for every fitted parameter; another seed, another spread."""
-    loop, bounds = _fitted(tmp_path)
+    loop, bounds = _fitted(right_model)
     names = [*loop.bounds, "Kaer"]
     first, seeds = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
     again, seeds_again = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
@@ -60,7 +70,7 @@ def test_the_replicate_spread_is_reproducible_and_finite(tmp_path):
     assert first["Kaer"] > 0.01 * loop.current.Kaer
 
 
-def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(tmp_path):
+def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(right_model):
     """model_level refits the final model to the same HF re-simulations as the replicate term
     (none simulated again: the refits are shared) and reads their residual-to-noise ratios:
     the right model at 1 µm of noise leaves 0.9-1.5x; the record is within the one-sided
@@ -69,7 +79,7 @@ def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(tmp_pa
 
     from eha.explain.replicates import model_level
 
-    loop, bounds = _fitted(tmp_path)
+    loop, bounds = _fitted(right_model)
     names = [*loop.bounds, "Kaer"]
     replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
     cached = dict(loop._replicate_refits)
@@ -85,7 +95,7 @@ def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(tmp_pa
     assert own["seeds"] == [770000, 770002]
 
 
-def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(tmp_path):
+def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(right_model):
     """A final estimate left off the record's best fit (the backlash 50 % wide: a nearby
     minimum's stand-in) is read at the best fit the restarts reach, one start per
     re-simulation (the estimate moved by that refit's error, mirrored), the loop's own level
@@ -93,7 +103,7 @@ def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(tmp_pat
     from eha.explain.replicates import model_level
     from eha.identification.intervals import noise_reference
 
-    loop, bounds = _fitted(tmp_path)
+    loop, bounds = _fitted(right_model)
     reference = noise_reference(loop.noise, loop.data.xu)
     best = loop.evaluate([loop.current])[0].rmse_all / reference
     loop.current = loop.current.replace(BKL=1.5 * loop.current.BKL)
@@ -107,10 +117,10 @@ def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(tmp_pat
     assert model_level(loop, bounds, names, off, restarts=False)["record"] == off
 
 
-def test_the_term_widens_the_floors_and_says_so(tmp_path):
+def test_the_term_widens_the_floors_and_says_so(right_model):
     """with_replicates adds the spread in quadrature to each parameter's absolute floor and
     names the seeds; at 0 replicates the terms are unchanged and nothing is noted."""
-    loop, bounds = _fitted(tmp_path)
+    loop, bounds = _fitted(right_model)
     terms = {k: ModelForm(scale=1.0, rel=0.0075, abs=0.0) for k in bounds}
     widened, note = with_replicates(loop, terms, bounds, ["hinge_moment"])
     assert all(widened[k].abs > 0 and widened[k].rel == terms[k].rel for k in terms)

@@ -177,11 +177,12 @@ def test_sigterm_of_any_command_is_one_line_and_143(tmp_path):
     out = tmp_path / "fdi.json"
     # the thesis' GA with a large population: up to 20000 LF runs of 2 s, tens of seconds
     # even on a quiet machine, so the signal always arrives mid-identification
-    proc = subprocess.Popen([sys.executable, "-m", "eha", "fdi", "--command", "mixed",
-                             "--t-end", "2.0", "--method", "ga", "--pop", "200",
+    proc = subprocess.Popen([sys.executable, "-c", SAYS_WHEN_IT_STARTS, "identifying",
+                             "eha.identification.fdi", "identify", "fdi", "--command",
+                             "mixed", "--t-end", "2.0", "--method", "ga", "--pop", "200",
                              "--json", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)   # imported and identifying
+    wait_for_line(proc, "identifying")   # the reference simulated, the GA started
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
@@ -199,16 +200,61 @@ def test_sigterm_inside_a_database_query_is_143_not_a_database_error(mini_done):
     _, results = mini_done
     slow = ("SELECT count(*) FROM range(3000000) a, range(100000) b "
             "WHERE a.range + b.range = 7")   # minutes of DuckDB work
-    proc = subprocess.Popen([sys.executable, "-m", "eha", "query", slow, "--results",
-                             str(results)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    time.sleep(6)   # imported, the query running
+    proc = subprocess.Popen([sys.executable, "-c", SAYS_WHEN_IT_STARTS, "querying",
+                             "eha.campaigns.query", "_interruptible", "query", slow,
+                             "--results", str(results)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    wait_for_line(proc, "querying")   # the guarded connection open, its query handed over
+    # DuckDB takes the query a moment after it is handed to its thread: a signal before that
+    # would be seen by Python alone (the query then ran for minutes: the test fails on the
+    # timeout below, it does not pass wrongly)
+    time.sleep(0.5)
     assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
     assert err.strip().splitlines() == ["error: terminated (SIGTERM); outputs are written "
                                         "only when complete"]
+
+
+#: ``python -c SAYS_WHEN_IT_STARTS WORD MODULE FUNCTION ARGS...``: the command line (``eha
+#: ARGS``) with MODULE.FUNCTION wrapped to print WORD on stdout as it is called, so that a test
+#: signals the process once it is inside that work, not after a fixed wait (6 s was both slow
+#: and, on a loaded machine, possibly before the work had started).
+SAYS_WHEN_IT_STARTS = textwrap.dedent('''
+    import importlib, sys
+    word, module, name = sys.argv[1:4]
+    del sys.argv[1:4]
+    mod = importlib.import_module(module)
+    real = getattr(mod, name)
+
+    def says(*args, **kwargs):
+        print(word, flush=True)
+        return real(*args, **kwargs)
+
+    setattr(mod, name, says)
+    from eha.cli import app
+    app(prog_name="eha")
+''')
+
+
+def wait_for_line(proc, word, timeout=120):
+    """Read ``proc``'s stdout until a line is ``word`` (the process started that work); read
+    from the pipe itself, so that no line waits in a buffer the selector does not see."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    deadline, seen = time.time() + timeout, b""
+    while time.time() < deadline:
+        if sel.select(timeout=max(0.0, deadline - time.time())):
+            chunk = os.read(proc.stdout.fileno(), 4096)
+            seen += chunk
+            if word.encode() in seen.splitlines():
+                return
+            if not chunk:
+                break   # the process ended before it got there
+    pytest.fail(f"no {word!r} from the process: {proc.poll()=}, stdout {seen[-500:]!r}")
 
 
 # =========================================================================== class 1
