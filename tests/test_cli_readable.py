@@ -134,7 +134,8 @@ def test_no_help_text_loses_a_bracketed_unit_to_markup():
              for p in cmd.params for m in tag.finditer(getattr(p, "help", "") or "")]
     assert not found, found
     out = run_eha("health", "calibrate", "--help", env={"COLUMNS": "100"}).stdout
-    assert "Record length in s, 0.2 to 10." in " ".join(out.replace("│", " ").split())
+    assert "Record length in s, 0.2 to 10 (default: a command file" in " ".join(
+        out.replace("│", " ").split())
 
 
 def test_fdi_table_has_units_and_states_the_sign_of_its_error():

@@ -39,7 +39,7 @@ def test_a_command_file_with_a_bom_reads_as_without(tmp_path):
 def test_underscores_in_a_number_are_refused_not_read_as_another(tmp_path):
     path = tmp_path / "u.csv"
     path.write_text("t,com\n0,0\n0.1,1_0e-4\n")       # float() reads 1e-3
-    with pytest.raises(CommandError, match="data row 2: expected two numbers"):
+    with pytest.raises(CommandError, match="data row 2: expected 2 numbers"):
         load_command_file(str(path))
 
 

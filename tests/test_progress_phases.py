@@ -79,7 +79,7 @@ def test_reproduce_names_its_phases_after_the_campaigns(tmp_path, monkeypatch):
     monkeypatch.setattr(executors, "LocalPoolExecutor", lambda n: contextlib.nullcontext())
     monkeypatch.setattr(runner, "run_campaign", lambda *a, **k: runner.RunSummary("x", 0))
     monkeypatch.setattr(thesis, "campaign_runs", lambda results, name: pd.DataFrame(
-        {"command": [], "model": []}))
+        {"command": [], "model": [], "trace_path": [], "run_key": []}))
     monkeypatch.setattr(thesis, "plot_campaign", lambda results, name: [])
     monkeypatch.setattr(thesis, "campaign_report", lambda results, name: tmp_path / "r.csv")
     monkeypatch.setattr(thesis, "_summary_markdown", lambda *a: tmp_path / "s.md")

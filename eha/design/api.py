@@ -168,7 +168,8 @@ def _for_the_change_check(check, faults, effects, separate, around, signals, sam
         raise DesignError(f"check={check!r}: allowed fleet or baseline")
     if effects or separate or around or tuple(signals) != ("xu",) or sampling != 1000.0:
         raise DesignError("check=baseline: the change check judges the health faults on the "
-                          "position at 1 kHz (no effects, pairs, --around or other signals)")
+                          "position at 1 kHz (no effects, pairs to separate, sizes of an explain "
+                          "or other signals)")
     return design_change(faults, limits, options["noise"]["xu"], options["alpha"], seed,
                          population, generations, on_progress)
 

@@ -70,8 +70,8 @@ def simulated_prediction(command, targets: Sequence[Target], t_end: float, noise
         f, curve = cal.faults[t.name], cal.gain(t.name)
         s = sign_of(t.name)
         need = f["threshold"] + Z_DETECT * f["std"]
-        mds[t.name] = abs(curve.invert(s * need, s)) if curve.gains else math.inf
-        sigma[t.name] = abs(curve.invert(s * f["std"], s)) if curve.gains else math.inf
+        mds[t.name] = float(abs(curve.invert(s * need, s))) if curve.gains else math.inf
+        sigma[t.name] = float(abs(curve.invert(s * f["std"], s))) if curve.gains else math.inf
     return _prediction(mds, sigma, sig, targets)
 
 

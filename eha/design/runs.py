@@ -22,7 +22,7 @@ DESIGN_RUNS = """
         CREATE TABLE IF NOT EXISTS design_runs (
             run_id        VARCHAR PRIMARY KEY,  -- hash of the design's settings
             created_at    TIMESTAMP,
-            name          VARCHAR,   -- base name of the files (--name)
+            name          VARCHAR,   -- base name of the files (the design's name)
             command_file  VARCHAR,   -- the designed command (t,com in SI)
             json_file     VARCHAR,   -- the design's JSON report
             duration      DOUBLE,    -- s

@@ -277,7 +277,7 @@ class GainCurve:
         if x1 <= 0 or y1 <= 0 or y2 <= 0:
             return math.copysign(float(np.interp(s, xs, ys)), size)
         p = math.log(y2 / y1) / math.log(x2 / x1)
-        return math.copysign(y1 * (s / x1) ** p, size)
+        return math.copysign(float(y1 * (s / x1) ** p), size)
 
     def _knots(self) -> tuple[np.ndarray, np.ndarray]:
         """The response up to the largest size where it still grows (by 2 % or more from the
@@ -298,7 +298,7 @@ class GainCurve:
     def beyond(self, estimate: float, sign: float) -> bool:
         """Is ``estimate`` beyond the growing range (the size only bounded below)?"""
         _, y_top = self.top()
-        return y_top > 0 and estimate * sign > y_top
+        return bool(y_top > 0 and estimate * sign > y_top)
 
     def invert(self, estimate: float, sign: float) -> float:
         """The change whose expected estimate is ``estimate`` (``sign``: the direction of
@@ -309,15 +309,15 @@ class GainCurve:
         e = estimate * sign
         if e <= 0 or ys[-1] <= 0:
             g = self.gains[0] if self.gains and self.gains[0] > 0 else 1.0
-            return estimate / g
+            return float(estimate / g)
         if e >= ys[-1]:
-            return sign * e * xs[-1] / ys[-1]
+            return float(sign * e * xs[-1] / ys[-1])
         k = int(np.searchsorted(ys, e, side="right"))        # ys[k-1] <= e < ys[k]
         x1, x2, y1, y2 = xs[k - 1], xs[k], ys[k - 1], ys[k]
         if x1 <= 0 or y1 <= 0 or y2 <= y1:
             return sign * float(np.interp(e, ys, xs))
         p = math.log(y2 / y1) / math.log(x2 / x1)            # the power law between knots
-        return sign * x1 * (e / y1) ** (1.0 / p)
+        return float(sign * x1 * (e / y1) ** (1.0 / p))
 
     def relative_spread(self, size: float) -> float:
         """The gain's relative spread over actuators near ``size`` (interpolated)."""

@@ -144,15 +144,15 @@ def _load_pair(record, baseline, cal: ChangeCalibration, calibration):
                                  f"takes [{lo:g}, {hi:g}] s")
     pa, pb = later.info.get("period"), earlier.info.get("period")
     if pa and pb and abs(pa - pb) > 1e-3 * pa:
-        raise DetectionError(f"--baseline {baseline}: sampled every {1e3 * pb:g} ms, the record "
+        raise DetectionError(f"`baseline` {baseline}: sampled every {1e3 * pb:g} ms, the record "
                              f"{record} every {1e3 * pa:g} ms; record both the same way")
     if abs(later.t_end - earlier.t_end) > 1.5e-3 or len(later) != len(earlier):
-        raise DetectionError(f"--baseline {baseline}: {earlier.t_end:g} s long, the record "
+        raise DetectionError(f"`baseline` {baseline}: {earlier.t_end:g} s long, the record "
                              f"{record} {later.t_end:g} s; a baseline on the same command and "
                              "length is needed")
     if command_signature(earlier.com) != command_signature(later.com):
         diff = float(np.max(np.abs(earlier.com - later.com)))
-        raise DetectionError(f"--baseline {baseline}: another command than the record {record} "
+        raise DetectionError(f"`baseline` {baseline}: another command than the record {record} "
                              f"(largest difference {1e3 * diff:.3g} mm); a baseline on the same "
                              "command is needed")
     if abs(later.t_end - cal.t_end) > 1.5e-3:

@@ -361,9 +361,10 @@ def load_calibration(path: str | Path) -> Calibration:
         raise DetectionError(f"`calibration` {path}: not a calibration file "
                              f"({type(exc).__name__})") from None
     if isinstance(data, dict) and data.get("reference") == "baseline":
-        raise DetectionError(f"`calibration` {path}: a calibration of the change check (made "
-                             "with --baseline); give the actuator's earlier record with "
-                             "--baseline, or a fleet calibration (eha health calibrate)")
+        raise DetectionError(f"`calibration` {path}: a calibration of the change check; judge "
+                             "a record with it against the actuator's earlier record (eha "
+                             "health check RECORD --baseline EARLIER), or give a fleet "
+                             "calibration (eha health calibrate)")
     required = {"format", "model_version", "command", "command_sig", "t_end", "thresholds"}
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT or \
             not required <= set(data):
