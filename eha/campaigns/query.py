@@ -136,6 +136,8 @@ def check_trace_files(results: str | Path, paths, what: str) -> None:
 
     results = Path(results)
     wanted = {str(p) for p in paths}
+    if not wanted:          # nothing to read, nothing to check
+        return
     con = connect(results, read_only=True)
     try:
         files = [f for f in recorded_files(con) if f.path in wanted]
