@@ -44,7 +44,8 @@ def _file_mode() -> int:
 FILE_MODE = _file_mode()
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Is process ``pid`` alive (another user's counts as alive)?"""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -63,7 +64,7 @@ def clean_leftovers(path: str | Path) -> int:
     for name in glob.glob(os.path.join(glob.escape(str(path.parent)),
                                        f".{glob.escape(path.name)}.eha-*")):
         found = mine.match(os.path.basename(name))
-        if found and not _pid_alive(int(found.group(1))):
+        if found and not pid_alive(int(found.group(1))):
             try:
                 os.unlink(name)
                 n += 1
@@ -199,5 +200,5 @@ def write_json(path: str | Path, data: Any, indent: int | None = 2, **kw) -> Pat
     return write_atomic(path, json.dumps(data, indent=indent, **kw))
 
 
-__all__ = ["atomic_path", "atomic_set", "write_atomic", "write_json", "temp_beside",
+__all__ = ["atomic_path", "atomic_set", "write_atomic", "write_json", "temp_beside", "pid_alive",
            "clean_leftovers", "OutputError", "FILE_MODE"]

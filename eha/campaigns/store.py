@@ -32,6 +32,7 @@ from typing import Any, Iterator, Mapping, Sequence
 from eha.campaigns.jobs import Table, UnknownJobKind, table as declared_table, tables
 from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, SCHEMA
 from eha.errors import BAD_INPUT, FAILURE, EhaError
+from eha.outputs import pid_alive
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
 
@@ -185,16 +186,6 @@ def connect(results: str | Path, read_only: bool = False):
     return con
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
 def _create_whole(path: Path, duckdb) -> None:
     """Create a missing database under a temporary name and link it into place.
 
@@ -206,7 +197,7 @@ def _create_whole(path: Path, duckdb) -> None:
     """
     for stale in path.parent.glob(f"{path.name}.creating-*"):
         pid = stale.name.rsplit("-", 1)[-1].split(".")[0]
-        if pid.isdigit() and (int(pid) == os.getpid() or not _pid_alive(int(pid))):
+        if pid.isdigit() and (int(pid) == os.getpid() or not pid_alive(int(pid))):
             stale.unlink(missing_ok=True)
     if path.exists():
         return
