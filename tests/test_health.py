@@ -361,3 +361,23 @@ def test_a_p12_calibration_checks_records_on_position_and_pressure(tmp_path):
                       "--results", res, "--json", tmp_path / "no.json", "--no-progress")
     assert "no load pressure (p12 column)" in error_line(proc, 2)
     assert files_under(tmp_path) == before
+
+
+def test_the_calibration_table_says_units_and_what_each_number_is(capsys):
+    """The calibration's table: the healthy value, the fleet's deviation from it and the
+    absolute alarm value, each with its unit (it printed a bare 'healthy mean 3.856' beside an
+    absolute 'alarm at > 264.7')."""
+    from eha.cli.health import _render_calibration
+
+    cal = Calibration(command="chirp_1cm", command_sig="x", t_end=1.0,
+                      model_version=MODEL_VERSION, base_model="calibrated", level=0.9,
+                      alpha=0.01, thresholds={"FDJ": 64.7, "BKL": 4.7e-6},
+                      healthy={"FDJ": {"mean": 3.856, "std": 19.2},
+                               "BKL": {"mean": 1.1e-7, "std": 1.6e-7}}, fleet={},
+                      false_alarms={"per_fault": {"FDJ": 0.0, "BKL": 0.0}, "any": 0.0})
+    _render_calibration({"calibration": cal, "path": "cal.json"}, 30, "chirp_1cm", 0.01,
+                        "results")
+    out = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert "deviation from it" in out and "alarm at (value)" in out
+    assert "200 N 3.86 N 19.2 N > 264.7 N" in out
+    assert "0 µm 0.11 µm 0.16 µm > 4.7 µm" in out

@@ -157,13 +157,19 @@ def _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance,
 def _render_calibration(res: dict, actuators: int, command: str, alpha: float,
                         results: Path) -> None:
     from eha.health.detection import alarm_value
+    from eha.models.faults import FAULTS
+    from eha.models.units import display_unit, show
 
     cal = res["calibration"]
-    table = Table("fault", "statistic: healthy mean", "healthy std", "alarm at",
-                  "alarms in fleet")
+    # the fleet's statistic is a deviation from the healthy value; the alarm an absolute value
+    table = Table("fault", "healthy value", "fleet's deviation from it: mean", "std",
+                  "alarm at (value)", "alarms in fleet")
     for name, thr in cal.thresholds.items():
         h = cal.healthy[name]
-        table.add_row(name, f"{h['mean']:.4g}", f"{h['std']:.3g}", alarm_value(name, thr),
+        unit, scale = display_unit(name)
+        table.add_row(name, show(name, FAULTS[name].healthy),
+                      show(name, h["mean"]), show(name, h["std"]),
+                      f"{alarm_value(name, thr, scale)} {unit}".rstrip(),
                       f"{cal.false_alarms['per_fault'][name]:.3f}")
     console.print(table)
     console.print(f"{actuators} healthy actuators on {command}; any-fault alarms in the fleet "
