@@ -31,11 +31,11 @@ def calibrated():
     return cal, pairs
 
 
-def _pair(cal, seed, fault=None, change=0.0):
-    """A pair of records of actuator ``seed`` (the later one on another test day, with a
-    fault grown by ``change``) judged by ``cal``."""
+def _pair(cal, seed, fault=None, change=0.0, at=None):
+    """A pair of records of actuator ``seed`` (at the fault levels ``at``; the later one on
+    another test day, with a fault grown by ``change``) judged by ``cal``."""
     cmd = as_command(cal.command)
-    hf = draw_actuator(seed)
+    hf = {**draw_actuator(seed), **(at or {})}
     a = _record(cmd, hf, T_END, 1e-6, seed)
     b_hf = draw_test_day(hf, cal.nuisances, seed)
     if fault:
@@ -110,6 +110,28 @@ def test_held_out_healthy_pairs_alarm_at_most_alpha(calibrated):
     cal, _ = calibrated
     alarms = sum(any(v["degraded"] for v in _pair(cal, 5000 + k).values()) for k in range(40))
     assert alarms <= 2
+
+
+@pytest.mark.slow
+def test_at_a_degraded_point_the_check_is_calibrated_there(calibrated):
+    """A fault's signature depends on the faults already there (at 20 µm of backlash and
+    230 N of friction the backlash's is nearly orthogonal to its healthy one on chirp_1cm):
+    a 10 µm growth of the backlash there is missed or given to another fault by the healthy
+    calibration, and detected and isolated by the calibration made at that point, which holds
+    its false alarms there."""
+    cal0, _ = calibrated
+    at = {"BKL": 2e-5, "FDJ": 230.0}
+    cal1, _ = calibrate_change("chirp_1cm", actuators=20, seed=0, t_end=T_END, at=at,
+                               gains=False)         # the isolation needs no sizes
+    assert cal1.operating_point == at and cal1.false_alarms["loo"]["alarms"] <= 1
+    seeds = range(900, 906)
+    there = [isolate_group(_pair(cal1, s, "BKL", 1e-5, at)) for s in seeds]
+    healthy_point = [isolate_group(_pair(cal0, s, "BKL", 1e-5, at)) for s in seeds]
+    assert all(g[:1] == ["BKL"] for g in there), there
+    assert sum(g[:1] == ["BKL"] for g in healthy_point) <= 3, healthy_point
+    assert not any(any(v["degraded"] for v in _pair(cal1, s, at=at).values()) for s in seeds)
+    with pytest.raises(DetectionError, match=r"`at` BKL=0.5: allowed range"):
+        calibrate_change("chirp_1cm", actuators=5, t_end=T_END, at={"BKL": 0.5})
 
 
 def _write(path, df):

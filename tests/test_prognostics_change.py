@@ -201,6 +201,14 @@ def test_rul_on_the_change_check_end_to_end(fleet, tmp_path):
     assert list(stored["reference"]) == ["baseline"]
     alarms = query(tmp_path / "res", "SELECT * FROM change_alarms WHERE fault = 'FDJ'")
     assert sorted(alarms["first_alarm"]) == [200.0, 200.0]
+    # each actuator's check calibrated again at its baseline's identified friction
+    cals = query(tmp_path / "res", "SELECT * FROM change_calibrations ORDER BY actuator")
+    assert list(cals["actuator"]) == ["A1", "A2"] and list(cals["pairs"]) == [12, 12]
+    own = json.loads(Path(a1["calibration"]).read_text())
+    assert Path(a1["calibration"]).parent == tmp_path / "res" / "calibrations"
+    assert own["operating_point"]["FDJ"] == pytest.approx(base)
+    assert {r["calibration"] for r in query(tmp_path / "res", "SELECT calibration FROM "
+            "change_checks WHERE actuator = 'A1'").to_dict("records")} == {a1["calibration"]}
 
 
 def test_the_identified_trend_identifies_every_record_and_a_named_baseline(fleet, tmp_path):
@@ -217,7 +225,7 @@ def test_the_identified_trend_identifies_every_record_and_a_named_baseline(fleet
     kinds = {}
     for trend in ("identified", "changes"):
         camp = _campaign(m, bases, {"FDJ": (200.0, 4000.0)}, 0, None, None, None, "c",
-                         cal["path"], trend)
+                         cal["path"], trend)[1](cal["path"])
         kinds[trend] = [(j.kind, Path(j.spec["record"]).name) for j in camp.jobs]
     ident = [r for k, r in kinds["identified"] if k == "health"]
     # every record of the manifest, and A1's baseline outside it

@@ -26,6 +26,16 @@ health_app = typer.Typer(no_args_is_help=True,
                               "--calibration results/health/calibration-chirp_1cm.json")
 
 
+#: ``eha health calibrate --baseline``'s own options (module level: the command stays short).
+NUISANCE = typer.Option(
+    None, "--nuisance", help="With --baseline: a test-day difference NAME=HALFWIDTH "
+    "(repeatable; defaults CJ=0.05, FDJ=0.05, GQ=0.01, PSR=0.02 relative, Ofs=0.002 mA).")
+OPERATING_POINT = typer.Option(
+    None, "--at", help="With --baseline: the operating point, a fault level NAME=VALUE the "
+    "baseline already has (SI, repeatable, e.g. from eha health check BASELINE): the pairs "
+    "and signatures are taken there (default healthy).")
+
+
 @health_app.command("calibrate")
 def health_calibrate(
     command: str = typer.Option("chirp_1cm", "--command",
@@ -50,9 +60,8 @@ def health_calibrate(
                                   "instead (eha health check RECORD --baseline EARLIER): "
                                   "healthy pairs, each actuator recorded twice on two test "
                                   "days (--nuisance), in seconds, without the campaign runner."),
-    nuisance: Optional[list[str]] = typer.Option(
-        None, "--nuisance", help="With --baseline: a test-day difference NAME=HALFWIDTH "
-        "(repeatable; defaults CJ=0.05, FDJ=0.05, GQ=0.01, PSR=0.02 relative, Ofs=0.002 mA)."),
+    nuisance: Optional[list[str]] = NUISANCE,
+    at: Optional[list[str]] = OPERATING_POINT,
     out: Optional[Path] = typer.Option(None, "--out", help="Calibration file (default "
                                        "RESULTS/health/calibration-COMMAND.json, "
                                        "...-baseline.json with --baseline)."),
@@ -76,9 +85,9 @@ def health_calibrate(
     check_out_file(out, "--out", (".json",))
     check_out_dir(results, "--results")
     t_end = _own_length(command) if t_end is None else t_end
-    if baseline or nuisance:
-        return _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance,
-                                   out, results, progress, baseline)
+    if baseline or nuisance or at:
+        return _calibrate_baseline(command, actuators, alpha, t_end, noise, seed,
+                                   (nuisance, at), out, results, progress, baseline)
     from eha.health.monitoring import calibrate_fleet
     with resumable("finished assessments are saved, re-run the same command to resume"):
         res = calibrate_fleet(command=command, actuators=actuators, seed=seed, t_end=t_end,
@@ -98,31 +107,36 @@ def _own_length(command: str) -> float:
         return 1.0    # the calibration itself names what is wrong with the command
 
 
-def _parse_nuisances(items: Optional[list[str]]) -> dict[str, float]:
+def _parse_pairs(items: Optional[list[str]], flag: str, example: str) -> dict[str, float]:
+    """``NAME=NUMBER`` items of a repeatable option."""
     out = {}
     for item in items or []:
         name, sep, value = item.partition("=")
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            fail(f"--nuisance {item!r}: NAME=HALFWIDTH, e.g. GQ=0.01")
+            fail(f"{flag} {item!r}: {example}")
         if not sep:
-            fail(f"--nuisance {item!r}: NAME=HALFWIDTH, e.g. GQ=0.01")
+            fail(f"{flag} {item!r}: {example}")
     return out
 
 
-def _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance, out, results,
-                        progress, baseline) -> None:
+def _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance_at, out,
+                        results, progress, baseline) -> None:
     from eha.health.change_check import calibrate_baseline
     from eha.models.units import show
 
+    nuisance, at = nuisance_at
     if not baseline:
-        fail("--nuisance: only with --baseline (the test-day differences of the change check)")
-    widths = _parse_nuisances(nuisance)
+        flag = "--nuisance" if nuisance else "--at"
+        fail(f"{flag}: only with --baseline (the test-day differences and the operating point "
+             "of the change check)")
+    widths = _parse_pairs(nuisance, "--nuisance", "NAME=HALFWIDTH, e.g. GQ=0.01")
+    point = _parse_pairs(at, "--at", "NAME=VALUE, e.g. BKL=2e-5")
     with err_console.status("calibrating the change check ...") as status:
         res = calibrate_baseline(command=command, actuators=actuators, seed=seed, t_end=t_end,
                                  noise=noise, alpha=alpha, nuisances=widths, out=out,
-                                 results=results,
+                                 results=results, at=point,
                                  on_progress=(lambda m: status.update(f"calibrating: {m}"))
                                  if progress else None)
     cal = res["calibration"]
@@ -140,7 +154,10 @@ def _calibrate_baseline(command, actuators, alpha, t_end, noise, seed, nuisance,
     console.print(f"change check calibrated on {actuators} healthy pairs of {command} "
                   f"({t_end:g} s, {1e6 * noise:g} µm noise); test-day differences: "
                   + ", ".join(f"{n} ±{w:g}{' mA' if n == 'Ofs' else ''}"
-                              for n, w in cal.nuisances.items()), highlight=False)
+                              for n, w in cal.nuisances.items())
+                  + ("; at " + ", ".join(f"{n} {show(n, v)}" for n, v in
+                                          cal.operating_point.items())
+                     if cal.operating_point else ""), highlight=False)
     console.print(table)
     heavy = [n for n, f in cal.faults.items() if f.get("tail", 1.0) > 1.1]
     if heavy and actuators < 100:

@@ -90,6 +90,11 @@ RUL_TREND = typer.Option("identified", "--trend", help="With --check change, the
                          "the RUL: identified (every record identified, as --check fleet) or "
                          "changes (only the baselines identified, each record its baseline + "
                          "change: faster, biased when several faults grow together).")
+RUL_OPERATING_POINT = typer.Option("baseline", "--operating-point", help="With --check change, "
+                                   "where each actuator's check is calibrated: baseline (again "
+                                   "at its baseline's identified faults, about 20 s each: a "
+                                   "fault's signature changes with the faults already there) or "
+                                   "calibration (the --calibration file as it is).")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Progress bar.")
 
 
@@ -114,6 +119,7 @@ def rul(
     check: str = RUL_CHECK,
     calibration: Optional[Path] = RUL_CALIBRATION,
     trend: str = RUL_TREND,
+    operating_point: str = RUL_OPERATING_POINT,
     progress: bool = PROGRESS,
 ):
     """Remaining useful life from health histories: assess each record, fit degradation
@@ -132,7 +138,7 @@ def rul(
     from eha.identification.fdi import parse_bounds
     from eha.prognostics.jobs import parse_limits
 
-    run_rul, extra = _rul_of(check, calibration, trend)
+    run_rul, extra = _rul_of(check, calibration, trend, operating_point)
 
     check_out_file(json_out, "--json", (".json",))
     check_out_dir(plots, "--plots")
@@ -153,15 +159,17 @@ def rul(
         raise typer.Exit(1)
 
 
-def _rul_of(check: str, calibration: Optional[Path], trend: str):
+def _rul_of(check: str, calibration: Optional[Path], trend: str, operating_point: str):
     """The library function of ``eha rul --check`` and its extra keywords."""
-    if check == "fleet" and calibration is None and trend == "identified":
+    if check == "fleet" and calibration is None and trend == "identified" and \
+            operating_point == "baseline":
         from eha.prognostics.jobs import run_rul
 
         return run_rul, {}
     from eha.prognostics.change_rul import run_rul_change   # it refuses a bad pair in one line
 
-    return run_rul_change, {"check": check, "calibration": calibration, "trend": trend}
+    return run_rul_change, {"check": check, "calibration": calibration, "trend": trend,
+                            "operating_point": operating_point}
 
 
 def _render_rul(res, results: Path) -> None:

@@ -169,11 +169,16 @@ class Signatures:
     shapes : bool
         Also take the other model's signatures, for :attr:`shape_doubt` (the isolation);
         without, ``shape_doubt`` is 0.
+    at : mapping, optional
+        The operating point: fault levels of the baseline [fault units] (default healthy).
+        A fault's signature depends on where the actuator already is: on ``chirp_1cm`` the
+        backlash's at 20 µm of backlash, or at 500 N of jack friction, is nearly orthogonal
+        (sin^2 0.86-0.89) to its signature at the healthy point.
     """
 
     def __init__(self, command, t_end: float, noise: float, widths: Mapping[str, float],
                  faults: Sequence[str] | None = None, model: str = "hf",
-                 shapes: bool = True):
+                 shapes: bool = True, at: Mapping[str, float] | None = None):
         from eha.identification.problem import BASE_MODELS
         from eha.models import OUTPUTS
         from eha.models.params import SPECS
@@ -181,7 +186,8 @@ class Signatures:
 
         self.faults = tuple(faults or FAULTS)
         self.model = model
-        base = dict(BASE_MODELS["calibrated"]) if model == "lf" else {}
+        at = {k: float(v) for k, v in (at or {}).items()}
+        base = {**(dict(BASE_MODELS["calibrated"]) if model == "lf" else {}), **at}
         steps = [(n, probe(n)) for n in self.faults]
         nz = []
         for name, spec in NUISANCES.items():
@@ -204,7 +210,7 @@ class Signatures:
         # the other model's signatures: how much two models of one actuator disagree on the
         # shape of each fault's response (the isolation cannot trust a finer separation;
         # without ``shapes``, a design's search, none)
-        other = dict(BASE_MODELS["calibrated"]) if model != "lf" else {}
+        other = {**(dict(BASE_MODELS["calibrated"]) if model != "lf" else {}), **at}
         So = self.S
         if shapes:
             yo = simulate_lf_rows([other] + [{**other, n: float(other.get(n, FAULTS[n].healthy))

@@ -78,6 +78,9 @@ class ChangeCalibration:
     created_at: str = ""
     format: int = CHANGE_FORMAT
     reference: str = "baseline"
+    #: the fault levels the healthy pairs and the signatures are at [fault units] (empty:
+    #: healthy; :func:`check_operating_point`)
+    operating_point: dict[str, float] = field(default_factory=dict)
 
     def save(self, path: str | Path) -> Path:
         from eha.outputs import write_json
@@ -303,15 +306,42 @@ def _tail(values: np.ndarray, p: float, two: bool) -> float:
     return tail_factor(values, p)
 
 
+def check_operating_point(at: Mapping[str, float] | None) -> dict[str, float]:
+    """Fault levels of an operating point, each a known fault within its parameter's range.
+
+    Raises
+    ------
+    DetectionError
+        An unknown fault or a value outside its range, one line naming it.
+    """
+    from eha.models.params import SPECS
+
+    out = {}
+    for name, value in (at or {}).items():
+        if name not in FAULTS:
+            raise DetectionError(f"`at` {name}: unknown fault; allowed {', '.join(FAULTS)}")
+        spec = SPECS[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not math.isfinite(value) or not spec.lo <= value <= spec.hi:
+            raise DetectionError(f"`at` {name}={value!r}: allowed range [{spec.lo:g}, "
+                                 f"{spec.hi:g}] {spec.unit}".rstrip())
+        out[name] = float(value)
+    return out
+
+
 def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int = 0,
                      t_end: float = 1.0, noise: float = 1e-6, alpha: float = 0.01,
                      level: float = 0.9, nuisances: Mapping[str, float] | None = None,
                      model: str = "hf", gains: bool = True,
-                     on_progress: Callable[[str], None] | None = None
+                     on_progress: Callable[[str], None] | None = None,
+                     at: Mapping[str, float] | None = None
                      ) -> tuple[ChangeCalibration, dict[str, Any]]:
     """Calibrate the change check on ``actuators`` simulated healthy pairs.
 
-    ``gains=False`` skips the HF gain curves (every gain 1: a design's search, which ranks
+    ``at``: the operating point, fault levels the baseline already has (e.g. its fleet
+    identification): every pair's actuator carries them and the signatures are taken there
+    (a fault's signature at a degraded point can be nearly orthogonal to the healthy one's,
+    :class:`eha.health.change.Signatures`). ``gains=False`` skips the HF gain curves (every gain 1: a design's search, which ranks
     commands and needs no sizes read back). Returns the calibration and the pairs' figures (``estimates``: one row per pair, the
     faults' linear estimates; ``screen``: the earlier records against the nominal LF).
 
@@ -341,22 +371,23 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
     if problems:
         raise DetectionError(problems)
     widths = check_nuisances(nuisances)
+    at = check_operating_point(at)
     try:
         cmd = as_command(command)
     except (CommandError, ValueError) as exc:
         raise DetectionError(f"`command`: {exc}") from None
-    first = _record(cmd, draw_actuator(seed), t_end, noise, seed)
+    first = _record(cmd, {**draw_actuator(seed), **at}, t_end, noise, seed)
     pairs = []
     for k in range(actuators):
         s = seed + k
-        hf = draw_actuator(s)
+        hf = {**draw_actuator(s), **at}
         a = first if k == 0 else _record(cmd, hf, t_end, noise, s)
         b = _record(cmd, draw_test_day(hf, widths, s), t_end, noise, later_seed(s))
         pairs.append((a.xu, b.xu))
         if on_progress and (k + 1) % 10 == 0:
             on_progress(f"{k + 1} of {actuators} healthy pairs")
     # the records' own command, as a reader of them rebuilds it (the check does the same)
-    sig = Signatures(first.command, t_end, noise, widths, model=model, shapes=gains)
+    sig = Signatures(first.command, t_end, noise, widths, model=model, shapes=gains, at=at)
     names = sig.faults
     est = [sig.estimate(b - a) for a, b in pairs]
     screen = [sig.estimate(a - sig.y0) for a, _ in pairs]
@@ -382,14 +413,14 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
     if on_progress:
         on_progress("the HF gain of each fault")
     # without ``gains`` (a design's search) every estimate reads at the LF slope
-    gains = _gains(cmd, sig, widths, actuators, seed, t_end, noise) if gains else \
+    gains = _gains(cmd, sig, widths, actuators, seed, t_end, noise, at) if gains else \
         {n: {"sizes": [probe(n)], "gains": [1.0], "spread": [0.0]} for n in names}
     cal = ChangeCalibration(
         command=str(command), command_sig=command_signature(first.com), t_end=float(t_end),
         model_version=MODEL_VERSION, alpha=float(alpha), level=float(level),
         noise=float(noise), nuisances=widths, pairs=int(actuators), seed=int(seed),
         faults=faults, gains=gains, screen=screened, signatures=model,
-        excess=float(max(np.median([faults[n]["std"] ** 2 * sig.info[i]
+        operating_point=at, excess=float(max(np.median([faults[n]["std"] ** 2 * sig.info[i]
                                     for i, n in enumerate(names) if sig.info[i] > 0]), 1.0)),
         created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     alarms = [any(v["degraded"] for v in judge_estimates(cal, names, e, n2).values())
@@ -420,7 +451,7 @@ def _leave_one_out(est: np.ndarray, noise2: np.ndarray, sig: Signatures,
 
 
 def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, seed: int,
-           t_end: float, noise: float) -> dict[str, dict[str, list]]:
+           t_end: float, noise: float, at: Mapping[str, float]) -> dict[str, dict[str, list]]:
     """Per fault, the HF gain curve of its estimate (:class:`GainCurve`): the later record
     with the fault grown by each size of :data:`GAIN_SIZES` x its probe minus the same record
     without it (same noise and dither seed: the noise cancels), over the first
@@ -430,7 +461,7 @@ def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, se
     later = []
     for k in range(k_max):
         s = seed + k
-        hf = draw_test_day(draw_actuator(s), widths, s)
+        hf = draw_test_day({**draw_actuator(s), **at}, widths, s)
         later.append((hf, later_seed(s), _record(cmd, hf, t_end, noise, later_seed(s)).xu))
     for i, name in enumerate(sig.faults):
         sizes, gains, spread = [], [], []
@@ -453,6 +484,6 @@ def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, se
 
 
 __all__ = ["CHANGE_FORMAT", "ChangeCalibration", "load_change_calibration", "calibrate_change",
-           "judge", "judge_estimates", "isolate", "isolate_group", "tail_factor",
+           "judge", "judge_estimates", "check_operating_point", "isolate", "isolate_group", "tail_factor",
            "tolerance_factor",
            "AMBIGUITY_MARGIN", "later_seed", "sign_of", "MIN_PAIRS", "NUISANCES"]

@@ -201,7 +201,7 @@ def screen_baseline(cal: ChangeCalibration, sig: Signatures, xu: np.ndarray) -> 
 def signatures_of(cal: ChangeCalibration, command) -> Signatures:
     """The calibration's estimator on a record's own command."""
     return Signatures(command, cal.t_end, cal.noise, cal.nuisances, faults=list(cal.faults),
-                      model=cal.signatures)
+                      model=cal.signatures, at=cal.operating_point)
 
 
 def check_change(record, baseline, calibration, level: float | None = None,
@@ -237,7 +237,10 @@ def check_change(record, baseline, calibration, level: float | None = None,
     if screen:
         notes.append(f"the baseline {baseline} itself looks unlike the healthy fleet in "
                      f"{', '.join(screen)} (fleet screen at alpha {cal.alpha:g}): it is used, "
-                     "but the changes are from an actuator that may already be degraded")
+                     "but the changes are from an actuator that may already be degraded"
+                     + ("" if cal.operating_point else "; a fault's signature changes with the "
+                        "faults already there: calibrate at the baseline's identified faults "
+                        "(eha health calibrate --baseline --at NAME=VALUE)"))
     unexplained = _unexplained(sig, later.xu - earlier.xu, isolated, n_a ** 2 + n_b ** 2)
     if unexplained:
         notes.append(f"the difference is {unexplained:.1f}x the noise after the isolated "
@@ -291,9 +294,10 @@ def calibrate_baseline(command: str = "chirp_1cm", actuators: int = 30, seed: in
                        t_end: float = 1.0, noise: float = 1e-6, alpha: float = 0.01,
                        level: float = 0.9, nuisances: Mapping[str, float] | None = None,
                        out: str | Path | None = None, results: str | Path | None = "results",
-                       on_progress=None) -> dict[str, Any]:
-    """``eha health calibrate --baseline``: :func:`eha.health.change_calibration.calibrate_change`,
-    saved (default ``RESULTS/health/calibration-COMMAND-baseline.json``) and its thresholds in
+                       on_progress=None, at: Mapping[str, float] | None = None
+                       ) -> dict[str, Any]:
+    """``eha health calibrate --baseline``: :func:`eha.health.change_calibration.calibrate_change`
+    (at the operating point ``at``, default healthy), saved (default ``RESULTS/health/calibration-COMMAND-baseline.json``) and its thresholds in
     ``health_thresholds`` (``reference`` 'baseline').
 
     Returns ``{"calibration": ChangeCalibration, "path": file}``.
@@ -306,7 +310,7 @@ def calibrate_baseline(command: str = "chirp_1cm", actuators: int = 30, seed: in
     except (CommandError, ValueError) as exc:
         raise DetectionError(f"`command`: {exc}") from None
     cal, _ = calibrate_change(pinned, actuators, seed, t_end, noise, alpha, level, nuisances,
-                              on_progress=on_progress)
+                              on_progress=on_progress, at=at)
     base = Path(results) if results is not None else Path("results")
     path = Path(out) if out is not None else base / "health" / f"calibration-{label}-baseline.json"
     cal.save(path)

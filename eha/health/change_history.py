@@ -130,4 +130,54 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
 
 register_job("change_record", run_change_record)
 
-__all__ = ["REFERENCE", "CHANGE_CHECKS", "run_change_record"]
+
+#: One row per ``change_calibration`` job: an actuator's change calibration at its baseline's
+#: operating point.
+CHANGE_CALIBRATIONS = """
+        CREATE TABLE IF NOT EXISTS change_calibrations (
+            run_key         VARCHAR PRIMARY KEY,
+            campaign        VARCHAR,   -- rul-<manifest>-<hash>-change
+            actuator        VARCHAR,
+            base            VARCHAR,   -- the user's change calibration (its settings)
+            calibration     VARCHAR,   -- the file written: the check at the operating point
+            operating_point JSON,      -- {fault: level of the baseline} (SI)
+            pairs           INTEGER,   -- healthy pairs at that point
+            false_alarms    INTEGER,   -- leave-one-out alarms among them
+            seconds         DOUBLE)    -- s, wall time in the worker"""
+
+register_table("change_calibrations", CHANGE_CALIBRATIONS, per_run=True)
+
+
+def run_change_calibration(spec: Mapping[str, Any], run_key: str, campaign: str,
+                           trace_file: str) -> dict[str, Any]:
+    """Worker of a ``change_calibration`` job: the change calibration of ``spec["base"]``
+    (its command, length, noise, pairs, seed, alpha, level and nuisances) made again at the
+    operating point ``spec["at"]`` (the actuator's baseline's identified faults), written to
+    ``spec["out"]``; its ``change_calibrations`` row.
+
+    Raises
+    ------
+    DetectionError
+        The base is not a change calibration, or the point is outside the faults' ranges.
+    """
+    from eha.health.change_calibration import calibrate_change
+
+    start = time.perf_counter()
+    base = _calibration(spec["base"], spec["base_sha"])
+    cal, _ = calibrate_change(base.command, actuators=base.pairs, seed=base.seed,
+                              t_end=base.t_end, noise=base.noise, alpha=base.alpha,
+                              level=base.level, nuisances=base.nuisances,
+                              model=base.signatures, at=spec["at"])
+    cal.save(spec["out"])
+    row = {"campaign": campaign, "actuator": spec["actuator"], "base": spec["base"],
+           "calibration": spec["out"], "operating_point": dict(cal.operating_point),
+           "pairs": int(cal.pairs),
+           "false_alarms": int(cal.false_alarms.get("loo", {}).get("alarms", 0)),
+           "seconds": time.perf_counter() - start}
+    return {"rows": {"change_calibrations": row}, "sim_s": row["seconds"]}
+
+
+register_job("change_calibration", run_change_calibration)
+
+__all__ = ["REFERENCE", "CHANGE_CHECKS", "CHANGE_CALIBRATIONS", "run_change_record",
+           "run_change_calibration"]

@@ -101,18 +101,60 @@ def baselines_of(manifest) -> dict[str, Baseline]:
     return out
 
 
-def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration: Path, name: str,
-                columns=None, units=None) -> list:
-    """One ``change_record`` job (:class:`eha.campaigns.files.Job`) per record after its
-    actuator's baseline (run key: the campaign, both records' contents, how they are read and
-    the calibration's content)."""
+def operating_points(base_values: Mapping[str, Mapping[str, Any]], names: Sequence[str]
+                     ) -> dict[str, dict[str, float]]:
+    """Per actuator, its baseline's identified level of each tracked fault (SI), within the
+    parameter's range: where its change calibration is made (a fault's signature at a
+    degraded point differs from the healthy one's, :class:`eha.health.change.Signatures`)."""
+    from eha.models.params import SPECS
+
+    out = {}
+    for aid, row in base_values.items():
+        est = row.get("estimates") or {}
+        out[aid] = {n: min(max(float(est[n]), SPECS[n].lo), SPECS[n].hi)
+                    for n in names if est.get(n) is not None and math.isfinite(float(est[n]))}
+    return out
+
+
+def calibration_jobs(points: Mapping[str, Mapping[str, float]], calibration: Path,
+                     folder: Path, name: str) -> tuple[list, dict[str, Path]]:
+    """One ``change_calibration`` job per actuator (the user's change calibration made again
+    at the actuator's operating point, written under ``folder``) and the file of each."""
     from eha.campaigns.files import Job
     from eha.models.simulate import MODEL_VERSION
     from eha.prognostics.jobs import file_sha
 
-    cal_sha = file_sha(calibration)
+    base_sha = file_sha(calibration)
+    jobs, files = [], {}
+    for aid, at in points.items():
+        spec = {"actuator": aid, "base": str(calibration), "base_sha": base_sha,
+                "at": {n: float(v) for n, v in sorted(at.items())}}
+        key = hashlib.sha256(json.dumps({"campaign": name, "kind": "change_calibration",
+                                         "spec": spec, "model_version": MODEL_VERSION},
+                                        sort_keys=True).encode()).hexdigest()[:16]
+        files[aid] = (Path(folder) / f"{name}-{key}.json").resolve()
+        jobs.append(Job(name, "change_calibration", key, {**spec, "out": str(files[aid])},
+                        {"model": "hf", "seed": 0, "estimated_s": 20.0,
+                         "label": f"{aid} change calibration"}))
+    return jobs, files
+
+
+def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration, name: str,
+                columns=None, units=None) -> list:
+    """One ``change_record`` job (:class:`eha.campaigns.files.Job`) per record after its
+    actuator's baseline (run key: the campaign, both records' contents, how they are read and
+    the calibration's content); ``calibration``: one file for all, or per actuator."""
+    from eha.campaigns.files import Job
+    from eha.models.simulate import MODEL_VERSION
+    from eha.prognostics.jobs import file_sha
+
+    files = calibration if isinstance(calibration, Mapping) else \
+        {aid: calibration for aid in manifest.actuators}
     jobs = []
     for aid in manifest.actuators:
+        if aid not in files:
+            continue
+        cal_sha = file_sha(files[aid])
         base = baselines[aid]
         base_sha = file_sha(base.record)
         for c in manifest.of(aid):
@@ -121,7 +163,7 @@ def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration: Path, 
             spec = {"record": str(c.record), "sha": file_sha(c.record), "actuator": aid,
                     "cycle": float(c.cycle), "baseline": str(base.record),
                     "baseline_sha": base_sha, "baseline_cycle": base.cycle,
-                    "calibration": str(calibration), "calibration_sha": cal_sha,
+                    "calibration": str(files[aid]), "calibration_sha": cal_sha,
                     "columns": c.columns or _columns(columns), "units": c.units or units,
                     "baseline_columns": base.columns or _columns(columns),
                     "baseline_units": base.units or units}

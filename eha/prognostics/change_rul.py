@@ -34,12 +34,19 @@ from eha.prognostics.result import RulResult
 CHECKS = ("fleet", "change")
 #: The histories the RUL of the change check is predicted on (``eha rul --trend``).
 TRENDS = ("identified", "changes")
+#: Where each actuator's change check is calibrated (``eha rul --operating-point``).
+OPERATING_POINTS = ("baseline", "calibration")
 
 
-def _inputs(check: str, calibration, trend: str, skip_flagged: bool) -> dict[str, Any]:
-    """The change calibration's file (one line on a wrong check, trend, a missing or wrong
-    file)."""
+def _inputs(check: str, calibration, trend: str, skip_flagged: bool,
+            operating_point: str = "baseline") -> dict[str, Any]:
+    """The change calibration's file (one line on a wrong check, trend, operating point, a
+    missing or wrong file)."""
     from eha.prognostics.change_history import check_calibration
+
+    if operating_point not in OPERATING_POINTS:
+        raise PrognosticsError(f"`operating_point` {operating_point!r}: allowed "
+                               f"{', '.join(OPERATING_POINTS)}")
 
     if check not in CHECKS:
         raise PrognosticsError(f"`check` {check!r}: allowed {', '.join(CHECKS)}")
@@ -65,11 +72,16 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
                    base_model: str | None = None,
                    columns: Mapping[str, str] | str | None = None,
                    units: str | None = None, check: str = "change",
-                   skip_flagged: bool = False, trend: str = "identified") -> RulResult:
+                   skip_flagged: bool = False, trend: str = "identified",
+                   operating_point: str = "baseline") -> RulResult:
     """:func:`eha.prognostics.jobs.run_rul` with the change check (see the module docstring);
     the same parameters, ``calibration``: a change calibration
     (:func:`eha.health.change_check.calibrate_baseline`) for the records' command, length and
-    noise, and ``trend``: the histories of the RUL, ``identified`` or ``changes``.
+    noise, ``trend``: the histories of the RUL, ``identified`` or ``changes``, and
+    ``operating_point``: ``baseline`` (each actuator's change check calibrated again at its
+    baseline's identified faults, a ``change_calibration`` job each, in the campaign
+    ``<run>-at``; the files under ``results/calibrations``) or ``calibration`` (the given
+    calibration for every actuator, at its own point).
 
     Raises
     ------
@@ -88,7 +100,7 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
     manifest, names, chosen, truth_eol = _check_rul_inputs(
         manifest_path, limits, fit, bounds, truth, laws, limit_error, base_model, columns,
         units)
-    cal = _inputs(check, calibration, trend, skip_flagged)
+    cal = _inputs(check, calibration, trend, skip_flagged, operating_point)
     missing = [n for n in names if n not in cal["faults"]]
     if missing:
         raise PrognosticsError(f"`fit` {','.join(missing)}: not judged by the calibration "
@@ -96,14 +108,18 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
     baselines = baselines_of(manifest)
     run_id = f"{run_id_of(manifest.source)}-change"
     results = Path(results)
-    camp = _campaign(manifest, baselines, chosen, seed, base_model, columns, units, run_id,
-                     Path(calibration), trend)
+    identify, changes = _campaign(manifest, baselines, chosen, seed, base_model, columns, units,
+                                  run_id, Path(calibration), trend)
+    files: Any = Path(calibration)
+    done_runs = skipped = 0
+    if operating_point == "baseline":
+        files, done_runs, skipped = _calibrate_at_baselines(
+            identify, manifest, baselines, names, Path(calibration), results, workers, progress)
+    camp = changes(files)
     summary = run_campaign(camp, results, workers=workers, replace=True, progress=progress)
     done, failed = _split_rows(read_health_rows(results, camp.name), camp)
     done = [r for r in done if r.get("estimates") is not None]   # the identifications
-    base_values = {a: {**r, "baseline_cycle": b.cycle} for r in done
-                   for a, b in [(str(r["actuator"]), baselines[str(r["actuator"])])]
-                   if r["record"] == str(b.record)}
+    base_values = _baseline_rows(done, baselines)
     listed = {str(c.record) for c in manifest.checks}   # not a baseline outside the manifest
     done = [r for r in done if r["record"] in listed]
     rows = read_change_rows(results, camp.name)
@@ -115,8 +131,9 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
     out_acts, preds_all = _predict_all(manifest.actuators, hist, limits, seed, laws, limit_error)
     for aid in manifest.actuators:
         out_acts[aid].update(_actuator_json(aid, baselines[aid], rows, alarms))
+        out_acts[aid]["calibration"] = str(files[aid] if isinstance(files, Mapping) else files)
     output = {"unit": "cycle", "check": "change", "trend": trend,
-              "calibration": str(calibration),
+              "calibration": str(calibration), "operating_point": operating_point,
               "limits": dict(limits), "fit": names,
               "bounds": {k: list(v) for k, v in chosen.items()}, "laws": list(laws),
               "seed": seed, "base_model": camp.definition.get("base_model"),
@@ -126,7 +143,8 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
     if metrics is not None:
         output["metrics"] = metrics
     res = RulResult(run_id, output, preds_all, metrics, failed=failed,
-                    assessed=summary.done, reused=summary.skipped, histories=hist,
+                    assessed=summary.done + done_runs, reused=summary.skipped + skipped,
+                    histories=hist,
                     truth=truth_eol)
     _store_predictions(results, run_id, preds_all, limits,
                        reference="baseline" if trend == "changes" else "fleet")
@@ -139,8 +157,9 @@ def run_rul_change(manifest_path: str | Path, *, limits: Mapping[str, float],
 
 def _campaign(manifest, baselines, chosen, seed, base_model, columns, units, run_id: str,
               calibration: Path, trend: str):
-    """The run's campaign: the identifications (every record, or the baselines only with
-    ``trend`` changes) and a ``change_record`` job per later record."""
+    """The run's identifications (every record, or the baselines only with ``trend``
+    changes) as a campaign, and the function that adds a ``change_record`` job per later
+    record, given the calibration file (one, or per actuator)."""
     from eha.campaigns.files import Campaign
     from eha.prognostics.change_history import change_jobs
     from eha.prognostics.jobs import health_campaign
@@ -154,11 +173,52 @@ def _campaign(manifest, baselines, chosen, seed, base_model, columns, units, run
                               b.units) for aid, b in baselines.items() if b.check is None)
     camp = health_campaign(Manifest(manifest.source, checks), chosen, seed,
                            base_model=base_model, columns=columns, units=units, name=run_id)
-    return Campaign(camp.name, f"change check of {manifest.source}", camp.source,
-                    {**camp.definition, "check": "change", "trend": trend,
-                     "calibration": str(calibration)},
-                    camp.jobs + tuple(change_jobs(manifest, baselines, calibration, run_id,
-                                                  columns, units)), camp.model_version)
+    definition = {**camp.definition, "check": "change", "trend": trend,
+                  "calibration": str(calibration)}
+    identify = Campaign(camp.name, f"change check of {manifest.source}", camp.source,
+                        definition, camp.jobs, camp.model_version)
+
+    def with_changes(files) -> Campaign:
+        return Campaign(camp.name, identify.description, camp.source, definition,
+                        camp.jobs + tuple(change_jobs(manifest, baselines, files, run_id,
+                                                      columns, units)), camp.model_version)
+
+    return identify, with_changes
+
+
+def _calibrate_at_baselines(identify, manifest, baselines, names: Sequence[str],
+                            calibration: Path, results: Path, workers: int, progress: bool):
+    """The baselines identified (the campaign ``identify``), then a change calibration per
+    actuator at its baseline's identified faults (campaign ``<run>-at``); the file of each
+    actuator (the given one where it has none: no baseline identified, a failed job) and the
+    runs done and reused."""
+    from eha.campaigns.files import Campaign
+    from eha.campaigns.runner import run_campaign
+    from eha.prognostics.change_history import calibration_jobs, operating_points
+    from eha.prognostics.jobs import read_health_rows
+
+    first = run_campaign(identify, results, workers=workers, replace=True, progress=progress)
+    points = operating_points(
+        _baseline_rows(read_health_rows(results, identify.name), baselines), names)
+    (results / "calibrations").mkdir(parents=True, exist_ok=True)
+    name = f"{identify.name}-at"
+    jobs, files = calibration_jobs(points, calibration, results / "calibrations", name)
+    at = run_campaign(Campaign(name, f"change calibrations of {manifest.source}",
+                               identify.source, {"calibration": str(calibration),
+                                                 "operating_point": "baseline"},
+                               tuple(jobs), identify.model_version),
+                      results, workers=workers, replace=True, progress=progress)
+    files = {aid: files[aid] if aid in files and files[aid].is_file() else calibration
+             for aid in manifest.actuators}
+    return files, first.done + at.done, first.skipped + at.skipped
+
+
+def _baseline_rows(rows, baselines) -> dict[str, dict[str, Any]]:
+    """Each actuator's baseline identification (its ``health_checks`` row with its
+    ``baseline_cycle``)."""
+    return {a: {**r, "baseline_cycle": b.cycle} for r in rows if r.get("estimates") is not None
+            for a, b in [(str(r["actuator"]), baselines[str(r["actuator"])])]
+            if r["record"] == str(b.record)}
 
 
 def _actuator_json(aid: str, baseline, rows, alarms) -> dict[str, Any]:
@@ -174,4 +234,4 @@ def _actuator_json(aid: str, baseline, rows, alarms) -> dict[str, Any]:
                         for r in rows if str(r["actuator"]) == aid]}
 
 
-__all__ = ["CHECKS", "TRENDS", "run_rul_change"]
+__all__ = ["CHECKS", "TRENDS", "OPERATING_POINTS", "run_rul_change"]
