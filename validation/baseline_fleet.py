@@ -126,28 +126,16 @@ def compare(truth: dict, output: dict) -> dict:
     return {"actuators": per, "summary": summary}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fleet", type=Path, default=ROOT / "examples" / "fleet-validation.toml")
-    ap.add_argument("--actuators", type=int, default=None, help="Override the fleet size.")
-    ap.add_argument("--pairs", type=int, default=30, help="Healthy pairs of the calibration.")
-    ap.add_argument("--alpha", type=float, default=0.01)
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "baseline-fleet")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--json", type=Path, nargs="?", const=result_path("baseline_fleet"),
-                    default=None, help="Write the figures (default: the result file).")
-    args = ap.parse_args(argv)
-
+def run_pass(args, table: dict) -> dict:
+    """One fleet (``table``) simulated, calibrated, checked and predicted; its figures."""
     from eha.health.change_check import calibrate_baseline
     from eha.models.faults import rul_faults
     from eha.prognostics.change_rul import run_rul_change
     from eha.prognostics.fleet import parse_fleet, simulate_fleet
 
-    load_start = os.getloadavg()
-    table = tomllib.loads(args.fleet.read_text())
-    if args.actuators is not None:
-        table["actuators"] = args.actuators
-    table["name"] = f"{table['name']}-n{table['actuators']}-s{table.get('seed', 0)}"
+    table = dict(table)
+    table["name"] = f"{table['name']}-n{table['actuators']}-s{table.get('seed', 0)}" + \
+        (f"-every{table['check_every']:g}" if args.check_every else "")
     fleet = parse_fleet(table, str(args.fleet))
     out = args.out / fleet.name
     t0 = time.perf_counter()
@@ -155,7 +143,8 @@ def main(argv=None) -> int:
     t_fleet = time.perf_counter() - t0
     t1 = time.perf_counter()
     if fleet.command["set"]:
-        ap.error(f"{args.fleet}: a command with parameters; calibrate_baseline takes a preset")
+        raise SystemExit(f"{args.fleet}: a command with parameters; calibrate_baseline takes "
+                         "a preset")
     command = fleet.command["name"]
     cal = calibrate_baseline(command, actuators=args.pairs, t_end=fleet.t_end,
                              noise=fleet.noise, alpha=args.alpha, out=out / "calibration.json",
@@ -164,45 +153,55 @@ def main(argv=None) -> int:
     fit = list(dict.fromkeys([*rul_faults(), *(f.name for f in fleet.faults)]))
     t2 = time.perf_counter()
     # trend "changes": the RUL on baseline + change (the default "identified" trend is the
-    # fleet check's identification of every record, its RUL that of validation/rul.py)
+    # fleet check's identification of every record, its RUL that of validation/rul.py); each
+    # actuator's check calibrated at its baseline's identified faults (the default)
     res = run_rul_change(fr.manifest, limits=dict(fleet.limits), fit=fit,
                          calibration=out / "calibration.json", results=out / "results",
                          truth=fr.truth, workers=args.workers, progress=False,
-                         trend="changes")
+                         trend="changes", operating_point=args.operating_point)
     t_rul = time.perf_counter() - t2
     truth = json.loads(Path(fr.truth).read_text())
     figures = compare(truth, res.output)
     m = res.metrics["fleet"] if res.metrics else {}
     fleet_rul = {}
     rul_file = result_path("rul")
-    if rul_file.is_file():
+    if rul_file.is_file() and not args.check_every:
         entry = json.loads(rul_file.read_text()).get("fleets", {}).get(fleet.name, {})
         fleet_rul = {k: entry.get(k) for k in ("alpha_lambda_fraction", "alpha_lambda_checks",
                                                "alpha_lambda", "coverage",
                                                "median_width_rel_at_0.5", "cra")}
         fleet_rul["commit"] = (entry.get("provenance") or {}).get("commit")
-    doc = {"fleet": fleet.name, "records": fr.records, "command": command,
-           "noise_m": fleet.noise, "t_end": fleet.t_end,
-           "fleet_detectable": FLEET_DETECTABLE,
-           "calibration": {"pairs": args.pairs, "alpha": args.alpha, "noise": fleet.noise,
-                           "nuisances": cal.nuisances, "false_alarms": cal.false_alarms},
-           **figures,
-           "rul_change": {k: m.get(k) for k in ("alpha_lambda_fraction", "alpha_lambda_checks",
-                                                "alpha_lambda", "coverage",
-                                                "median_width_rel_at_0.5", "cra")},
-           "rul_fleet_check": fleet_rul, "failed": res.failed,
-           "seconds": {"fleet": round(t_fleet, 1), "calibration": round(t_cal, 1),
-                       "rul_change": round(t_rul, 1), "identify": round(res.seconds["assess"], 1),
-                       "predict": round(res.seconds["predict"], 1)},
-           "workers": args.workers}
-    for name, s in figures["summary"].items():
+    return {"fleet": fleet.name, "records": fr.records, "command": command,
+            "check_every": fleet.check_every, "operating_point": args.operating_point,
+            "noise_m": fleet.noise, "t_end": fleet.t_end,
+            "fleet_detectable": FLEET_DETECTABLE,
+            "calibration": {"pairs": args.pairs, "alpha": args.alpha, "noise": fleet.noise,
+                            "nuisances": cal.nuisances, "false_alarms": cal.false_alarms},
+            **figures,
+            "rul_change": {k: m.get(k) for k in ("alpha_lambda_fraction",
+                                                 "alpha_lambda_checks", "alpha_lambda",
+                                                 "coverage", "median_width_rel_at_0.5",
+                                                 "cra")},
+            "rul_fleet_check": fleet_rul, "failed": res.failed,
+            "seconds": {"fleet": round(t_fleet, 1), "calibration": round(t_cal, 1),
+                        "rul_change": round(t_rul, 1),
+                        "identify": round(res.seconds["assess"], 1),
+                        "predict": round(res.seconds["predict"], 1)},
+            "workers": args.workers}
+
+
+def report(doc: dict) -> None:
+    """The figures of one pass on the console."""
+    print(f"{doc['fleet']} (a check every {doc['check_every']:g} cycles, calibrated at "
+          f"{doc['operating_point']}):")
+    for name, s in doc["summary"].items():
         if name == "any":
-            print(f"anything: fleet check {s['fleet_detected']} ({s['fleet_at_first_check']} at "
-                  f"the first check), change check {s['change_detected']}; earlier on "
+            print(f"  anything: fleet check {s['fleet_detected']} ({s['fleet_at_first_check']} "
+                  f"at the first check), change check {s['change_detected']}; earlier on "
                   f"{s['change_earlier']}, later on {s['change_later']}, median by "
                   f"{s['median_earlier_by']} cycles")
             continue
-        print(f"{name}: fleet check detects {s['fleet_detected']}/{s['actuators']} "
+        print(f"  {name}: fleet check detects {s['fleet_detected']}/{s['actuators']} "
               f"({s['fleet_at_first_check']} at the first check), change check "
               f"{s['change_detected']} (confirmed {s['change_confirmed']}); earlier on "
               f"{s['change_earlier']}, later on {s['change_later']}; median earlier by "
@@ -210,10 +209,42 @@ def main(argv=None) -> int:
               f"median lead time {s['median_lead_fleet']} -> {s['median_lead_change']} "
               f"(confirmed {s['median_lead_change_confirmed']}); median true change at the "
               f"first alarm {s['median_true_change_at_first']}")
-    print(f"RUL alpha-lambda fraction: change check {doc['rul_change'].get('alpha_lambda_fraction')}"
-          f", fleet check {fleet_rul.get('alpha_lambda_fraction')} "
-          f"(rul.json at {fleet_rul.get('commit')}); {len(res.failed)} failed; times "
+    print(f"  RUL alpha-lambda fraction: change check "
+          f"{doc['rul_change'].get('alpha_lambda_fraction')}, fleet check "
+          f"{doc['rul_fleet_check'].get('alpha_lambda_fraction')} (rul.json at "
+          f"{doc['rul_fleet_check'].get('commit')}); {len(doc['failed'])} failed; times "
           f"{doc['seconds']}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fleet", type=Path, default=ROOT / "examples" / "fleet-validation.toml")
+    ap.add_argument("--actuators", type=int, default=None, help="Override the fleet size.")
+    ap.add_argument("--check-every", type=float, default=None,
+                    help="Also run the fleet with a check every this many cycles (its own "
+                         "interval is coarse next to the faults' growth: both checks then "
+                         "alarm at the first check after the baseline).")
+    ap.add_argument("--operating-point", default="baseline", choices=("baseline", "calibration"),
+                    help="Where each actuator's check is calibrated (eha rul --operating-point).")
+    ap.add_argument("--pairs", type=int, default=30, help="Healthy pairs of the calibration.")
+    ap.add_argument("--alpha", type=float, default=0.01)
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "baseline-fleet")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", type=Path, nargs="?", const=result_path("baseline_fleet"),
+                    default=None, help="Write the figures (default: the result file).")
+    args = ap.parse_args(argv)
+
+    load_start = os.getloadavg()
+    table = tomllib.loads(args.fleet.read_text())
+    if args.actuators is not None:
+        table["actuators"] = args.actuators
+    every, args.check_every = args.check_every, None
+    doc = run_pass(args, table)
+    report(doc)
+    if every:
+        args.check_every = every
+        doc["dense"] = run_pass(args, {**table, "check_every": every})
+        report(doc["dense"])
     if args.json is not None:
         write_result(args.json, doc, load_start=load_start)
     return 0

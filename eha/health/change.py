@@ -237,6 +237,8 @@ class Signatures:
         else:
             sinv_s = self.S / s2
         info = np.einsum("ij,ij->i", self.S, sinv_s)         # S_f^T Sigma^-1 S_f
+        self._sinv_s = sinv_s
+        self._gram = self.S @ sinv_s.T                          # S_f^T Sigma^-1 S_g
         ok = info > 0
         self.W = np.where(ok[:, None], sinv_s / np.where(ok, info, 1.0)[:, None], 0.0)
         #: Per fault ``S_f^T Sigma^-1 S_f`` [1/fault unit^2]: the inverse variance of its
@@ -248,6 +250,19 @@ class Signatures:
         self.noise_factor = np.einsum("ij,ij->i", self.W, self.W)
         #: Faults the command does not move at all (a zero signature): never detected.
         self.blind = tuple(n for n, good in zip(self.faults, ok) if not good)
+
+    def conditional(self, first: int) -> np.ndarray:
+        """Per fault ``g``, the weights of its change estimated jointly with fault ``first``
+        (whose size is left free): ``g``'s change beside a change of ``first`` (row
+        ``first`` is zero). The generalized least squares of the two-fault model."""
+        G, X = self._gram, self._sinv_s
+        out = np.zeros_like(X)
+        gii = G[first, first]
+        for g in range(len(self.faults)):
+            det = gii * G[g, g] - G[first, g] ** 2
+            if g != first and det > 1e-12 * max(gii * G[g, g], 1e-300):
+                out[g] = (gii * X[g] - G[first, g] * X[first]) / det
+        return out
 
     def estimate(self, r: np.ndarray) -> np.ndarray:
         """Each fault's linear change estimate from a record difference ``r`` [m]

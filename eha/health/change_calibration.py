@@ -81,6 +81,11 @@ class ChangeCalibration:
     #: the fault levels the healthy pairs and the signatures are at [fault units] (empty:
     #: healthy; :func:`check_operating_point`)
     operating_point: dict[str, float] = field(default_factory=dict)
+    #: per fault ``f`` and other fault ``g``: ``g``'s change estimated beside a free change of
+    #: ``f`` on the healthy pairs (mean, std, other_var, noise_factor, tail, n, two_sided) and
+    #: ``leak``: its mean and std when only ``f`` changed, by ``f``'s size (the two-fault
+    #: reading's bias from ``f``'s nonlinear response; :func:`judge_second`)
+    second: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
 
     def save(self, path: str | Path) -> Path:
         from eha.outputs import write_json
@@ -329,6 +334,25 @@ def check_operating_point(at: Mapping[str, float] | None) -> dict[str, float]:
     return out
 
 
+def _check_settings(actuators, alpha, level, noise, t_end) -> None:
+    """One line per setting outside its range (:class:`DetectionError`)."""
+    problems = []
+    if isinstance(actuators, bool) or not isinstance(actuators, int) or \
+            not MIN_PAIRS <= actuators <= MAX_PAIRS:
+        problems.append(f"`actuators` {actuators!r}: allowed range [{MIN_PAIRS}, {MAX_PAIRS}] "
+                        "(healthy pairs)")
+    if not 0 < alpha < 1:
+        problems.append(f"`alpha` {alpha!r}: allowed range (0, 1)")
+    if not 0 < level < 1:
+        problems.append(f"`level` {level!r}: allowed range (0, 1)")
+    if not (isinstance(noise, (int, float)) and 0 < noise <= 1e-3):
+        problems.append(f"`noise` {noise!r}: allowed range (0, 0.001] m")
+    if not 0.2 <= t_end <= 10:
+        problems.append(f"`t_end` {t_end!r}: allowed range [0.2, 10] s")
+    if problems:
+        raise DetectionError(problems)
+
+
 def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int = 0,
                      t_end: float = 1.0, noise: float = 1e-6, alpha: float = 0.01,
                      level: float = 0.9, nuisances: Mapping[str, float] | None = None,
@@ -355,21 +379,7 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
     from eha.models.commands import CommandError, as_command
     from eha.models.simulate import MODEL_VERSION
 
-    problems = []
-    if isinstance(actuators, bool) or not isinstance(actuators, int) or \
-            not MIN_PAIRS <= actuators <= MAX_PAIRS:
-        problems.append(f"`actuators` {actuators!r}: allowed range [{MIN_PAIRS}, {MAX_PAIRS}] "
-                        "(healthy pairs)")
-    if not 0 < alpha < 1:
-        problems.append(f"`alpha` {alpha!r}: allowed range (0, 1)")
-    if not 0 < level < 1:
-        problems.append(f"`level` {level!r}: allowed range (0, 1)")
-    if not (isinstance(noise, (int, float)) and 0 < noise <= 1e-3):
-        problems.append(f"`noise` {noise!r}: allowed range (0, 0.001] m")
-    if not 0.2 <= t_end <= 10:
-        problems.append(f"`t_end` {t_end!r}: allowed range [0.2, 10] s")
-    if problems:
-        raise DetectionError(problems)
+    _check_settings(actuators, alpha, level, noise, t_end)
     widths = check_nuisances(nuisances)
     at = check_operating_point(at)
     try:
@@ -410,17 +420,25 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
         sd = s * screen[:, i]
         screened[name] = {"mean": float(sd.mean()), "std": float(sd.std(ddof=1)),
                           "threshold": _prediction_bound(sd, alpha / m, two), "two_sided": two}
+    second = _second_pairs(sig, np.array([b - a for a, b in pairs]), noise2, alpha)
     if on_progress:
         on_progress("the HF gain of each fault")
     # without ``gains`` (a design's search) every estimate reads at the LF slope
-    gains = _gains(cmd, sig, widths, actuators, seed, t_end, noise, at) if gains else \
-        {n: {"sizes": [probe(n)], "gains": [1.0], "spread": [0.0]} for n in names}
+    if gains:
+        gains, leaks = _gains(cmd, sig, widths, actuators, seed, t_end, noise, at)
+        for f, per in leaks.items():
+            for g, leak in per.items():
+                if g in second.get(f, {}):
+                    second[f][g]["leak"] = leak
+    else:
+        gains = {n: {"sizes": [probe(n)], "gains": [1.0], "spread": [0.0]} for n in names}
+        second = {}         # without the leaks, no second fault is judged
     cal = ChangeCalibration(
         command=str(command), command_sig=command_signature(first.com), t_end=float(t_end),
         model_version=MODEL_VERSION, alpha=float(alpha), level=float(level),
         noise=float(noise), nuisances=widths, pairs=int(actuators), seed=int(seed),
         faults=faults, gains=gains, screen=screened, signatures=model,
-        operating_point=at, excess=float(max(np.median([faults[n]["std"] ** 2 * sig.info[i]
+        operating_point=at, second=second, excess=float(max(np.median([faults[n]["std"] ** 2 * sig.info[i]
                                     for i, n in enumerate(names) if sig.info[i] > 0]), 1.0)),
         created_at=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     alarms = [any(v["degraded"] for v in judge_estimates(cal, names, e, n2).values())
@@ -456,30 +474,66 @@ def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, se
     with the fault grown by each size of :data:`GAIN_SIZES` x its probe minus the same record
     without it (same noise and dither seed: the noise cancels), over the first
     :data:`GAIN_ACTUATORS` actuators."""
-    out = {}
+    out, leaks = {}, {}
     k_max = min(actuators, GAIN_ACTUATORS)
     later = []
     for k in range(k_max):
         s = seed + k
         hf = draw_test_day({**draw_actuator(s), **at}, widths, s)
         later.append((hf, later_seed(s), _record(cmd, hf, t_end, noise, later_seed(s)).xu))
+    signs = np.array([sign_of(n) for n in sig.faults])
     for i, name in enumerate(sig.faults):
         sizes, gains, spread = [], [], []
+        cond = sig.conditional(i)
+        leak: dict[str, dict[str, list]] = {n: {"sizes": [], "mean": [], "std": []}
+                                            for j, n in enumerate(sig.faults) if j != i}
         for mult in GAIN_SIZES:
-            g, applied = [], []
+            g, applied, other = [], [], []
             for hf, s, xb in later:
                 faulty, change = _faulted(hf, name, mult * probe(name))
                 if change == 0:
                     continue
                 xf = _record(cmd, faulty, t_end, noise, s).xu
                 g.append(sig.estimate(xf - xb)[i] / change)
+                other.append(signs * (cond @ (xf - xb)))
                 applied.append(change)
             if len(g) < 2 or abs(np.mean(applied)) < 0.5 * abs(mult * probe(name)):
                 continue                           # clipped at the parameter's range
             sizes.append(float(np.mean(applied)))
             gains.append(float(np.mean(g)))
             spread.append(float(np.std(g, ddof=1)))
+            other = np.array(other)
+            for j, n in enumerate(sig.faults):
+                if j != i:
+                    leak[n]["sizes"].append(sizes[-1])
+                    leak[n]["mean"].append(float(other[:, j].mean()))
+                    leak[n]["std"].append(float(other[:, j].std(ddof=1)))
         out[name] = {"sizes": sizes, "gains": gains, "spread": spread}
+        leaks[name] = leak
+    return out, leaks
+
+
+def _second_pairs(sig: Signatures, diffs: np.ndarray, noise2: np.ndarray, alpha: float
+                  ) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per fault ``f`` and other fault ``g``, the healthy pairs' figures of ``g``'s change
+    estimated beside a free change of ``f`` (:meth:`Signatures.conditional`)."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for i, f in enumerate(sig.faults):
+        cond = sig.conditional(i)
+        est = diffs @ cond.T
+        out[f] = {}
+        for j, g in enumerate(sig.faults):
+            factor = float(cond[j] @ cond[j])
+            if j == i or factor <= 0:
+                continue
+            d = sign_of(g) * est[:, j]
+            two = FAULTS[g].direction == 0
+            var = float(d.var(ddof=1))
+            out[f][g] = {"mean": float(d.mean()), "std": math.sqrt(var),
+                         "other_var": max(var - factor * float(noise2.mean()), 0.0),
+                         "noise_factor": factor, "two_sided": two, "n": int(d.size),
+                         "tail": float(_tail(d, alpha / len(sig.faults) / (2.0 if two else 1.0),
+                                             two))}
     return out
 
 

@@ -21,8 +21,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from eha.health.change import Signatures
-from eha.health.change_calibration import (ChangeCalibration, isolate_group, judge,
-                                           load_change_calibration, sign_of)
+from eha.health.change_calibration import (ChangeCalibration, load_change_calibration,
+                                           sign_of)
+from eha.health.change_second import judge_change
 from eha.identification.healthy import DetectionError, command_signature
 from eha.models.faults import FAULTS
 
@@ -53,6 +54,10 @@ class ChangeCheckResult:
     seconds: float
     alpha: float = 0.01
     notes: list[str] = field(default_factory=list)
+    #: the other faults judged beside the first isolated one
+    #: (:func:`eha.health.change_calibration.judge_second`) and those changed beside it
+    second: dict[str, dict[str, Any]] = field(default_factory=dict)
+    also: list[str] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
     db_error: str | None = None
 
@@ -72,7 +77,10 @@ class ChangeCheckResult:
                          f"{_signed(name, v['change'])} "
                          f"{interval_text(name, *v['interval'])} since the baseline")
         which = " or ".join(parts)
-        return f"degraded: {which}"
+        beside = "".join(f"; and {name} ({FAULTS[name].description}) changed beside it, by "
+                         f"about {_signed(name, self.second[name]['change'])}"
+                         for name in self.also)
+        return f"degraded: {which}{beside}"
 
     def to_dict(self) -> dict[str, Any]:
         from eha.models.units import display_unit
@@ -88,7 +96,14 @@ class ChangeCheckResult:
                 "threshold": v["threshold"], "z": v["z"], "degraded": v["degraded"],
                 "isolated": name in self.isolated, "blind": v["blind"],
                 "not_told_apart_from": list(v.get("alike", []))}
+            if name in self.second:
+                b = self.second[name]
+                faults[name]["beside"] = {"fault": b["beside"], "change": b["change"],
+                                          "statistic": b["statistic"],
+                                          "threshold": b["threshold"],
+                                          "degraded": b["degraded"]}
         return {"check": "change", "status": self.status, "isolated": list(self.isolated),
+                "also_changed": list(self.also),
                 "finding": self.finding(), "record": self.record, "baseline": self.baseline,
                 "calibration": self.calibration, "level": self.level,
                 "changes": {n: f["change"] for n, f in faults.items()},
@@ -230,8 +245,8 @@ def check_change(record, baseline, calibration, level: float | None = None,
     later, earlier = _load_pair(record, baseline, cal, calibration)
     sig = signatures_of(cal, later.command)
     n_a, n_b = noise_level(earlier.xu), noise_level(later.xu)
-    judged = judge(cal, sig, later.xu - earlier.xu, n_a ** 2 + n_b ** 2, level)
-    isolated = isolate_group(judged)
+    judged, isolated, second, also = judge_change(cal, sig, later.xu - earlier.xu,
+                                                  n_a ** 2 + n_b ** 2, level)
     screen = screen_baseline(cal, sig, earlier.xu)
     notes = []
     if screen:
@@ -260,7 +275,8 @@ def check_change(record, baseline, calibration, level: float | None = None,
     out = ChangeCheckResult(str(record), str(baseline), str(calibration),
                             cal.level if level is None else level, judged, isolated, screen,
                             {"record": n_b, "baseline": n_a}, check_id,
-                            time.perf_counter() - start, cal.alpha, notes)
+                            time.perf_counter() - start, cal.alpha, notes, second=second,
+                            also=also)
     if json_path is not None:
         from eha.outputs import write_json
 

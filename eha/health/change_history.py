@@ -50,7 +50,9 @@ CHANGE_CHECKS = """
             baseline_rmse  DOUBLE,    -- m, the baseline's noise
             seconds        DOUBLE)    -- s, wall time in the worker"""
 
-register_table("change_checks", CHANGE_CHECKS, per_run=True)
+register_table("change_checks", CHANGE_CHECKS, per_run=True,
+               added=[("also", "JSON"),       # faults changed beside the isolated one
+                      ("beside", "JSON")])    # {fault: its reading beside the first}
 
 
 @lru_cache(maxsize=4)
@@ -98,7 +100,7 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
         A record that cannot be read or is not the calibration's command and length; a
         calibration that is not a change calibration (the job fails with that line).
     """
-    from eha.health.change_calibration import isolate_group, judge
+    from eha.health.change_second import judge_change
     from eha.health.change_check import screen_baseline
     from eha.identification.measured import noise_level
 
@@ -110,7 +112,8 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
     sig = _estimator(spec["calibration"], spec["calibration_sha"], cal.command_sig,
                      later.command)
     n_a, n_b = noise_level(earlier.xu), noise_level(later.xu)
-    judged = judge(cal, sig, later.xu - earlier.xu, n_a ** 2 + n_b ** 2)
+    judged, isolated, second, also = judge_change(cal, sig, later.xu - earlier.xu,
+                                                  n_a ** 2 + n_b ** 2)
     row = {"campaign": campaign, "actuator": spec["actuator"], "cycle": float(spec["cycle"]),
            "record": spec["record"], "record_sha": spec["sha"], "baseline": spec["baseline"],
            "baseline_cycle": spec.get("baseline_cycle"), "calibration": spec["calibration"],
@@ -122,7 +125,11 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
            "statistics": {n: float(v["statistic"]) for n, v in judged.items()},
            "thresholds": {n: float(v["threshold"]) for n, v in judged.items()},
            "degraded": {n: bool(v["degraded"]) for n, v in judged.items()},
-           "isolated": isolate_group(judged), "screen": screen_baseline(cal, sig, earlier.xu),
+           "isolated": isolated, "also": also,
+           "beside": {g: {"fault": v["beside"], "change": float(v["change"]),
+                          "statistic": float(v["statistic"]),
+                          "threshold": float(v["threshold"])} for g, v in second.items()},
+           "screen": screen_baseline(cal, sig, earlier.xu),
            "noise_rmse": float(n_b), "baseline_rmse": float(n_a)}
     row["seconds"] = time.perf_counter() - start
     return {"rows": {"change_checks": row}, "sim_s": row["seconds"]}

@@ -204,7 +204,7 @@ def read_change_rows(results: Path, campaign: str) -> list[dict[str, Any]]:
         con.close()
     for r in rows:
         for k in ("changes", "intervals", "statistics", "thresholds", "degraded", "isolated",
-                  "screen"):
+                  "screen", "also", "beside"):
             if isinstance(r.get(k), str):
                 r[k] = json.loads(r[k])
     return rows
@@ -228,7 +228,9 @@ def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[
         for name in rs[0]["changes"]:
             # the fault's own statistic also moves with another fault's change (each is
             # estimated alone): an alarm of it is a degraded check isolated to it
-            alarms = [bool(r["degraded"][name]) and name in r["isolated"] for r in rs]
+            # (or changed beside the one it is isolated to: the two-fault reading)
+            alarms = [bool(r["degraded"][name]) and name in r["isolated"]
+                      or name in (r.get("also") or ()) for r in rs]
             first = next((float(r["cycle"]) for r, a in zip(rs, alarms) if a), None)
             confirmed = next((float(rs[k]["cycle"]) for k in range(len(rs) - 1)
                               if alarms[k] and alarms[k + 1]), None)

@@ -227,7 +227,8 @@ def _actuator_json(aid: str, baseline, rows, alarms) -> dict[str, Any]:
     return {"baseline": str(baseline.record), "baseline_cycle": baseline.cycle,
             "first_alarms": alarms.get(aid, {}),
             "changes": [{"cycle": float(r["cycle"]), "record": r["record"],
-                         "isolated": list(r["isolated"]), "screen": list(r["screen"]),
+                         "isolated": list(r["isolated"]), "also": list(r.get("also") or []),
+                         "screen": list(r["screen"]),
                          "faults": {n: {"change": v, "interval": list(r["intervals"][n]),
                                         "degraded": bool(r["degraded"][n])}
                                     for n, v in r["changes"].items()}}
