@@ -21,6 +21,7 @@ from eha.identification.fdi import hf_reference, identify, mean_error_pct, perce
 from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHODS,
                                         METHOD_DEFAULTS, OBJECTIVES, FDIError, FitResult,
                                         check_bounds)
+from eha.models.bounds import Bounds
 from eha.models.params import LFParams, ParameterError, resolve
 from eha.models.simulate import MODEL_VERSION, Trace, simulate
 
@@ -35,7 +36,7 @@ class FDICase:
     case: int
     command: str
     faults: dict[str, float]
-    bounds: dict[str, tuple[float, float]]
+    bounds: Bounds
     pop: int = 20
     thesis: dict[str, float] = field(default_factory=dict)
     bounds_source: str = ""
