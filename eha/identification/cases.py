@@ -338,7 +338,7 @@ def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
     """Execute one FDI job (:func:`fdi_jobs`): the ``fdi_results`` row and the identified LF
     trace (meta: case, seed, truth, estimates)."""
     case = FDICase(case=int(spec["case"]), command=spec["command"], faults=spec["faults"],
-                   bounds={k: tuple(v) for k, v in spec["bounds"].items()}, pop=int(spec["pop"]))
+                   bounds=Bounds(spec["bounds"]), pop=int(spec["pop"]))
     base = resolve("lf", spec.get("base") or {})
     row = run_case(case, int(spec["seed"]), spec["method"], spec["objective"],
                    float(spec["t_end"]), base=base, level=spec.get("level", DEFAULT_LEVEL),
