@@ -245,7 +245,8 @@ def search_bounds(names=None, purpose: str = "fdi", declared: bool = False) -> B
 
     A name that is not a fault gets its parameter's allowed range (``eha params``);
     ``declared=True`` keeps only the faults that declare bounds of their own for ``purpose``
-    (the loop's: those with :attr:`Fault.loop_bounds`).
+    (for the loop, those with :attr:`Fault.loop_bounds`; every fault has assessment and fdi
+    bounds).
 
     Raises
     ------
@@ -254,11 +255,12 @@ def search_bounds(names=None, purpose: str = "fdi", declared: bool = False) -> B
     """
     if purpose not in PURPOSES:
         raise ParameterError(f"`purpose` {purpose!r}: allowed {', '.join(PURPOSES)}")
+    pool = list(FAULTS if names is None else names)
     if declared:
-        return Bounds({f.name: f.loop_bounds for f in FAULTS.values()
-                       if purpose == "loop" and f.loop_bounds is not None})
+        pool = [n for n in pool if n in FAULTS
+                and (purpose != "loop" or FAULTS[n].loop_bounds is not None)]
     out = Bounds()
-    for name in (FAULTS if names is None else names):
+    for name in pool:
         if name in FAULTS:
             out[name] = FAULTS[name].bounds_for(purpose)
         elif name in SPECS:
