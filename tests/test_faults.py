@@ -23,7 +23,10 @@ def test_the_seven_faults_and_every_table_derived_from_them():
     from eha.identification.healthy import DISPERSION
     from eha.identification.intervals import MODEL_FORM
     from eha.identification.problem import SEARCH_BOUNDS
-    from eha.reports.html.data import DISPLAY_UNITS
+    from eha.explain.settings import DEFAULT_FAULT_BOUNDS
+    from eha.models.units import display_unit
+    from eha.prognostics.plots import _unit
+    from eha.reports.html.data import unit_of
 
     assert list(FAULTS) == ["BKL", "FDJ", "GM", "Kintas", "Clk", "Ofs", "FSS"]
     assert ASSESSED is FAULTS
@@ -34,7 +37,16 @@ def test_the_seven_faults_and_every_table_derived_from_them():
     # the healthy fleet's draw order is the historic one (a seed gives the same actuator)
     assert list(DISPERSION) == ["GP", "GQ", "CJ", "MJ", "FSS", "GM", "FDJ", "Clk"]
     assert MODEL_FORM["calibrated"]["Kintas"].abs == 0.05 and "Kintas" not in MODEL_FORM["plain"]
-    assert dict(DISPLAY_UNITS) == {"BKL": ("µm", 1e6)}
+    # the loop's bounds when none are given: declared with BKL and FDJ (issue 63)
+    assert DEFAULT_FAULT_BOUNDS == {"BKL": (0.0, 2e-3), "FDJ": (0.0, 8000.0)}
+    assert registry.search_bounds(["BKL", "FDJ", "GM"], "loop") == {
+        "BKL": (0.0, 2e-3), "FDJ": (0.0, 8000.0), "GM": (0.003, 0.012)}
+    assert registry.search_bounds(["FDJ"], "assessment") == {"FDJ": (50.0, 4000.0)}
+    # one home of display units: the registry, the report and the RUL plots read it
+    assert display_unit("BKL") == ("µm", 1e6) and display_unit("FDJ") == ("N", 1.0)
+    for f in FAULTS.values():
+        assert f.display_unit == display_unit(f.name)
+        assert unit_of(f.name) == _unit(f.name) == (f.display_unit[0] or "-", f.display_unit[1])
     for f in FAULTS.values():
         assert f.healthy == SPECS[f.name].nominal and f.unit == SPECS[f.name].unit
 
@@ -115,3 +127,25 @@ def test_a_new_fault_is_one_declaration_identified_assessed_and_reported(tmp_pat
         listing = CliRunner().invoke(app, ["faults"], env={"COLUMNS": "100"})
         assert listing.exit_code == 0 and "His  magnetic hysteresis [mA]" in listing.output
     assert "His" not in FAULTS and "His" not in SEARCH_BOUNDS
+
+
+def test_a_fault_declares_its_loop_bounds_and_display_unit_once():
+    """A fault's loop bounds and display unit are two more fields of its one declaration
+    (issue 63): the bounds reach ``search_bounds(purpose="loop")``, the unit every reader of
+    display units (console, report, RUL plots, ``eha faults``); a bad loop bound is one line."""
+    from eha.models.units import display_unit, show
+    from eha.prognostics.plots import _unit
+    from eha.reports.html.data import unit_of
+
+    toy = Fault("His", "magnetic hysteresis", +1, (0.0, 0.5), loop_bounds=(0.0, 1.0),
+                display=("µA", 1e3))
+    with registered(toy):
+        assert registry.search_bounds(["His"], "loop") == {"His": (0.0, 1.0)}
+        assert registry.search_bounds(["His"], "fdi") == {"His": (0.0, 0.5)}
+        assert display_unit("His") == unit_of("His") == _unit("His") == ("µA", 1e3)
+        assert show("His", 0.02) == "20 µA"
+    assert display_unit("His") == ("mA", 1.0)
+    with pytest.raises(ParameterError, match=r"loop_bounds \[0, 50\] must lie inside"):
+        register(Fault("His", "too wide", +1, (0.0, 0.5), loop_bounds=(0.0, 50.0)))
+    with pytest.raises(ParameterError, match="`purpose` 'rul': allowed assessment, fdi, loop"):
+        registry.search_bounds(["BKL"], "rul")

@@ -133,7 +133,7 @@ def faults():
         scatter = "" if f.scatter is None else f" ({_scatter_text(f.scatter, k)})"
         trend = {1: "degrades up", -1: "degrades down", 0: "degrades either way"}[f.direction]
         tags = ", ".join(t for t in (f.role == "core" and "core", f.rul and "RUL") if t)
-        head = f"{f.description} [{unit}], {trend}" + (f" ({tags})" if tags else "")
+        head = f"{f.description} [{unit or '-'}], {trend}" + (f" ({tags})" if tags else "")
         console.print(Text.assemble((f.name, "bold"), f"  {head}"), highlight=False)
         console.print(f"    healthy {f.healthy * k:g}{scatter}; search {f.bounds[0] * k:g} to "
                       f"{f.bounds[1] * k:g}; campaign levels "

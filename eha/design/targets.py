@@ -54,10 +54,10 @@ class Target:
 
     @property
     def display(self) -> tuple[str, float]:
-        """Display unit and factor from SI (the fault's declared one, µm for lengths)."""
-        if self.param in FAULTS:
-            return FAULTS[self.param].display_unit
-        return ("µm", 1e6) if self.unit == "m" else (self.unit, 1.0)
+        """Display unit and factor from SI (:func:`eha.models.units.display_unit`)."""
+        from eha.models.units import display_unit
+
+        return display_unit(self.param)
 
     def shown(self, value: float, digits: int = 3) -> str:
         """``value`` (a deviation, SI) in the display unit, with the unit."""

@@ -17,6 +17,8 @@ import numpy as np
 from eha.explain.effects import EFFECTS
 from eha.explain.facts import RunFacts
 from eha.explain.leads import LeadReport
+from eha.models.bounds import Bounds
+from eha.models.estimate import Estimate, Interval, estimates, frame, intervals_json
 from eha.models.params import LFParams
 from eha.models.units import number, show
 
@@ -151,7 +153,7 @@ class ExplainResult:
     """Outcome of :func:`explain` (RMSE in metres)."""
 
     source: str
-    fit_bounds: dict[str, tuple[float, float]]
+    fit_bounds: Bounds
     faults_before: dict[str, float]
     faults_after: dict[str, float]
     before: Evaluation
@@ -171,7 +173,7 @@ class ExplainResult:
     #: P12 in the fit, passes, the flow gain fitted or released
     facts: RunFacts = field(default_factory=RunFacts)
     #: intervals of the final model's fitted parameters (faults and effect parameters)
-    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    intervals: dict[str, Interval] = field(default_factory=dict)
     level: float | None = None
     #: the residual is above the noise level (``noise_factor`` times the noise) and above
     #: the found model's own level (:attr:`model_level`), or a rival fits as well: the
@@ -228,15 +230,32 @@ class ExplainResult:
 
         digest = hashlib.sha1(np.ascontiguousarray(self.measured, dtype=float).tobytes())
         digest.update(json.dumps([self.source, self.settings,
-                                  {k: list(v) for k, v in self.fit_bounds.items()}],
+                                  Bounds(self.fit_bounds).to_dict()],
                                  sort_keys=True, default=str).encode())
         return digest.hexdigest()[:16]
 
-    def to_pandas(self):
-        """The steps table (:meth:`steps_table`) as a pandas DataFrame: one row per added
-        effect, RMSE columns in m."""
+    def as_estimates(self) -> dict[str, Estimate]:
+        """The final model's :class:`~eha.models.estimate.Estimate` of each fitted parameter
+        (faults and effect parameters; SI units): the value, its interval at :attr:`level`
+        where one was computed."""
+        names = [*self.intervals, *(k for k in self.faults_after if k not in self.intervals)]
+        values = {k: self.faults_after[k] if k in self.faults_after
+                  else getattr(self.after.params, k) for k in names}
+        return estimates(values, self.intervals, self.level)
+
+    def to_pandas(self, table: str = "steps"):
+        """A pandas DataFrame: ``"steps"``, the steps table (:meth:`steps_table`), one row per
+        added effect, RMSE columns in m; ``"estimates"``, one row per fitted parameter of the
+        final model (:meth:`as_estimates`): ``parameter``, ``unit`` (SI), ``estimate``, ``lo``,
+        ``hi``, ``level``."""
         import pandas as pd
 
+        if table == "estimates":
+            return frame(self.as_estimates(), key="parameter")
+        if table != "steps":
+            from eha.explain.settings import ExplainError
+
+            raise ExplainError(f"`table` {table!r}: allowed steps, estimates")
         return pd.DataFrame(self.steps_table(), columns=list(STEP_COLUMNS))
 
     def plot(self, path=None, kind: str = "residuals"):
@@ -363,7 +382,7 @@ class ExplainResult:
             "rmse_after": self.rmse_after,
             "faults_before": dict(self.faults_before),
             "faults_after": dict(self.faults_after),
-            "intervals": {k: list(v) for k, v in self.intervals.items()},
+            "intervals": intervals_json(self.as_estimates()),
             "level": self.level, "unexplained": self.unexplained,
             "beyond_healthy": self.beyond_healthy,
             "interval_notes": list(self.interval_notes),
@@ -450,7 +469,7 @@ class ExplainResult:
         """The run's row of ``explain_runs`` (:func:`eha.explain.tables.save_explain`);
         ``source`` is the record's path as given."""
         return {"run_id": run_id, "source": source, "created_at": created_at,
-                "fit": {k: list(v) for k, v in self.fit_bounds.items()},
+                "fit": Bounds(self.fit_bounds).to_dict(),
                 "holdout": self.holdout, "settings": self.settings,
                 "facts": self.facts.to_json(), "rmse_before": self.rmse_before, "rmse_after": self.rmse_after,
                 "noise_rmse": self.noise_rmse, "unexplained_rmse": self.unexplained_rmse,

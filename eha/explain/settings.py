@@ -14,6 +14,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from eha.explain.effects import COMBINATIONS
 from eha.identification.problem import DEFAULT_METHOD
+from eha.models.faults import Bounds, search_bounds
 from eha.models.params import ParameterError, parse_name_value
 from eha.errors import InputError
 
@@ -27,8 +28,7 @@ class ExplainError(InputError):
 
 #: Search bounds of the declared faults when none are given (wider than the thesis' chirp
 #: cases, for records of unknown actuators).
-DEFAULT_FAULT_BOUNDS: dict[str, tuple[float, float]] = {"BKL": (0.0, 2e-3),
-                                                        "FDJ": (0.0, 8000.0)}
+DEFAULT_FAULT_BOUNDS: Bounds = search_bounds(purpose="loop", declared=True)
 #: Refits of at least this many free parameters (faults + effects) run MULTISTART GA searches
 #: (seeds ``seed``, ``seed + 1000``, ...) and keep the best fit.
 MULTISTART_PARAMS = 5

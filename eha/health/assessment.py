@@ -32,6 +32,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from eha.models.commands import Command
+from eha.models.estimate import Estimate, Interval, estimates, frame, intervals_json
 from eha.identification.fdi import identify
 from eha.identification.problem import CALIBRATED_LF, DEFAULT_LEVEL, FitResult
 from eha.models.faults import FAULTS as FAULT_REGISTRY, Fault, core_faults, extra_faults
@@ -105,7 +106,7 @@ class Assessment:
     """
 
     estimates: dict[str, float]
-    intervals: dict[str, tuple[float, float]]
+    intervals: dict[str, Interval]
     means: dict[str, float]
     spread: dict[str, float]
     level: float
@@ -126,29 +127,23 @@ class Assessment:
     def weights(self) -> dict[str, float]:
         return {("none" if h.fault is None else h.fault): h.weight for h in self.hypotheses}
 
+    def as_estimates(self) -> dict[str, Estimate]:
+        """Each fault's :class:`~eha.models.estimate.Estimate`: the estimate, its interval at
+        :attr:`level`, its measurement std (:attr:`spread`), its SI unit."""
+        return estimates(self.estimates, self.intervals, self.level, self.spread)
+
     def to_pandas(self):
         """One row per fault: its unit (SI, as ``eha params``), estimate, interval at
         ``level``, posterior mean over the hypotheses and measurement std, and ``weight``: the
         posterior probability of a hypothesis that fits it (1 for the core faults, which every
         hypothesis fits; the weight of ``H_fault`` for the others)."""
-        import pandas as pd
-
-        from eha.models.params import SPECS
-
         weights = {**self.weights(), **{k: 1.0 for k in core_faults()}}
-        rows = []
-        for k, v in self.estimates.items():
-            lo, hi = self.intervals.get(k, (math.nan, math.nan))
-            rows.append({"fault": k, "unit": SPECS[k].unit if k in SPECS else "",
-                         "estimate": v, "lo": lo, "hi": hi, "mean": self.means.get(k, math.nan),
-                         "std": self.spread.get(k, math.nan),
-                         "weight": weights.get(k, math.nan)})
-        return pd.DataFrame(rows, columns=["fault", "unit", "estimate", "lo", "hi", "mean",
-                                           "std", "weight"])
+        return frame(self.as_estimates(), key="fault", columns=("unit", "estimate", "lo", "hi"),
+                     extra={"mean": self.means, "std": self.spread, "weight": weights})
 
     def to_dict(self) -> dict[str, Any]:
         return {"estimates": dict(self.estimates),
-                "intervals": {k: list(v) for k, v in self.intervals.items()},
+                "intervals": intervals_json(self.as_estimates()),
                 "means": dict(self.means), "spread": dict(self.spread),
                 "level": self.level, "flagged": self.flagged,
                 "noise_rmse": self.noise_rmse, "residual_rmse": self.residual_rmse,
@@ -157,7 +152,7 @@ class Assessment:
                 "hypotheses": [{"fault": h.fault, "weight": h.weight, "bic": h.bic,
                                 "rmse": h.fit.objective, "estimates": h.fit.estimates,
                                 "std": h.fit.std, "hac_std": h.fit.hac_std,
-                                "intervals": {k: list(v) for k, v in h.fit.intervals.items()}}
+                                "intervals": intervals_json(h.fit.as_estimates())}
                                for h in self.hypotheses]}
 
 

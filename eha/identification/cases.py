@@ -21,6 +21,7 @@ from eha.identification.fdi import hf_reference, identify, mean_error_pct, perce
 from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHODS,
                                         METHOD_DEFAULTS, OBJECTIVES, FDIError, FitResult,
                                         check_bounds)
+from eha.models.bounds import Bounds
 from eha.models.params import LFParams, ParameterError, resolve
 from eha.models.simulate import MODEL_VERSION, Trace, simulate
 
@@ -35,7 +36,7 @@ class FDICase:
     case: int
     command: str
     faults: dict[str, float]
-    bounds: dict[str, tuple[float, float]]
+    bounds: Bounds
     pop: int = 20
     thesis: dict[str, float] = field(default_factory=dict)
     bounds_source: str = ""
@@ -337,7 +338,7 @@ def run_job(spec: Mapping[str, Any]) -> tuple[dict[str, Any], Trace]:
     """Execute one FDI job (:func:`fdi_jobs`): the ``fdi_results`` row and the identified LF
     trace (meta: case, seed, truth, estimates)."""
     case = FDICase(case=int(spec["case"]), command=spec["command"], faults=spec["faults"],
-                   bounds={k: tuple(v) for k, v in spec["bounds"].items()}, pop=int(spec["pop"]))
+                   bounds=Bounds(spec["bounds"]), pop=int(spec["pop"]))
     base = resolve("lf", spec.get("base") or {})
     row = run_case(case, int(spec["seed"]), spec["method"], spec["objective"],
                    float(spec["t_end"]), base=base, level=spec.get("level", DEFAULT_LEVEL),

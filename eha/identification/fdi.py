@@ -50,6 +50,7 @@ from eha.identification.intervals import check_level, estimate_intervals
 from eha.identification.measured import load
 from eha.identification.optimizers import (BatchObjective, least_squares_polish, pattern_search,
                                            run_ga)
+from eha.models.bounds import Bounds
 from eha.identification.problem import (BASE_MODELS, DEFAULT_BASE_MODEL, DEFAULT_FIT,
                                         DEFAULT_LEVEL, DEFAULT_METHOD, METHOD_DEFAULTS, METHODS,
                                         OBJECTIVES, FDIError, FitResult, check_bounds,
@@ -298,7 +299,7 @@ def mean_error_pct(errors: Mapping[str, float]) -> float:
 # one identification from the command line (eha fdi)
 
 
-def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
+def parse_bounds(items: Iterable[str]) -> Bounds:
     """Parse ``NAME=LO:HI`` strings (``BKL=0:1.25e-3``) into bounds (validated later).
 
     Raises
@@ -306,7 +307,7 @@ def parse_bounds(items: Iterable[str]) -> dict[str, tuple[float, float]]:
     FDIError
         A malformed item, in :func:`eha.models.params.parse_name_value`'s words.
     """
-    out: dict[str, tuple[float, float]] = {}
+    out = Bounds()
     for item in items:
         try:
             name, rng = parse_name_value(item, "`bounds`", "LO:HI")
@@ -338,20 +339,11 @@ class Identification:
     def to_pandas(self):
         """One row per fitted parameter: its unit (SI, as ``eha params``), estimate, interval
         (NaN when none was computed), the truth and the error in % of it (HF references)."""
-        import pandas as pd
+        from eha.models.estimate import frame
 
-        from eha.models.params import SPECS
-
-        nan = float("nan")
-        rows = []
-        for k, v in self.result.estimates.items():
-            lo, hi = self.result.intervals.get(k, (nan, nan))
-            rows.append({"parameter": k, "unit": SPECS[k].unit if k in SPECS else "",
-                         "estimate": v, "lo": lo, "hi": hi,
-                         "truth": (self.truth or {}).get(k, nan),
-                         "error_pct": (self.errors_pct or {}).get(k, nan)})
-        return pd.DataFrame(rows, columns=["parameter", "unit", "estimate", "lo", "hi", "truth",
-                                           "error_pct"])
+        return frame(self.result.as_estimates(), key="parameter",
+                     columns=("unit", "estimate", "lo", "hi"),
+                     extra={"truth": self.truth or {}, "error_pct": self.errors_pct or {}})
 
     def to_dict(self) -> dict[str, Any]:
         return {"source": self.source, **self.result.to_dict(), "truth": self.truth,

@@ -42,6 +42,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from eha.models.estimate import Interval
 from eha.models.faults import Derived, model_form_floors
 
 #: Default confidence level of every interval.
@@ -222,7 +223,8 @@ class Intervals:
     level : float
         Nominal coverage of every interval (e.g. 0.9).
     bounds : dict
-        ``name -> (lo, hi)`` in the parameter's unit.
+        ``name -> (lo, hi)``: the interval of each estimate at ``level`` (not a search
+        bound), in the parameter's unit.
     std : dict
         Standard uncertainty of each estimate (HAC, scaled, with the model-form floors).
     hac_std : dict
@@ -241,7 +243,7 @@ class Intervals:
     """
 
     level: float
-    bounds: dict[str, tuple[float, float]]
+    bounds: dict[str, Interval]
     std: dict[str, float]
     hac_std: dict[str, float]
     noise_rmse: float

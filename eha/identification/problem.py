@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
 from eha.errors import InputError
+from eha.models.bounds import Bounds
+from eha.models.estimate import Estimate, Interval, estimates, intervals_json
 from eha.models.faults import Derived, search_bounds
 from eha.models.params import SPECS, LFParams, ParameterError, check_value, resolve
 
@@ -133,10 +135,10 @@ class FitResult:
     history: tuple[float, ...]
     method: str
     seed: int
-    bounds: dict[str, tuple[float, float]]
+    bounds: Bounds
     options: dict[str, float] = field(default_factory=dict)
     level: float | None = None
-    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    intervals: dict[str, Interval] = field(default_factory=dict)
     std: dict[str, float] = field(default_factory=dict)
     hac_std: dict[str, float] = field(default_factory=dict)
     lag: int | None = None
@@ -145,13 +147,18 @@ class FitResult:
     model_form: str = "none"
     notes: tuple[str, ...] = ()
 
+    def as_estimates(self) -> dict[str, Estimate]:
+        """Each fitted parameter's :class:`~eha.models.estimate.Estimate`: value, interval at
+        :attr:`level` (NaN where none was computed), std, SI unit."""
+        return estimates(self.estimates, self.intervals, self.level, self.std)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form (lists instead of tuples)."""
         d = asdict(self)
         d["names"] = list(self.names)
         d["history"] = list(self.history)
-        d["bounds"] = {k: list(v) for k, v in self.bounds.items()}
-        d["intervals"] = {k: list(v) for k, v in self.intervals.items()}
+        d["bounds"] = Bounds(self.bounds).to_dict()
+        d["intervals"] = intervals_json(self.as_estimates())
         d["notes"] = list(self.notes)
         return d
 
@@ -160,7 +167,7 @@ class FitResult:
 # validation
 
 
-def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, float]]:
+def check_bounds(fit: Mapping[str, Sequence[float]]) -> Bounds:
     """Validate search bounds: LF parameter names, ``lo < hi``, both inside the allowed range.
 
     Raises
@@ -170,7 +177,7 @@ def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, f
     """
     if not fit:
         raise FDIError("fit: no parameter to identify; give at least one NAME with bounds")
-    out: dict[str, tuple[float, float]] = {}
+    out = Bounds()
     for name, pair in fit.items():
         if name in NOT_FITTABLE:
             raise FDIError(f"fit {name}: cannot be identified (structural switch or grid); "
@@ -193,13 +200,11 @@ def check_bounds(fit: Mapping[str, Sequence[float]]) -> dict[str, tuple[float, f
     return out
 
 
-def default_bounds(names: Iterable[str]) -> dict[str, tuple[float, float]]:
-    """:data:`SEARCH_BOUNDS` for the faults, else the parameter's allowed range."""
-    out = {}
-    for name in names:
-        spec = SPECS.get(name)
-        if spec is None:
-            raise FDIError(f"fit {name}: unknown parameter (see `eha params --model lf`)")
-        out[name] = SEARCH_BOUNDS.get(name, (spec.lo, spec.hi))
-    return out
+def default_bounds(names: Iterable[str]) -> Bounds:
+    """:data:`SEARCH_BOUNDS` for the faults, else the parameter's allowed range
+    (:func:`eha.models.faults.search_bounds`)."""
+    try:
+        return search_bounds(list(names), "fdi")
+    except ParameterError as exc:
+        raise FDIError(str(exc)) from None
 

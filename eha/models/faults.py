@@ -8,14 +8,19 @@ speak of. Its facts used to be spread over seven tables; they now derive from :d
 derived table                           from
 ======================================  ================================================
 ``identification.problem.SEARCH_BOUNDS``  :attr:`Fault.thesis_bounds` or :attr:`Fault.bounds`
+``explain.settings.DEFAULT_FAULT_BOUNDS``  :attr:`Fault.loop_bounds`
 ``identification.healthy.DISPERSION``     :attr:`Fault.scatter` (+ :data:`OTHER_SCATTER`)
 ``identification.intervals.MODEL_FORM``   :attr:`Fault.model_form`
 ``health.assessment`` bank                :attr:`Fault.role`, :attr:`Fault.bounds`,
                                           :attr:`Fault.healthy_std`, :attr:`Fault.direction`
 ``eha rul --fit`` default               :attr:`Fault.rul`
-``reports.html.data.DISPLAY_UNITS``       :attr:`Fault.display`
+``models.units.display_unit``              :attr:`Fault.display` (else by the SI unit)
 health-detection campaign levels          :attr:`Fault.levels`
 ======================================  ================================================
+
+Every table of search bounds derives from :func:`search_bounds` (one :class:`Bounds` per
+purpose: ``"assessment"``, ``"fdi"``, ``"loop"``); every display unit from
+:func:`eha.models.units.display_unit`.
 
 Adding a health fault on an existing LF parameter is one :func:`register` call (in this module
 or in user code); :func:`registered` does it for the span of a ``with`` block (tests).
@@ -36,6 +41,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Mapping
 
+from eha.models.bounds import Bounds
 from eha.models.params import SPECS, ParameterError
 
 #: Roles in the hypothesis bank: ``core`` faults are fitted in every hypothesis (the thesis'
@@ -44,6 +50,12 @@ ROLES = ("core", "extra")
 #: Laws of a manufacturing scatter ``(law, a, b)``: ``uniform_rel`` nominal x U(1 - a, 1 + a);
 #: ``normal`` N(a, b) clipped at 10 % of a; ``loguniform`` exp(U(ln a, ln b)).
 SCATTER_LAWS = ("uniform_rel", "normal", "loguniform")
+#: What a fault's search bounds are for (:func:`search_bounds`): the health assessment
+#: (:attr:`Fault.bounds`), the thesis reproduction's identification ``eha fdi``
+#: (:attr:`Fault.fdi_bounds`), the residual loop ``eha explain`` (:attr:`Fault.loop_bounds`).
+PURPOSES = ("assessment", "fdi", "loop")
+#: A model-form floor of a fault's interval: ``(relative, absolute [parameter unit])``.
+Floor = tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -69,6 +81,10 @@ class Fault:
     thesis_bounds : (float, float) or None
         Search bounds of the thesis reproduction's identification (``eha fdi``) where they
         differ from :attr:`bounds`.
+    loop_bounds : (float, float) or None
+        Search bounds of the residual loop (``eha explain``) when the fault is declared without
+        bounds: wider than the thesis' chirp cases, for records of unknown actuators. None:
+        :attr:`fdi_bounds`.
     scatter : (str, float, float) or None
         Manufacturing scatter of a healthy actuator (:data:`SCATTER_LAWS`); None: every healthy
         actuator has the nominal value.
@@ -76,8 +92,8 @@ class Fault:
         Per LF base model (``plain``, ``calibrated``): the measured model-form floor
         ``(rel, abs)`` of the fault's interval (:mod:`eha.identification.intervals`).
     display : (str, float) or None
-        Display unit and the factor from the SI value (``("µm", 1e6)``); None: the parameter's
-        unit.
+        Display unit and the factor from the SI value (``("µm", 1e6)``) where it is not the
+        one :func:`eha.models.units.display_unit` gives by the SI unit; None: that one.
     levels : tuple of float
         Levels injected by the health-detection campaign (increasing severity).
     rul : bool
@@ -95,8 +111,9 @@ class Fault:
     role: str = "extra"
     healthy_std: float = 0.0
     thesis_bounds: tuple[float, float] | None = None
+    loop_bounds: tuple[float, float] | None = None
     scatter: tuple[str, float, float] | None = None
-    model_form: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    model_form: Mapping[str, Floor] = field(default_factory=dict)
     display: tuple[str, float] | None = None
     levels: tuple[float, ...] = ()
     rul: bool = False
@@ -114,13 +131,23 @@ class Fault:
 
     @property
     def display_unit(self) -> tuple[str, float]:
-        """``(unit, factor)`` a person reads the fault in: :attr:`display` or the SI unit."""
-        return self.display or (self.unit, 1.0)
+        """``(unit, factor)`` a person reads the fault in: :attr:`display`, else the one of
+        its declared unit (:attr:`eha.models.params.ParamSpec.display`); what
+        :func:`eha.models.units.display_unit` gives for the fault."""
+        return self.display or SPECS[self.name].display
 
     @property
     def fdi_bounds(self) -> tuple[float, float]:
         """Search bounds of the thesis reproduction's identification."""
         return self.thesis_bounds or self.bounds
+
+    def bounds_for(self, purpose: str) -> tuple[float, float]:
+        """Search bounds for ``purpose`` (:data:`PURPOSES`)."""
+        if purpose == "assessment":
+            return self.bounds
+        if purpose == "loop":
+            return self.loop_bounds or self.fdi_bounds
+        return self.fdi_bounds
 
 
 #: The registry: LF parameter name -> :class:`Fault`, in the order of the hypothesis bank.
@@ -145,7 +172,8 @@ def _problems(fault: Fault) -> list[str]:
         out.append(f"fault {fault.name}: role {fault.role!r}; allowed {', '.join(ROLES)}")
     if fault.direction not in (-1, 0, 1):
         out.append(f"fault {fault.name}: direction {fault.direction!r}; allowed -1, 0, 1")
-    for what, (lo, hi) in (("bounds", fault.bounds), ("thesis_bounds", fault.fdi_bounds)):
+    for what, (lo, hi) in (("bounds", fault.bounds), ("thesis_bounds", fault.fdi_bounds),
+                           ("loop_bounds", fault.bounds_for("loop"))):
         if not (spec.lo <= lo < hi <= spec.hi):
             out.append(f"fault {fault.name}: {what} [{lo:g}, {hi:g}] must lie inside "
                        f"{spec.range_text()}")
@@ -212,9 +240,34 @@ def extra_faults() -> tuple[str, ...]:
     return tuple(f.name for f in FAULTS.values() if f.role == "extra")
 
 
-def search_bounds() -> dict[str, tuple[float, float]]:
-    """The thesis reproduction's search bound of every fault."""
-    return {f.name: f.fdi_bounds for f in FAULTS.values()}
+def search_bounds(names=None, purpose: str = "fdi", declared: bool = False) -> Bounds:
+    """Search bounds for ``purpose`` (:data:`PURPOSES`) of ``names`` (default: every fault).
+
+    A name that is not a fault gets its parameter's allowed range (``eha params``);
+    ``declared=True`` keeps only the faults that declare bounds of their own for ``purpose``
+    (for the loop, those with :attr:`Fault.loop_bounds`; every fault has assessment and fdi
+    bounds).
+
+    Raises
+    ------
+    ParameterError
+        ``purpose`` unknown, or a name that is no parameter.
+    """
+    if purpose not in PURPOSES:
+        raise ParameterError(f"`purpose` {purpose!r}: allowed {', '.join(PURPOSES)}")
+    pool = list(FAULTS if names is None else names)
+    if declared:
+        pool = [n for n in pool if n in FAULTS
+                and (purpose != "loop" or FAULTS[n].loop_bounds is not None)]
+    out = Bounds()
+    for name in pool:
+        if name in FAULTS:
+            out[name] = FAULTS[name].bounds_for(purpose)
+        elif name in SPECS:
+            out[name] = (SPECS[name].lo, SPECS[name].hi)
+        else:
+            raise ParameterError(f"fit {name}: unknown parameter (see `eha params --model lf`)")
+    return out
 
 
 def dispersion() -> dict[str, tuple[str, float, float]]:
@@ -226,9 +279,9 @@ def dispersion() -> dict[str, tuple[str, float, float]]:
     return {n: laws[n] for n in order}
 
 
-def model_form_floors() -> dict[str, dict[str, tuple[float, float]]]:
+def model_form_floors() -> dict[str, dict[str, Floor]]:
     """Per LF base model, the model-form floor ``(rel, abs)`` of each fault that has one."""
-    out: dict[str, dict[str, tuple[float, float]]] = {}
+    out: dict[str, dict[str, Floor]] = {}
     for f in FAULTS.values():
         for base, floor in f.model_form.items():
             out.setdefault(base, {})[f.name] = floor
@@ -251,13 +304,17 @@ def detection_levels(names=None) -> dict[str, list[float]]:
 # floors: `python validation/intervals.py --calibrate` (60 calibration records, chirp_1cm
 # and mixed): the floors of smallest median width that bring the coverage to 90 % (GM and Ofs
 # need none; no floor helps Clk, whose leakage the chirp record cannot tell from friction).
+# The loop's bounds of BKL and FDJ: wider than the thesis' chirp cases, for records of unknown
+# actuators (eha explain --fit BKL,FDJ).
 register(Fault("BKL", "jack-surface backlash", +1, (0.0, 1.25e-3), role="core",
+               loop_bounds=(0.0, 2e-3),
                model_form={"plain": (0.02, 2e-6), "calibrated": (0.001, 1.5e-6)},
-               display=("µm", 1e6), levels=(5e-6, 2e-5, 1e-4), rul=True))
+               levels=(5e-6, 2e-5, 1e-4), rul=True))
 # FDJ from 50 N in the assessment: a healthy actuator's friction scatters below the thesis'
 # 200 N bound
 register(Fault("FDJ", "jack dynamic friction", +1, (50.0, 4000.0), role="core",
-               thesis_bounds=(200.0, 4000.0), scatter=("normal", 200.0, 20.0),
+               thesis_bounds=(200.0, 4000.0), loop_bounds=(0.0, 8000.0),
+               scatter=("normal", 200.0, 20.0),
                model_form={"plain": (0.035, 0.0), "calibrated": (0.0, 5.0)},
                levels=(250.0, 300.0, 400.0), rul=True))
 # GM is tracked by the RUL prediction with the thesis' two: it is both a fault
@@ -280,6 +337,7 @@ register(Fault("FSS", "spool static friction", +1, (0.0, 60.0), healthy_std=0.12
                levels=(10.0, 20.0, 40.0)))
 
 
-__all__ = ["Fault", "FAULTS", "Derived", "ROLES", "SCATTER_LAWS", "OTHER_SCATTER", "SCATTER_DRAW_ORDER",
+__all__ = ["Fault", "FAULTS", "Bounds", "Floor", "Derived", "ROLES", "PURPOSES", "SCATTER_LAWS",
+           "OTHER_SCATTER", "SCATTER_DRAW_ORDER",
            "register", "registered", "core_faults", "extra_faults", "search_bounds",
            "dispersion", "model_form_floors", "rul_faults", "detection_levels"]

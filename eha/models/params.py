@@ -68,6 +68,32 @@ class ParamSpec:
     def range_text(self) -> str:
         return f"[{self.lo:g}, {self.hi:g}] {self.unit}".rstrip()
 
+    @property
+    def display(self) -> tuple[str, float]:
+        """``(unit, factor)`` people read the parameter in, from its declared unit
+        (:data:`DISPLAY_OF_UNIT`; ``value_shown = factor * value``). Read it through
+        :func:`eha.models.units.display_unit`, which also honours a health fault's own."""
+        if self.name in KEEP_DISPLAY:
+            return self.unit, 1.0
+        return DISPLAY_OF_UNIT.get(self.unit, (self.unit, 1.0))
+
+
+#: Declared (SI) unit -> (display unit, factor from the declared unit): positions and lengths
+#: µm, pressures MPa, delays ms, dimensionless ``""`` (:attr:`ParamSpec.display`).
+DISPLAY_OF_UNIT: dict[str, tuple[str, float]] = {
+    "m": ("µm", 1e6),
+    "Pa": ("MPa", 1e-6),
+    "s": ("ms", 1e3),
+    "-": ("", 1.0),
+    "N*s/m": ("N·s/m", 1.0),
+    "m^3/(Pa*s)": ("m³/(Pa·s)", 1.0),
+    "m^2/s": ("m²/s", 1.0),
+    "m^2": ("m²", 1.0),
+}
+#: Parameters shown in their declared unit for another reason: the integration step stays in
+#: seconds (a model setting, not a measured quantity).
+KEEP_DISPLAY = frozenset({"DT"})
+
 
 _HF = ("hf",)
 _LF = ("lf",)

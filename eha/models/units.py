@@ -24,35 +24,25 @@ from __future__ import annotations
 
 import math
 
+from eha.models.faults import FAULTS
 from eha.models.params import SPECS
 
-#: declared (SI) unit -> (display unit, factor from the declared unit)
-_DISPLAY: dict[str, tuple[str, float]] = {
-    "m": ("µm", 1e6),
-    "Pa": ("MPa", 1e-6),
-    "s": ("ms", 1e3),
-    "-": ("", 1.0),
-    "N*s/m": ("N·s/m", 1.0),
-    "m^3/(Pa*s)": ("m³/(Pa·s)", 1.0),
-    "m^2/s": ("m²/s", 1.0),
-    "m^2": ("m²", 1.0),
-}
-
-#: parameters whose declared unit is not the one people read them in for another reason:
-#: the integration step stays in seconds (a model setting, not a measured quantity)
-_KEEP = {"DT"}
 
 
 def display_unit(name: str) -> tuple[str, float]:
     """The display unit of parameter ``name`` and the factor from its declared unit
     (``value_shown = factor * value``): positions and lengths µm, pressures MPa, delays ms,
-    forces N, currents mA, dimensionless ``""``. An unknown name: ``("", 1.0)``."""
+    forces N, currents mA, dimensionless ``""``; a health fault that declares a display unit
+    of its own (:attr:`eha.models.faults.Fault.display`) in that one. An unknown name:
+    ``("", 1.0)``.
+
+    The one home of display units: the console, the JSON and CSV names, the figures, the
+    report and ``eha faults`` all read it (the table by declared unit is
+    :data:`eha.models.params.DISPLAY_OF_UNIT`)."""
+    if name in FAULTS:
+        return FAULTS[name].display_unit
     spec = SPECS.get(name)
-    if spec is None:
-        return "", 1.0
-    if name in _KEEP:
-        return spec.unit, 1.0
-    return _DISPLAY.get(spec.unit, (spec.unit, 1.0))
+    return ("", 1.0) if spec is None else spec.display
 
 
 def plain(x: float, digits: int = 3) -> str:

@@ -27,6 +27,7 @@ import numpy as np
 
 from eha.campaigns.jobs import register_job
 from eha.prognostics import tables  # noqa: F401  (declares health_checks, rul_predictions)
+from eha.models.bounds import Bounds
 from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
 from eha.prognostics.result import RulResult
@@ -67,7 +68,7 @@ def parse_limits(items: Sequence[str]) -> dict[str, float]:
 
 def health_bounds(names: Sequence[str], limits: Mapping[str, float],
                   bounds: Mapping[str, Sequence[float]] | None = None
-                  ) -> dict[str, tuple[float, float]]:
+                  ) -> Bounds:
     """Search bounds of the assessment: :func:`eha.identification.problem.default_bounds`, widened
     so that a limited fault can be identified up to twice its limit (or down to half of it), then
     ``bounds`` overrides."""

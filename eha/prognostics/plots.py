@@ -21,15 +21,13 @@ import numpy as np
 
 from eha.prognostics.degradation import LAWS, fault_scale, fit_degradation
 
-UNITS = {"BKL": ("µm", 1e6), "FDJ": ("N", 1.0)}
-
-
 def _unit(name: str) -> tuple[str, float]:
-    if name in UNITS:
-        return UNITS[name]
-    from eha.models.params import SPECS
+    """Display unit (:func:`eha.models.units.display_unit`; ``-`` when dimensionless, for an
+    axis label) and the factor from SI."""
+    from eha.models.units import display_unit
 
-    return (SPECS[name].unit if name in SPECS else "", 1.0)
+    unit, factor = display_unit(name)
+    return (unit or "-", factor)
 
 
 def _fmt(v, digits: int = 0) -> str:

@@ -39,10 +39,10 @@ class RulResult:
         the fault that ``driver`` ends life first."""
         import pandas as pd
 
-        rows = [{"actuator": aid, "cycle": p.cycle,
-                 **{k: np.nan if getattr(p, k) is None else getattr(p, k)
-                    for k in ("rul", "rul_lo", "rul_hi")}, "driver": p.driver}
-                for aid, preds in self.predictions.items() for p in preds]
+        rows = [{"actuator": aid, "cycle": p.cycle, "rul": e.value, "rul_lo": e.lo,
+                 "rul_hi": e.hi, "driver": p.driver}
+                for aid, preds in self.predictions.items() for p in preds
+                for e in (p.rul_estimate,)]
         return pd.DataFrame(rows, columns=["actuator", "cycle", "rul", "rul_lo", "rul_hi",
                                            "driver"])
 

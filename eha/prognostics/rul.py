@@ -29,6 +29,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from eha.models.estimate import Estimate, estimates
 from eha.prognostics.degradation import (LAWS, DegradationFit, PrognosticsError, fault_scale,
                                          fit_degradation)
 
@@ -104,12 +105,31 @@ class Prediction:
     n_used: int = 0
     samples: np.ndarray | None = None
 
+    @property
+    def rul_estimate(self) -> Estimate:
+        """The RUL as an :class:`~eha.models.estimate.Estimate` [cycles]: the median and its
+        5-95 % interval (:data:`QUANTILES`, level 0.9); NaN where not predicted."""
+        def num(v):
+            return math.nan if v is None else float(v)
+        return Estimate("RUL", num(self.rul), num(self.rul_lo), num(self.rul_hi),
+                        level=QUANTILES[2] - QUANTILES[0], unit="cycles")
+
+    def as_estimates(self) -> dict[str, Estimate]:
+        """The tracked faults' estimates at this check with their intervals (SI units)."""
+        return estimates(self.estimates, self.intervals, None)
+
     def to_dict(self) -> dict[str, Any]:
-        return {"cycle": self.cycle, "rul": self.rul, "rul_lo": self.rul_lo,
-                "rul_hi": self.rul_hi, "driver": self.driver, "estimates": self.estimates,
+        rul = self.rul_estimate
+        return {"cycle": self.cycle, "rul": self.rul, "rul_lo": _none(rul.lo),
+                "rul_hi": _none(rul.hi), "driver": self.driver, "estimates": self.estimates,
                 "intervals": self.intervals, "flagged": self.flagged,
                 "crossings": self.crossings, "law_weights": self.law_weights,
                 "n_used": self.n_used, "seed": self.seed}
+
+
+def _none(x: float) -> float | None:
+    """NaN (not predicted) as None, as the JSON writes it."""
+    return None if math.isnan(x) else x
 
 
 def _finite_or_none(x: float) -> float | None:

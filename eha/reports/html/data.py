@@ -16,22 +16,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from eha.models.faults import FAULTS, Derived
-
-#: Display unit and factor from SI for fault parameters whose SI value reads badly (declared
-#: with each fault, :attr:`eha.models.faults.Fault.display`).
-DISPLAY_UNITS: Mapping[str, tuple[str, float]] = Derived(
-    lambda: {f.name: f.display for f in FAULTS.values() if f.display}, "DISPLAY_UNITS")
+from eha.models.params import SPECS
+from eha.models.units import display_unit
 
 
 def unit_of(name: str) -> tuple[str, float]:
-    """Display unit and scale factor of a parameter (``BKL`` in µm, the rest as in
-    :data:`eha.models.params.SPECS`)."""
-    if name in DISPLAY_UNITS:
-        return DISPLAY_UNITS[name]
-    from eha.models.params import SPECS
-
-    return (SPECS[name].unit if name in SPECS else "", 1.0)
+    """Display unit and scale factor of a parameter (:func:`eha.models.units.display_unit`;
+    ``-`` for a dimensionless one, so that a column head reads ``[-]``)."""
+    unit, factor = display_unit(name)
+    return (unit or ("-" if name in SPECS else ""), factor)
 
 
 def _json(value: Any) -> Any:
