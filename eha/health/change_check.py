@@ -55,7 +55,7 @@ class ChangeCheckResult:
     alpha: float = 0.01
     notes: list[str] = field(default_factory=list)
     #: the other faults judged beside the first isolated one
-    #: (:func:`eha.health.change_calibration.judge_second`) and those changed beside it
+    #: (:func:`eha.health.change_second.judge_second`) and those changed beside it
     second: dict[str, dict[str, Any]] = field(default_factory=dict)
     also: list[str] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
