@@ -264,6 +264,17 @@ class Signatures:
                 out[g] = (gii * X[g] - G[first, g] * X[first]) / det
         return out
 
+    def conditional_info(self, first: int) -> np.ndarray:
+        """Per fault ``g``, the inverse variance of its change estimated jointly with fault
+        ``first`` (:meth:`conditional`) under the model [1/fault unit^2]: the two-fault
+        generalized likelihood ratio of a change ``a`` of ``g`` is ``a^2`` times it."""
+        G = self._gram
+        gii = G[first, first]
+        det = gii * np.diag(G) - G[first] ** 2
+        out = np.where(det > 1e-12 * np.maximum(gii * np.diag(G), 1e-300), det, 0.0) / gii
+        out[first] = 0.0
+        return out
+
     def estimate(self, r: np.ndarray) -> np.ndarray:
         """Each fault's linear change estimate from a record difference ``r`` [m]
         (fault units at the probe's slope)."""

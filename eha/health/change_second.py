@@ -39,6 +39,7 @@ def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
     first = isolated[0]
     figures = cal.second.get(first) or {}
     cond = sig.conditional(sig.faults.index(first))
+    info = sig.conditional_info(sig.faults.index(first))
     size = abs(float(judged[first]["change"]))
     skip = set(isolated) | set(judged[first].get("alike", ()))
     m = len(cal.faults)
@@ -61,6 +62,9 @@ def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
         thr = tolerance_factor(int(f["n"]), cal.alpha / m / (2.0 if two else 1.0)) * sd * \
             f.get("tail", 1.0)
         out[g] = {"statistic": stat, "threshold": thr, "degraded": bool(stat > thr),
+                  # the two-fault fit's gain in likelihood over the first fault alone (the
+                  # model's variance at the record's noise): which one is beside it
+                  "glr": float(d * d * info[j] * sig.noise2 / max(noise2, 1e-30)),
                   "change": cal.gain(g).invert(s * d, s), "beside": first}
     return out
 
@@ -73,11 +77,11 @@ MAX_BESIDE = 1
 
 
 def also_changed(second: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """The fault(s) :func:`judge_second` finds changed beside the first (the most
-    significant, at most :data:`MAX_BESIDE`)."""
-    return [g for _, g in sorted(((v["statistic"] / v["threshold"], g)
-                                  for g, v in second.items() if v["degraded"]),
-                                 reverse=True)][:MAX_BESIDE]
+    """The fault(s) :func:`judge_second` finds changed beside the first: of those beyond
+    their thresholds, the one whose two-fault fit explains the most (the largest likelihood
+    ratio; at most :data:`MAX_BESIDE`)."""
+    return [g for _, g in sorted(((v.get("glr", 0.0), g) for g, v in second.items()
+                                  if v["degraded"]), reverse=True)][:MAX_BESIDE]
 
 
 def judge_change(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2: float,
