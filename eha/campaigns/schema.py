@@ -3,9 +3,9 @@
 The store keeps campaigns, runs, chunk files and transactions; ``campaigns`` and ``runs`` are
 declared here. Units are SI (cor in mA). A job kind's result tables (and those of the other
 writers: a check, a calibration, the residual loop) are declared by the module that writes
-them, next to its :func:`eha.campaigns.jobs.register_job`, with
-:func:`eha.campaigns.jobs.register_table` (its CREATE statement, the columns added after its
-first release, and whether its rows belong to runs). A column added to a core table goes in
+them, in its :class:`eha.campaigns.jobs.JobKind` (or, for the other writers, with
+:func:`eha.campaigns.jobs.register_table`): its CREATE statement, the columns added after its
+first release, and whether its rows belong to runs. A column added to a core table goes in
 :data:`ADDED_COLUMNS` too, so that an older database gets it.
 
 This module holds constants only: nothing is imported.
