@@ -22,6 +22,7 @@ Trace files are :mod:`eha.campaigns.traces`'.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 from contextlib import contextmanager
@@ -30,11 +31,15 @@ from typing import Any, Iterator, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.jobs import Table, UnknownJobKind, table as declared_table, tables
-from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, SCHEMA
+from eha.campaigns.schema import (DB_NAME, MIGRATIONS, MIGRATIONS_TABLE, SCHEMA,
+                                  SCHEMA_VERSION)
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 from eha.outputs import pid_alive
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
+#: Where :func:`connect` says that it upgraded a database's schema (a WARNING: with no logging
+#: configured, as on the command line, Python prints it on stderr as one line).
+log = logging.getLogger(__name__)
 
 
 class StoreError(EhaError, RuntimeError):
@@ -138,12 +143,19 @@ def db_path(results: str | Path) -> Path:
 
 
 def connect(results: str | Path, read_only: bool = False):
-    """Open ``DIR/eha.duckdb``; the schema is created on a writable connection.
+    """Open ``DIR/eha.duckdb``; the schema is created, or upgraded, on a writable connection.
+
+    A writable connection applies the core schema's migrations the database lacks
+    (:data:`eha.campaigns.schema.MIGRATIONS`), in one transaction that records them in
+    ``schema_migrations``; a database that had runs before says so once, one line logged
+    (:data:`log`; on the command line, on stderr). A read-only connection never writes: it
+    reads an older database as it is.
 
     Raises
     ------
     StoreError
-        The database is held by another process, or (read-only) does not exist.
+        The database is held by another process, or (read-only) does not exist, or its schema
+        is newer than this code knows (nothing is written to it).
     """
     import duckdb
 
@@ -171,19 +183,57 @@ def connect(results: str | Path, read_only: bool = False):
             raise DatabaseDamaged(f"{path}: {first}; the file is damaged: move it away and run "
                                   "the campaigns again") from None
         raise StoreError(f"{path}: {first}") from None
-    if not read_only:
-        try:
-            for ddl in SCHEMA.values():
-                con.execute(ddl)
-            for table, column, sql_type in ADDED_COLUMNS:
-                con.execute(f"ALTER TABLE {table} ADD COLUMN IF NOT EXISTS {column} {sql_type}")
+    try:
+        version, had_runs = schema_version(con)
+        if version > SCHEMA_VERSION:
+            con.close()
+            raise StoreError(f"{path}: its schema is version {version}, newer than this eha "
+                             f"knows ({SCHEMA_VERSION}); it was written by a newer eha: "
+                             "upgrade eha, or use another results folder")
+        if not read_only:
+            done = _migrate(con, version)
+            if done and had_runs:
+                log.warning(f"note: {path}: database schema upgraded from version {version} "
+                            f"to {SCHEMA_VERSION} ({'; '.join(done)})")
             for entry in tables().values():
                 _create(con, entry)
-        except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
-            con.close()
-            raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
-                             "move it away and run the campaign again") from None
+    except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
+        con.close()
+        raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
+                         "move it away and run the campaign again") from None
     return con
+
+
+def schema_version(con) -> tuple[int, bool]:
+    """``(version, has runs)`` of an open database: the last migration recorded in
+    ``schema_migrations`` (0 for a database made before versions, or a new one) and whether
+    it has the table ``runs`` (a database eha wrote before)."""
+    names = {n for n, in con.execute("SELECT table_name FROM information_schema.tables "
+                                     "WHERE table_schema = 'main'").fetchall()}
+    version = 0
+    if "schema_migrations" in names:
+        version = con.execute("SELECT coalesce(max(version), 0) FROM "
+                              "schema_migrations").fetchone()[0]
+    return int(version), "runs" in names
+
+
+def _migrate(con, version: int) -> list[str]:
+    """Apply the migrations above ``version``, in one transaction with their rows of
+    ``schema_migrations`` (a crash leaves the database at ``version``); returns
+    ``"N: name"`` of each."""
+    from datetime import datetime, timezone
+
+    todo = [m for m in MIGRATIONS if m[0] > version]
+    if not todo:
+        return []
+    now = datetime.now(timezone.utc).replace(tzinfo=None)
+    with _transaction(con):
+        con.execute(MIGRATIONS_TABLE)
+        for number, name, statements in todo:
+            for sql in statements:
+                con.execute(sql)
+            con.execute("INSERT INTO schema_migrations VALUES (?, ?, ?)", [number, name, now])
+    return [f"{number}: {name}" for number, name, _ in todo]
 
 
 def _create_whole(path: Path, duckdb) -> None:
