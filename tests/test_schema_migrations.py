@@ -13,9 +13,10 @@ import duckdb
 import pytest
 from helpers import error_line, invoke_eha, run_eha
 
-from eha.campaigns import store
+from eha.campaigns import migrations
+from eha.campaigns.migrations import schema_version
 from eha.campaigns.schema import DB_NAME, MIGRATIONS, SCHEMA, SCHEMA_VERSION
-from eha.campaigns.store import ResultStore, StoreError, connect, schema_version
+from eha.campaigns.store import ResultStore, StoreError, connect
 
 #: ``runs`` as the first releases wrote it: before the trace's size, rows, checksum and time
 #: (migrations 2 and 3).
@@ -133,7 +134,7 @@ def test_a_migration_that_fails_leaves_the_database_as_it_was(tmp_path, monkeypa
     folder = old_database(tmp_path / "r")
     broken = MIGRATIONS[:2] + ((3, "broken", (MIGRATIONS[2][2][0], "ALTER TABLE nowhere ADD "
                                               "COLUMN x INTEGER")),)
-    monkeypatch.setattr(store, "MIGRATIONS", broken)
+    monkeypatch.setattr(migrations, "MIGRATIONS", broken)
     caplog.set_level(logging.INFO)
     with pytest.raises(StoreError, match="nowhere"):
         ResultStore(folder)

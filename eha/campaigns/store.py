@@ -25,14 +25,14 @@ import json
 import logging
 import os
 import re
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.jobs import Table, UnknownJobKind, table as declared_table, tables
-from eha.campaigns.schema import (DB_NAME, MIGRATIONS, MIGRATIONS_TABLE, SCHEMA,
-                                  SCHEMA_VERSION)
+from eha.campaigns.migrations import migrate as _migrate, schema_version
+from eha.campaigns.schema import DB_NAME, SCHEMA, SCHEMA_VERSION
+from eha.campaigns.transactions import signals_held as _signals_held, transaction as _transaction
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 from eha.outputs import pid_alive
 
@@ -47,52 +47,6 @@ class StoreError(EhaError, RuntimeError):
     The command line exits 2: the results folder or the query given is at fault."""
 
     exit_code = BAD_INPUT
-
-
-@contextmanager
-def _signals_held() -> Iterator[None]:
-    """Hold Ctrl-C and SIGTERM while the block runs; their handlers run right after it.
-
-    Run inside a DuckDB statement, a handler that raises interrupts the statement itself and
-    DuckDB reports its own error ("Query interrupted"; after an interrupted COMMIT even the
-    ROLLBACK fails) instead of the signal. Only handlers set in Python are held (the default
-    SIGTERM still ends the process: the write-ahead log keeps the file whole).
-    """
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield  # handlers only run in the main thread, between its statements
-        return
-    held: list[int] = []
-    previous = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        if callable(signal.getsignal(signum)):
-            previous[signum] = signal.signal(signum, lambda n, _frame: held.append(n))
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in dict.fromkeys(held):
-            previous[signum](signum, None)
-
-
-@contextmanager
-def _transaction(con) -> Iterator[None]:
-    """One transaction on ``con``, committed or rolled back whole, with Ctrl-C and SIGTERM
-    held until it has ended (:func:`_signals_held`; a commit of runs takes milliseconds)."""
-    with _signals_held():
-        con.execute("BEGIN")
-        try:
-            yield
-            con.execute("COMMIT")
-        except BaseException:
-            try:
-                con.execute("ROLLBACK")
-            except Exception:  # the transaction ended already (a failed COMMIT)
-                pass
-            raise
 
 
 class StoreWriteError(StoreError):
@@ -145,11 +99,9 @@ def db_path(results: str | Path) -> Path:
 def connect(results: str | Path, read_only: bool = False):
     """Open ``DIR/eha.duckdb``; the schema is created, or upgraded, on a writable connection.
 
-    A writable connection applies the core schema's migrations the database lacks
-    (:data:`eha.campaigns.schema.MIGRATIONS`), in one transaction that records them in
-    ``schema_migrations``; a database that had runs before says so once, one line logged
-    (:data:`log`; on the command line, on stderr). A read-only connection never writes: it
-    reads an older database as it is.
+    A writable connection applies the migrations the database lacks (:func:`eha.campaigns.migrations.migrate`); one
+    that had runs says so, one line logged (:data:`log`; on the command line, on stderr). A
+    read-only connection never writes: it reads an older database as it is.
 
     Raises
     ------
@@ -202,38 +154,6 @@ def connect(results: str | Path, read_only: bool = False):
         raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
                          "move it away and run the campaign again") from None
     return con
-
-
-def schema_version(con) -> tuple[int, bool]:
-    """``(version, has runs)`` of an open database: the last migration recorded in
-    ``schema_migrations`` (0 for a database made before versions, or a new one) and whether
-    it has the table ``runs`` (a database eha wrote before)."""
-    names = {n for n, in con.execute("SELECT table_name FROM information_schema.tables "
-                                     "WHERE table_schema = 'main'").fetchall()}
-    version = 0
-    if "schema_migrations" in names:
-        version = con.execute("SELECT coalesce(max(version), 0) FROM "
-                              "schema_migrations").fetchone()[0]
-    return int(version), "runs" in names
-
-
-def _migrate(con, version: int) -> list[str]:
-    """Apply the migrations above ``version``, in one transaction with their rows of
-    ``schema_migrations`` (a crash leaves the database at ``version``); returns
-    ``"N: name"`` of each."""
-    from datetime import datetime, timezone
-
-    todo = [m for m in MIGRATIONS if m[0] > version]
-    if not todo:
-        return []
-    now = datetime.now(timezone.utc).replace(tzinfo=None)
-    with _transaction(con):
-        con.execute(MIGRATIONS_TABLE)
-        for number, name, statements in todo:
-            for sql in statements:
-                con.execute(sql)
-            con.execute("INSERT INTO schema_migrations VALUES (?, ?, ?)", [number, name, now])
-    return [f"{number}: {name}" for number, name, _ in todo]
 
 
 def _create_whole(path: Path, duckdb) -> None:
