@@ -20,8 +20,8 @@ INFRA = tuple(sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__
 #: output files (eha.outputs: imports only the error hierarchy).
 BELOW = ("eha.errors", "eha.trace", "eha.outputs")
 #: Job kinds and campaign sections the domain declares (what the runner once imported itself).
-KINDS = {"simulate", "fdi", "health_assessment", "health_change", "change_record", "health",
-         "fleet_record"}
+KINDS = {"simulate", "fdi", "health_assessment", "health_change", "change_record",
+         "change_calibration", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
 
 
