@@ -413,8 +413,7 @@ def test_docs_link_result_files_that_exist():
 
 #: Dotted names that are not Python objects: entry-point groups (pyproject.toml) and the
 #: results database's file name.
-NOT_OBJECTS = {"eha.jobs", "eha.campaign_sections", "eha.worker_warm_up", "eha.duckdb",
-               "eha.tables", "eha.campaign_keys"}
+NOT_OBJECTS = {"eha.job_kinds", "eha.duckdb", "eha.tables"}
 
 
 def _resolves(dotted: str) -> bool:

@@ -19,8 +19,9 @@ INFRA = tuple(sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__
 #: columns (constants and a numpy dataclass; nothing of the domain) and the writer of whole
 #: output files (eha.outputs: imports only the error hierarchy).
 BELOW = ("eha.errors", "eha.trace", "eha.outputs")
-#: Job kinds and campaign sections the domain registers (what the runner once imported itself).
-KINDS = {"simulate", "fdi", "health_assessment", "health", "fleet_record"}
+#: Job kinds and campaign sections the domain declares (what the runner once imported itself).
+KINDS = {"simulate", "fdi", "health_assessment", "health_change", "change_record",
+         "change_calibration", "health", "fleet_record"}
 SECTIONS = {"fdi", "health"}
 
 
@@ -60,14 +61,28 @@ def test_infrastructure_modules_name_no_domain_module(module):
 def test_job_kinds_and_sections_register_through_the_entry_points():
     from eha.campaigns import jobs
 
-    assert KINDS <= set(jobs._entry_points(jobs.JOB_GROUP))
+    assert KINDS <= set(jobs._entry_points(jobs.KIND_GROUP))
     assert SECTIONS <= set(jobs.section_names())
     for kind in KINDS:
         assert jobs.job_kind(kind).name == kind
     for name in SECTIONS:
         assert callable(jobs.section(name))
     assert jobs.job_kind("simulate").run_chunk is not None
-    assert all(callable(f) for f in jobs.warm_ups())
+    assert callable(jobs.job_kind("simulate").warm_up)
+    # the [health] section makes health_assessment jobs: said by that kind's declaration
+    assert jobs.job_kind("health_assessment").section == "health"
+    assert jobs.job_kind("health").section is None
+
+
+def test_job_kinds_take_at_most_two_entry_point_groups():
+    """One entry point per kind (its JobKind), plus the tables of writers that are not kinds."""
+    import tomllib
+
+    table = tomllib.loads((PACKAGE.parents[1] / "pyproject.toml").read_text(encoding="utf-8"))
+    groups = set(table["project"]["entry-points"])
+    assert groups == {"eha.job_kinds", "eha.tables"}
+    kinds = table["project"]["entry-points"]["eha.job_kinds"]
+    assert all(":" in v for v in kinds.values())  # each names a JobKind, not a module
 
 
 def test_a_worker_imports_only_the_module_of_the_kind_it_runs():

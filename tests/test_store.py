@@ -111,7 +111,8 @@ def test_export_tables_to_csv(results, tmp_path):
         res = cli.invoke(app, ["export", table, "--csv", str(out), "--results", str(results)])
         assert res.exit_code == 0, res.output
         assert len(pd.read_csv(out)) == n
-    with pytest.raises(StoreError, match="unknown table 'nope'; allowed: campaigns, .*runs, traces"):
+    with pytest.raises(StoreError, match="unknown table 'nope'; allowed: campaigns, .*runs, "
+                       "schema_migrations, traces"):
         export_csv(results, "nope", tmp_path / "nope.csv")
     assert not (tmp_path / "nope.csv").exists()
 

@@ -20,7 +20,7 @@ class JobDraft:
     Attributes
     ----------
     kind : str
-        Job kind (``"simulate"``; others: :func:`eha.campaigns.jobs.register_section`).
+        Job kind (``"simulate"``; others: :class:`eha.campaigns.jobs.JobKind`).
     spec : dict
         Compact, JSON-serialisable description the worker needs (stored in ``runs.spec``).
     identity : dict

@@ -2,8 +2,8 @@
 
 An :class:`Executor` runs a function over task payloads on its workers and yields the results
 as they complete, with a bounded number in flight. Workers are set up once as they start
-(:func:`warm_worker`: one numba thread each, exit with the parent, the warm-ups of
-:func:`eha.campaigns.jobs.warm_ups`), never per task.
+(:func:`warm_worker`: one numba thread each, exit with the parent, the warm-ups of the
+campaign's job kinds, :func:`eha.campaigns.jobs.warm_up`), never per task.
 
 This module imports nothing heavy at import time: spawn workers unpickle functions from it,
 and :func:`_init_worker` must set ``NUMBA_NUM_THREADS`` before numba is first imported.
@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import socket
 import time
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 from eha.campaigns.malloc import tune_malloc
 
@@ -25,9 +25,9 @@ ABORT_WAIT_S = 10.0
 
 
 # =========================================================================== worker side
-def _init_worker() -> None:
+def _init_worker(kinds: tuple[str, ...] | None = None) -> None:
     """Pool-worker initialiser: one numba thread per process, exit when the parent dies, then
-    :func:`warm_worker`."""
+    :func:`warm_worker` of ``kinds``."""
     import signal
 
     os.environ["NUMBA_NUM_THREADS"] = str(WORKER_NUMBA_THREADS)
@@ -35,7 +35,7 @@ def _init_worker() -> None:
     # finished, stops the pool); workers would only print tracebacks.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _exit_with_parent()
-    warm_worker()
+    warm_worker(kinds)
 
 
 def _exit_with_parent() -> None:
@@ -62,16 +62,16 @@ def _exit_with_parent() -> None:
 
 
 
-def warm_worker() -> str:
-    """Run the warm-ups of :func:`eha.campaigns.jobs.warm_ups` in this process (e.g. a tiny
-    HF and LF run end to end, not recorded anywhere), so that imports happen once per worker
-    instead of inside the first task and numba loads the cached kernels, after
-    :func:`tune_malloc`. Returns ``host:pid``."""
-    from eha.campaigns.jobs import warm_ups
+def warm_worker(kinds: Sequence[str] | None = None) -> str:
+    """Run the warm-ups of job kinds ``kinds`` (None: of every kind) in this process, once
+    each (:func:`eha.campaigns.jobs.warm_up`; e.g. a tiny HF and LF run end to end, not
+    recorded anywhere), so that imports happen once per worker instead of inside the first
+    task and numba loads the cached kernels, after :func:`tune_malloc`. A kind not warmed here
+    is warmed before its first job in the process. Returns ``host:pid``."""
+    from eha.campaigns.jobs import warm_up
 
     tune_malloc()
-    for warm_up in warm_ups():
-        warm_up()
+    warm_up(kinds)
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
@@ -105,8 +105,9 @@ class Executor:
     def abort(self) -> None:
         """Stop the running jobs at once (their runs stay pending and are re-run)."""
 
-    def warm_up(self) -> None:
-        """Start the workers and load the kernels before timing or submitting jobs."""
+    def warm_up(self, kinds: Sequence[str] | None = None) -> None:
+        """Start the workers and run the warm-ups of job kinds ``kinds`` (None: every kind's)
+        in each before timing or submitting jobs."""
 
     def map_unordered(self, fn: Callable, payloads: Iterable[Any]) -> Iterator[Any]:
         pending: set = set()
@@ -162,21 +163,35 @@ class _MainHidden:
 class LocalPoolExecutor(Executor):
     """A pool of ``workers`` spawned processes (one numba thread each).
 
-    All workers are started by :meth:`warm_up` (the runner calls it before the first job).
+    All workers are started by :meth:`warm_up` (the runner calls it before the first job,
+    with the campaign's job kinds); the pool is made then, or at the first task.
     """
 
     def __init__(self, workers: int = 2):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         self.workers = max(1, int(workers))
-        self._pool = ProcessPoolExecutor(self.workers,
-                                         mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_init_worker)
+        self._made = None
 
-    def warm_up(self) -> None:
+    @property
+    def _pool(self):
+        return self._make(())  # a task before any warm-up: each kind warms at its first job
+
+    def _make(self, kinds: Sequence[str] | None = None):
+        """The process pool, made on first use: its workers warm up ``kinds`` as they start."""
+        if self._made is None:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._made = ProcessPoolExecutor(
+                self.workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_worker,
+                initargs=(None if kinds is None else tuple(kinds),))
+        return self._made
+
+    def warm_up(self, kinds: Sequence[str] | None = None) -> None:
         # Every worker runs the initialiser (warm_worker) as it starts; these no-op tasks only
-        # make all of them start now.
+        # make all of them start now. A pool already made warms another campaign's kinds
+        # before each kind's first job instead (eha.campaigns.jobs.execute_task).
+        self._make(kinds)
         if getattr(self, "_warm", False):
             return
         self._warm = True
@@ -198,12 +213,15 @@ class LocalPoolExecutor(Executor):
 
     def close(self) -> None:
         # The workers exit on their own once told to; the parent goes on meanwhile.
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        if self._made is not None:
+            self._made.shutdown(wait=False, cancel_futures=True)
 
     def abort(self) -> None:
         from multiprocessing.connection import wait
 
-        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        if self._made is None:
+            return
+        procs = list((getattr(self._made, "_processes", None) or {}).values())
         for proc in procs:
             try:
                 proc.terminate()
@@ -222,7 +240,7 @@ class LocalPoolExecutor(Executor):
         while sentinels and time.monotonic() < deadline:
             gone = wait(sentinels, timeout=max(0.0, deadline - time.monotonic()))
             sentinels = [s for s in sentinels if s not in gone]
-        writer = getattr(getattr(self._pool, "_result_queue", None), "_writer", None)
+        writer = getattr(getattr(self._made, "_result_queue", None), "_writer", None)
         if procs and not sentinels and writer is not None:
             try:
                 writer.close()
@@ -261,14 +279,22 @@ class DaskExecutor(Executor):
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info()["workers"].values()))
 
-    def warm_up(self) -> None:
-        # once per worker (the pool's workers also warm up once): a campaign reusing this
-        # executor only warms the workers that joined since
-        warmed = getattr(self, "_warmed", set())
-        new = [w for w in self.client.scheduler_info()["workers"] if w not in warmed]
+    def warm_up(self, kinds: Sequence[str] | None = None) -> None:
+        # once per worker and kind (the pool's workers also warm up once): a campaign reusing
+        # this executor only warms the workers that joined since, or its kinds not yet warmed
+        want = None if kinds is None else frozenset(kinds)  # None: every kind
+        warmed: dict = getattr(self, "_warmed", {})  # worker -> kinds warmed (None: every)
+
+        def done(w) -> bool:
+            had = warmed.get(w, frozenset())
+            return had is None or (want is not None and want <= had)
+
+        new = [w for w in self.client.scheduler_info()["workers"] if not done(w)]
         if new:
-            self.client.run(warm_worker, workers=new)
-        self._warmed = warmed | set(new)
+            self.client.run(warm_worker, None if want is None else sorted(want), workers=new)
+        for w in new:
+            warmed[w] = None if want is None else warmed.get(w, frozenset()) | want
+        self._warmed = warmed
 
     def _submit(self, fn, payload):
         return self.client.submit(fn, payload, pure=False)

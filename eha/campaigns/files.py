@@ -46,18 +46,16 @@ a different ``spec_hash``, which the runner detects.
 
 Job kinds
 ---------
-A job has a ``kind``. Each kind's part of a file is its module's: the ``simulate`` kind's is
-the top-level keys above (:mod:`eha.simulations.expand`, registered with
-:func:`eha.campaigns.jobs.register_keys` and found through the ``eha.campaign_keys`` entry
-points); another kind (e.g. fault identification) plugs in through a top-level TOML table
-(``[fdi]``) whose expander its module registers (:func:`eha.campaigns.jobs.register_section`,
-found through the ``eha.campaign_sections`` entry points): ``expand(section, campaign_table,
-problems) -> list[JobDraft]`` validates its section (appending one line per problem to
-``problems``) and returns the job specs. A file with ``kind = "fdi"`` (and no
-``models``/``commands``) has only the jobs of its ``[fdi]`` section; a simulation file may also
-carry such a section (both kinds in one campaign). The kind's module registers its worker
-function (:func:`eha.campaigns.jobs.register_job`) and its result tables
-(:func:`eha.campaigns.jobs.register_table`) too.
+A job has a ``kind``. Each kind's part of a file is declared with the kind
+(:class:`eha.campaigns.jobs.JobKind`, found through the ``eha.job_kinds`` entry points): the
+``simulate`` kind's is the top-level keys above (its ``keys``, expanded by
+:func:`eha.simulations.expand.expand`); another kind (e.g. fault identification) plugs in
+through a top-level TOML table (its ``section``, ``[fdi]``) whose expander is its ``drafts``:
+``drafts(section, campaign_table, problems) -> list[JobDraft]`` validates its section
+(appending one line per problem to ``problems``) and returns the job specs. A file with
+``kind = "fdi"`` (and no ``models``/``commands``) has only the jobs of its ``[fdi]`` section; a
+simulation file may also carry such a section (both kinds in one campaign). The same
+declaration holds the kind's worker function and its result tables.
 """
 
 from __future__ import annotations
@@ -71,8 +69,8 @@ from typing import Any, Callable, Mapping, Sequence
 from eha.errors import InputError
 from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _dumps, _hash, _hash_text
 
-#: Top-level keys of every campaign file; job kinds add their own keys
-#: (:func:`eha.campaigns.jobs.register_keys`) and sections.
+#: Top-level keys of every campaign file; job kinds add their own keys and sections
+#: (:attr:`eha.campaigns.jobs.JobKind.keys`, :attr:`eha.campaigns.jobs.JobKind.section`).
 TOP_KEYS = ("name", "description", "kind")
 #: The kind of a file that names none: a simulation campaign (:mod:`eha.simulations.expand`).
 DEFAULT_KIND = "simulate"
@@ -235,7 +233,7 @@ def build_campaign(table: Mapping[str, Any], source: str = "<dict>") -> Campaign
     drafts: list[JobDraft] = []
     others = [k for k in sections if k in table]
     for owner in owners.values():
-        drafts += owner.expand(table, name, problems, kind == owner.kind)
+        drafts += owner.drafts(table, name, problems, kind == owner.name)
     for key in others:
         section = table[key]
         if not isinstance(section, Mapping):

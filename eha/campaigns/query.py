@@ -336,14 +336,17 @@ def _io_reason(text: str) -> str:
 
 
 def _not_written(message: str) -> str:
-    """For DuckDB's "Table with name X does not exist" of a table a job kind declares (entry
-    points ``eha.tables``): what it means here; else nothing."""
-    from eha.campaigns.jobs import TABLE_GROUP, _entry_points
+    """For DuckDB's "Table with name X does not exist" of a table a job kind or another writer
+    declares (:func:`eha.campaigns.jobs.declared_tables`): what it means here; else nothing."""
+    from eha.campaigns.jobs import declared_tables
 
     found = re.search(r"Table with name (\w+) does not exist", message)
-    if found is None or found.group(1) not in _entry_points(TABLE_GROUP):
+    if found is None:
         return ""
-    return (f" ({found.group(1)} is created when {_entry_points(TABLE_GROUP)[found.group(1)].value}"
+    module = declared_tables().get(found.group(1))
+    if module is None:
+        return ""
+    return (f" ({found.group(1)} is created when {module}"
             " first writes to this results folder; nothing has yet)")
 
 

@@ -18,12 +18,12 @@ the same rows as an uninterrupted run.
 
 Job kinds
 ---------
-The runner knows job kinds by name only: each kind registers its worker function and hooks
-with :func:`eha.campaigns.jobs.register_job` (found through the ``eha.jobs`` entry points).
-A worker's result rows go to the kind's own tables (:func:`eha.campaigns.jobs.register_table`,
-rows per run). To add a kind (as FDI was): in its module, an expander of its campaign-file
-section (:func:`eha.campaigns.jobs.register_section`), its worker function and its result
-tables; in ``pyproject.toml``, its module in the entry points.
+The runner knows job kinds by name only: each kind is one declaration
+(:class:`eha.campaigns.jobs.JobKind`: its worker function and hooks, its campaign-file section
+or keys, its result tables, its warm-up), found through the ``eha.job_kinds`` entry points.
+A worker's result rows go to the kind's own tables (:attr:`eha.campaigns.jobs.JobKind.tables`, rows per run). To
+add a kind (as FDI was): in its module, one ``JobKind``; in ``pyproject.toml``, one line under
+``eha.job_kinds`` naming it.
 
 This module imports no domain module: the runner and its workers import the module of a job
 kind when they first meet the kind.
@@ -304,7 +304,7 @@ def _execute(payloads, db, summary: RunSummary, workers, scheduler, progress: bo
             _progress(progress) as bar:
         task = bar.add_task(f"{summary.campaign} (starting {ex.workers} workers)",
                             total=n_runs)
-        ex.warm_up()
+        ex.warm_up([k.name for k in kinds])
         summary.startup_s = time.perf_counter() - t0
         bar.update(task, description=f"{summary.campaign} ({ex.workers} workers)")
         buffer: list[dict] = []     # results of single jobs (dicts)

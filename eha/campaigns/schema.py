@@ -3,10 +3,16 @@
 The store keeps campaigns, runs, chunk files and transactions; ``campaigns`` and ``runs`` are
 declared here. Units are SI (cor in mA). A job kind's result tables (and those of the other
 writers: a check, a calibration, the residual loop) are declared by the module that writes
-them, next to its :func:`eha.campaigns.jobs.register_job`, with
-:func:`eha.campaigns.jobs.register_table` (its CREATE statement, the columns added after its
-first release, and whether its rows belong to runs). A column added to a core table goes in
-:data:`ADDED_COLUMNS` too, so that an older database gets it.
+them, in its :class:`eha.campaigns.jobs.JobKind` (or, for the other writers, with
+:func:`eha.campaigns.jobs.register_table`): its CREATE statement, the columns added after its
+first release, and whether its rows belong to runs.
+
+The core schema has a version: :data:`MIGRATIONS` are numbered, and a database records each
+one applied in its table ``schema_migrations`` (version, name, time). A change to a core table
+is a new migration at the end (its statements, and the CREATE statement of :data:`SCHEMA`
+updated for new databases); :func:`eha.campaigns.store.connect` applies the missing ones when
+it opens a database for writing, and refuses a database whose version is newer than
+:data:`SCHEMA_VERSION`.
 
 This module holds constants only: nothing is imported.
 """
@@ -63,14 +69,31 @@ SCHEMA: dict[str, str] = {
             trace_hash  VARCHAR,              -- SHA-256 of the trace file's bytes (128 bits)
             trace_mtime BIGINT)               -- its modification time at commit [ns]""",
 }
-#: Columns added to the core tables after their first release: (table, column, type). A database
-#: from an older version gets them when it is opened for writing (its rows keep NULL there). A
-#: job kind's table declares its own (:func:`eha.campaigns.jobs.register_table`).
-ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (("runs", "trace_bytes", "BIGINT"),
-                                                   ("runs", "trace_rows", "BIGINT"),
-                                                   # content hash (issue 43)
-                                                   ("runs", "trace_hash", "VARCHAR"),
-                                                   ("runs", "trace_mtime", "BIGINT"))
+#: The record of the migrations applied to a database (:data:`MIGRATIONS`).
+MIGRATIONS_TABLE = """
+        CREATE TABLE IF NOT EXISTS schema_migrations (
+            version    INTEGER PRIMARY KEY,  -- number of the migration (MIGRATIONS)
+            name       VARCHAR NOT NULL,     -- what it did
+            applied_at TIMESTAMP NOT NULL)   -- when it was applied to this database (UTC)"""
+
+#: The numbered migrations of the core schema, oldest first: (version, name, statements). Each
+#: is applied once to a database, in one transaction with its row of ``schema_migrations``. A
+#: database made before versions (no ``schema_migrations``: version 0) may be at any point of
+#: versions 1 to 3, so their statements are idempotent (``IF NOT EXISTS``); a later migration is
+#: applied only to databases recorded below it. Rows of an added column keep NULL there. A job
+#: kind's tables are its own (:attr:`eha.campaigns.jobs.Table.added`), not versioned here.
+MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
+    (1, "campaigns and runs", (SCHEMA["campaigns"], SCHEMA["runs"])),
+    (2, "runs: trace file size and rows (integrity)",
+     ("ALTER TABLE runs ADD COLUMN IF NOT EXISTS trace_bytes BIGINT",
+      "ALTER TABLE runs ADD COLUMN IF NOT EXISTS trace_rows BIGINT")),
+    (3, "runs: trace file checksum and time (issue 43)",
+     ("ALTER TABLE runs ADD COLUMN IF NOT EXISTS trace_hash VARCHAR",
+      "ALTER TABLE runs ADD COLUMN IF NOT EXISTS trace_mtime BIGINT")),
+)
+#: The version of the core schema this code writes: the number of its last migration.
+SCHEMA_VERSION = MIGRATIONS[-1][0]
+
 #: The descriptive columns of ``runs`` a job's draft may fill (its ``columns``; see
 #: :class:`eha.campaigns.drafts.JobDraft`); the runner fills the others.
 DESCRIPTIVE_COLUMNS = frozenset({"model", "command", "faults", "fault_label", "seed", "t_end",

@@ -22,19 +22,24 @@ Trace files are :mod:`eha.campaigns.traces`'.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 # No simulation code at import time (eha.models.simulate loads numba): `eha query` starts fast.
 from eha.campaigns.jobs import Table, UnknownJobKind, table as declared_table, tables
-from eha.campaigns.schema import ADDED_COLUMNS, DB_NAME, SCHEMA
+from eha.campaigns.migrations import migrate as _migrate, schema_version
+from eha.campaigns.schema import DB_NAME, SCHEMA, SCHEMA_VERSION
+from eha.campaigns.transactions import signals_held as _signals_held, transaction as _transaction
 from eha.errors import BAD_INPUT, FAILURE, EhaError
 from eha.outputs import pid_alive
 
 _LOCK_RE = re.compile(r"Conflicting lock is held in (.*?) \(PID (\d+)\)")
+#: Where :func:`connect` says that it upgraded a database's schema (a WARNING: with no logging
+#: configured, as on the command line, Python prints it on stderr as one line).
+log = logging.getLogger(__name__)
 
 
 class StoreError(EhaError, RuntimeError):
@@ -42,52 +47,6 @@ class StoreError(EhaError, RuntimeError):
     The command line exits 2: the results folder or the query given is at fault."""
 
     exit_code = BAD_INPUT
-
-
-@contextmanager
-def _signals_held() -> Iterator[None]:
-    """Hold Ctrl-C and SIGTERM while the block runs; their handlers run right after it.
-
-    Run inside a DuckDB statement, a handler that raises interrupts the statement itself and
-    DuckDB reports its own error ("Query interrupted"; after an interrupted COMMIT even the
-    ROLLBACK fails) instead of the signal. Only handlers set in Python are held (the default
-    SIGTERM still ends the process: the write-ahead log keeps the file whole).
-    """
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield  # handlers only run in the main thread, between its statements
-        return
-    held: list[int] = []
-    previous = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        if callable(signal.getsignal(signum)):
-            previous[signum] = signal.signal(signum, lambda n, _frame: held.append(n))
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in dict.fromkeys(held):
-            previous[signum](signum, None)
-
-
-@contextmanager
-def _transaction(con) -> Iterator[None]:
-    """One transaction on ``con``, committed or rolled back whole, with Ctrl-C and SIGTERM
-    held until it has ended (:func:`_signals_held`; a commit of runs takes milliseconds)."""
-    with _signals_held():
-        con.execute("BEGIN")
-        try:
-            yield
-            con.execute("COMMIT")
-        except BaseException:
-            try:
-                con.execute("ROLLBACK")
-            except Exception:  # the transaction ended already (a failed COMMIT)
-                pass
-            raise
 
 
 class StoreWriteError(StoreError):
@@ -138,12 +97,17 @@ def db_path(results: str | Path) -> Path:
 
 
 def connect(results: str | Path, read_only: bool = False):
-    """Open ``DIR/eha.duckdb``; the schema is created on a writable connection.
+    """Open ``DIR/eha.duckdb``; the schema is created, or upgraded, on a writable connection.
+
+    A writable connection applies the migrations the database lacks (:func:`eha.campaigns.migrations.migrate`); one
+    that had runs says so, one line logged (:data:`log`; on the command line, on stderr). A
+    read-only connection never writes: it reads an older database as it is.
 
     Raises
     ------
     StoreError
-        The database is held by another process, or (read-only) does not exist.
+        The database is held by another process, or (read-only) does not exist, or its schema
+        is newer than this code knows (nothing is written to it).
     """
     import duckdb
 
@@ -171,18 +135,24 @@ def connect(results: str | Path, read_only: bool = False):
             raise DatabaseDamaged(f"{path}: {first}; the file is damaged: move it away and run "
                                   "the campaigns again") from None
         raise StoreError(f"{path}: {first}") from None
-    if not read_only:
-        try:
-            for ddl in SCHEMA.values():
-                con.execute(ddl)
-            for table, column, sql_type in ADDED_COLUMNS:
-                con.execute(f"ALTER TABLE {table} ADD COLUMN IF NOT EXISTS {column} {sql_type}")
+    try:
+        version, had_runs = schema_version(con)
+        if version > SCHEMA_VERSION:
+            con.close()
+            raise StoreError(f"{path}: its schema is version {version}, newer than this eha "
+                             f"knows ({SCHEMA_VERSION}); it was written by a newer eha: "
+                             "upgrade eha, or use another results folder")
+        if not read_only:
+            done = _migrate(con, version)
+            if done and had_runs:
+                log.warning(f"note: {path}: database schema upgraded from version {version} "
+                            f"to {SCHEMA_VERSION} ({'; '.join(done)})")
             for entry in tables().values():
                 _create(con, entry)
-        except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
-            con.close()
-            raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
-                             "move it away and run the campaign again") from None
+    except duckdb.Error as exc:  # e.g. a damaged file that opened but cannot be read
+        con.close()
+        raise StoreError(f"{path}: {str(exc).splitlines()[0]}; if the file is damaged, "
+                         "move it away and run the campaign again") from None
     return con
 
 

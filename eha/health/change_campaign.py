@@ -27,7 +27,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.campaigns.jobs import register_job, register_table
+from eha.campaigns.jobs import JobKind, Table
 from eha.health.change import check_nuisances, draw_test_day, probe
 from eha.identification.healthy import DetectionError, draw_actuator
 from eha.models.faults import FAULTS
@@ -254,8 +254,10 @@ def run_change_job(spec: Mapping[str, Any], run_key: str, campaign: str,
     return {"rows": {"health_changes": row}, "sim_s": row["seconds"]}
 
 
-register_table("health_changes", HEALTH_CHANGES, per_run=True)
-register_job("health_change", run_change_job)
+#: The ``health_change`` job kind (entry point ``eha.job_kinds``): its jobs are drafted by the
+#: ``[health]`` section (``baseline = true``) of the ``health_assessment`` kind.
+HEALTH_CHANGE = JobKind("health_change", run_change_job,
+                        tables=(Table("health_changes", HEALTH_CHANGES, per_run=True),))
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ import time
 from functools import lru_cache
 from typing import Any, Mapping
 
-from eha.campaigns.jobs import register_job, register_table
+from eha.campaigns.jobs import JobKind, Table
 from eha.identification.healthy import DetectionError
 
 #: What the ``reference`` column of a change-check row holds (as in ``health_verdicts``).
@@ -50,9 +50,9 @@ CHANGE_CHECKS = """
             baseline_rmse  DOUBLE,    -- m, the baseline's noise
             seconds        DOUBLE)    -- s, wall time in the worker"""
 
-register_table("change_checks", CHANGE_CHECKS, per_run=True,
-               added=[("also", "JSON"),       # faults changed beside the isolated one
-                      ("beside", "JSON")])    # {fault: its reading beside the first}
+#: Columns added to ``change_checks`` after its first release.
+CHECKS_ADDED = (("also", "JSON"),     # faults changed beside the isolated one
+                ("beside", "JSON"))   # {fault: its reading beside the first}
 
 
 @lru_cache(maxsize=4)
@@ -135,7 +135,10 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
     return {"rows": {"change_checks": row}, "sim_s": row["seconds"]}
 
 
-register_job("change_record", run_change_record)
+#: The ``change_record`` job kind (entry point ``eha.job_kinds``; ``eha rul --check change``).
+CHANGE_RECORD = JobKind("change_record", run_change_record,
+                        tables=(Table("change_checks", CHANGE_CHECKS, per_run=True,
+                                      added=CHECKS_ADDED),))
 
 
 #: One row per ``change_calibration`` job: an actuator's change calibration at its baseline's
@@ -151,8 +154,6 @@ CHANGE_CALIBRATIONS = """
             pairs           INTEGER,   -- healthy pairs at that point
             false_alarms    INTEGER,   -- leave-one-out alarms among them
             seconds         DOUBLE)    -- s, wall time in the worker"""
-
-register_table("change_calibrations", CHANGE_CALIBRATIONS, per_run=True)
 
 
 def run_change_calibration(spec: Mapping[str, Any], run_key: str, campaign: str,
@@ -184,7 +185,11 @@ def run_change_calibration(spec: Mapping[str, Any], run_key: str, campaign: str,
     return {"rows": {"change_calibrations": row}, "sim_s": row["seconds"]}
 
 
-register_job("change_calibration", run_change_calibration)
+#: The ``change_calibration`` job kind (entry point ``eha.job_kinds``; ``eha rul --check change``
+#: at each actuator's operating point).
+CHANGE_CALIBRATION = JobKind(
+    "change_calibration", run_change_calibration,
+    tables=(Table("change_calibrations", CHANGE_CALIBRATIONS, per_run=True),))
 
 __all__ = ["REFERENCE", "CHANGE_CHECKS", "CHANGE_CALIBRATIONS", "run_change_record",
-           "run_change_calibration"]
+           "run_change_calibration", "CHANGE_RECORD", "CHANGE_CALIBRATION"]

@@ -34,8 +34,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.campaigns.jobs import register_job, register_section
-from eha.health import tables  # noqa: F401  (declares health_assessments, verdicts, thresholds)
+from eha.campaigns.jobs import JobKind
+from eha.health.tables import ASSESSMENTS  # (importing it declares verdicts, thresholds too)
 from eha.identification.healthy import (DetectionError, built_calibration, draw_actuator,
                                         tail_threshold)
 from eha.health.assessment import FAULTS
@@ -295,8 +295,11 @@ def expand_health_section(section: Mapping[str, Any], table: Mapping[str, Any],
     return [JobDraft(**job, version=MODEL_VERSION) for job in health_jobs(section, problems)]
 
 
-register_job("health_assessment", run_health_assessment_job)
-register_section("health", expand_health_section)
+#: The ``health_assessment`` job kind (entry point ``eha.job_kinds``): the ``[health]`` section
+#: of a campaign file makes its jobs (one assessment per actuator; a section with ``baseline =
+#: true`` also makes ``health_change`` pairs, :mod:`eha.health.change_campaign`).
+HEALTH = JobKind("health_assessment", run_health_assessment_job, section="health",
+                 drafts=expand_health_section, tables=(ASSESSMENTS,))
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,11 +1,12 @@
 """The health layer's result tables: the ``health_assessment`` kind's assessments
-(:mod:`eha.health.detection`), a check's verdicts and a calibration's thresholds
-(:mod:`eha.health.monitoring`), declared where the store finds them
-(:func:`eha.campaigns.jobs.register_table`; entry points ``eha.tables``)."""
+(:data:`ASSESSMENTS`, listed in the kind's declaration, :data:`eha.health.detection.HEALTH`),
+a check's verdicts and a calibration's thresholds (:mod:`eha.health.monitoring`), declared
+where the store finds them (:func:`eha.campaigns.jobs.register_table`; entry points
+``eha.tables``)."""
 
 from __future__ import annotations
 
-from eha.campaigns.jobs import register_table
+from eha.campaigns.jobs import Table, register_table
 
 #: One row per run of a detection campaign (``[health]`` section).
 HEALTH_ASSESSMENTS = """
@@ -66,7 +67,8 @@ HEALTH_THRESHOLDS = """
             created_at  TIMESTAMP,
             PRIMARY KEY (calibration, fault))"""
 
-register_table("health_assessments", HEALTH_ASSESSMENTS, per_run=True)
+#: The ``health_assessment`` kind's table (its declaration lists it).
+ASSESSMENTS = Table("health_assessments", HEALTH_ASSESSMENTS, per_run=True)
 #: Columns added after the first release: which check made a row ('fleet': against the
 #: healthy fleet; 'baseline': the change since the actuator's own earlier record, whose path
 #: ``baseline`` names; then ``estimate``, ``lo``, ``hi`` are the fault's change) and, for a
@@ -77,4 +79,4 @@ THRESHOLDS_ADDED = (("reference", "VARCHAR"),)
 register_table("health_verdicts", HEALTH_VERDICTS, added=VERDICTS_ADDED)
 register_table("health_thresholds", HEALTH_THRESHOLDS, added=THRESHOLDS_ADDED)
 
-__all__ = ["HEALTH_ASSESSMENTS", "HEALTH_VERDICTS", "HEALTH_THRESHOLDS"]
+__all__ = ["ASSESSMENTS", "HEALTH_ASSESSMENTS", "HEALTH_VERDICTS", "HEALTH_THRESHOLDS"]

@@ -3,8 +3,8 @@
 The identification itself is :mod:`eha.identification.fdi`; this module holds what the thesis
 reproduction adds around it: FDI campaign files (``[fdi]`` sections, :class:`FDICampaign`), running
 a case (:func:`run_case`) into the one result type :class:`FDIRow`, and the runner's job functions
-(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), which it registers with the
-campaign runner (job kind and campaign section ``fdi``).
+(:func:`fdi_jobs`, :func:`run_job`; rows of the ``fdi_results`` table), declared to the campaign
+runner as one job kind with its campaign section ``fdi`` (:data:`FDI`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from eha.campaigns.jobs import register_job, register_section, register_table
+from eha.campaigns.jobs import JobKind, Table
 from eha.models.commands import as_command
 from eha.identification.fdi import hf_reference, identify, mean_error_pct, percent_errors
 from eha.identification.problem import (DEFAULT_FIT, DEFAULT_LEVEL, DEFAULT_METHOD, METHODS,
@@ -449,8 +449,9 @@ FDI_RESULTS = """
             flagged        BOOLEAN,   -- residual well above the noise: not a confident fit
             noise_rmse     DOUBLE)    -- m, sensor noise estimated from the reference"""
 
-register_job("fdi", run_fdi_job)
-register_section("fdi", expand_fdi_section)
-register_table("fdi_results", FDI_RESULTS, per_run=True,
-               added=(("level", "DOUBLE"), ("intervals", "JSON"), ("flagged", "BOOLEAN"),
-                      ("noise_rmse", "DOUBLE")))
+#: The ``fdi`` job kind (entry point ``eha.job_kinds``): the ``[fdi]`` section, its worker and
+#: its ``fdi_results`` table.
+FDI = JobKind("fdi", run_fdi_job, section="fdi", drafts=expand_fdi_section,
+              tables=(Table("fdi_results", FDI_RESULTS, per_run=True,
+                            added=(("level", "DOUBLE"), ("intervals", "JSON"),
+                                   ("flagged", "BOOLEAN"), ("noise_rmse", "DOUBLE"))),))

@@ -62,7 +62,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from eha.campaigns.files import name_problem
-from eha.campaigns.jobs import register_job
+from eha.campaigns.jobs import JobKind
 from eha.errors import InputError
 
 LAWS = ("linear", "exponential", "power")
@@ -469,7 +469,9 @@ def simulate_fleet(fleet: Fleet | str | Path, out: str | Path, workers: int = 2,
                        summary)
 
 
-register_job("fleet_record", run_record_job)  # eha fleet simulate: one record
+#: The ``fleet_record`` job kind (entry point ``eha.job_kinds``): ``eha fleet simulate``'s
+#: records, one per job.
+FLEET_RECORD = JobKind("fleet_record", run_record_job)
 
 
 __all__ = ["Fleet", "FleetError", "Degradation", "parse_fleet", "load_fleet", "draw_truth",

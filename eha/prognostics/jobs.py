@@ -25,8 +25,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from eha.campaigns.jobs import register_job
-from eha.prognostics import tables  # noqa: F401  (declares health_checks, rul_predictions)
+from eha.campaigns.jobs import JobKind
+from eha.prognostics.tables import CHECKS  # (importing it declares rul_predictions too)
 from eha.models.bounds import Bounds
 from eha.models.faults import rul_faults
 from eha.prognostics.degradation import LAWS, PrognosticsError
@@ -485,7 +485,10 @@ def _store_predictions(results: Path, run_id: str, preds_all: Mapping[str, list]
     # one transaction: a re-run of the same manifest replaces its predictions
     replace_rows(results, "rul_predictions", rows, {"run_id": run_id})
 
-register_job("health", run_health_job)  # eha rul: one record's assessment
+#: The ``health`` job kind (entry point ``eha.job_kinds``): ``eha rul``'s assessment of one
+#: record, made by :func:`health_campaign` (not the ``[health]`` section of a campaign file,
+#: which makes ``health_assessment`` jobs, :data:`eha.health.detection.HEALTH`).
+HEALTH = JobKind("health", run_health_job, tables=(CHECKS,))
 
 
 __all__ = ["run_rul", "RulResult", "parse_limits", "load_truth", "health_campaign",

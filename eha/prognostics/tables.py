@@ -1,11 +1,12 @@
 """The prognostics' result tables (``eha rul``, docs/prognostics.md): one health assessment per
-record (a runner job of kind ``health``, :mod:`eha.prognostics.jobs`) and the RUL predictions
-made from them (written by the parent), declared where the store finds them
+record (:data:`CHECKS`, the table of the runner's job kind ``health``, listed in its
+declaration :data:`eha.prognostics.jobs.HEALTH`) and the RUL predictions made from them
+(written by the parent), declared where the store finds them
 (:func:`eha.campaigns.jobs.register_table`; entry points ``eha.tables``)."""
 
 from __future__ import annotations
 
-from eha.campaigns.jobs import register_table
+from eha.campaigns.jobs import Table, register_table
 
 #: One row per record of a health campaign (a ``health`` job).
 HEALTH_CHECKS = """
@@ -46,7 +47,8 @@ RUL_PREDICTIONS = """
             created_at  TIMESTAMP,
             PRIMARY KEY (run_id, actuator, cycle))"""
 
-register_table("health_checks", HEALTH_CHECKS, per_run=True)
+#: The ``health`` kind's table (its declaration lists it).
+CHECKS = Table("health_checks", HEALTH_CHECKS, per_run=True)
 #: Added after the first release: the check whose health history a prediction came from
 #: ('fleet': the identification of every record; 'baseline': the change check, each record's
 #: change since the actuator's baseline added to the baseline's identified value). Older rows
@@ -55,4 +57,4 @@ RUL_ADDED = (("reference", "VARCHAR"),)
 
 register_table("rul_predictions", RUL_PREDICTIONS, added=RUL_ADDED)
 
-__all__ = ["HEALTH_CHECKS", "RUL_PREDICTIONS"]
+__all__ = ["CHECKS", "HEALTH_CHECKS", "RUL_PREDICTIONS"]

@@ -15,11 +15,12 @@ workers or on what is already done: after a crash the runs left of a chunk are r
 file named after exactly those runs, and an uninterrupted campaign and a resumed one end with
 the same files and the same rows.
 
-The kind registers itself with the runner (:func:`eha.campaigns.jobs.register_job`, found
-through the ``eha.jobs`` entry point ``simulate``): its chunks, a one-run job
-(:func:`run_simulation_job`), the plan's estimate, the HF-vs-LF pairs of a case split across
-tasks (:class:`Pairs`, :func:`finish_pairs`) and the worker warm-up (:func:`warm_up`, entry
-point ``eha.worker_warm_up``).
+The kind is declared here, whole (:data:`SIMULATE`, a :class:`eha.campaigns.jobs.JobKind`
+found through the ``eha.job_kinds`` entry point ``simulate``): its part of a campaign file (the
+top-level keys and their expander, :mod:`eha.simulations.expand`), its chunks, a one-run job
+(:func:`run_simulation_job`), the plan's estimate, its ``metrics`` table, the HF-vs-LF pairs of
+a case split across tasks (:class:`Pairs`, :func:`finish_pairs`) and the worker warm-up
+(:func:`warm_up`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from eha.campaigns.jobs import TASK_SECONDS, register_job, register_table
+from eha.campaigns.jobs import TASK_SECONDS, JobKind, Table
+from eha.simulations.expand import KEYS, expand
 
 #: A campaign of N simulations is split into at least min(N, MIN_CHUNKS) chunks, so that up
 #: to 16 workers get 4 each whatever their number (the chunks never depend on the workers; on
@@ -424,11 +426,13 @@ METRICS = """
             max_err_xu_hf_lf DOUBLE,  -- m
             rmse_p12_hf_lf   DOUBLE)  -- Pa"""
 
-SIMULATE = register_job("simulate", run_simulation_job, plan_chunks=plan_chunks,
-                        run_chunk=run_chunk, chunk_fields=_chunk_fields, estimate_s=_estimate_s,
-                        collect=Pairs, finish=finish_pairs)
-register_table("metrics", METRICS, per_run=True)
+#: The ``simulate`` job kind, whole (entry point ``eha.job_kinds`` ``simulate``).
+SIMULATE = JobKind("simulate", run_simulation_job, keys=KEYS, drafts=expand,
+                   tables=(Table("metrics", METRICS, per_run=True),), warm_up=warm_up,
+                   plan_chunks=plan_chunks, run_chunk=run_chunk, chunk_fields=_chunk_fields,
+                   estimate_s=_estimate_s, collect=Pairs, finish=finish_pairs)
 
 
 __all__ = ["plan_chunks", "chunk_size", "run_chunk", "estimated_run_s", "TASK_SECONDS",
-           "MIN_CHUNKS", "run_simulation_job", "warm_up", "worker_info", "Pairs", "finish_pairs"]
+           "MIN_CHUNKS", "run_simulation_job", "warm_up", "worker_info", "Pairs", "finish_pairs",
+           "METRICS", "SIMULATE"]

@@ -6,8 +6,8 @@
 (:func:`eha.models.params.resolve`, :func:`eha.models.params.check_value`,
 :func:`eha.models.commands.make_command`, :func:`eha.models.simulate.check_grid`) and returns the
 drafts of its ``simulate`` jobs, one per model, fault set, command and seed. Every problem is
-appended to ``problems``, one line each. The module registers the keys and their expander
-(:func:`eha.campaigns.jobs.register_keys`, entry point ``eha.campaign_keys``); each draft
+appended to ``problems``, one line each. The kind's declaration names the keys and their
+expander (:data:`eha.simulations.batch.SIMULATE`); each draft
 carries the models' version (:data:`eha.models.simulate.MODEL_VERSION`), hashed into its run
 key.
 """
@@ -19,7 +19,6 @@ import json
 from typing import Any, Callable, Mapping
 
 from eha.campaigns.drafts import MAX_JOBS, JobDraft, _did_you_mean, _hash
-from eha.campaigns.jobs import register_keys
 from eha.models import OUTPUTS
 from eha.models import simulate as models_simulate
 from eha.models.commands import Command, CommandError, make_command, pin_command
@@ -389,7 +388,5 @@ def _fault_axes(where: str, value: Any, models: list[str],
 def _describe_faults(faults: Mapping[str, float]) -> str:
     return ",".join(f"{k}={v:g}" for k, v in faults.items()) or "nominal"
 
-
-register_keys("simulate", KEYS, expand)
 
 __all__ = ["KEYS", "REQUIRED_SIGNALS", "MAX_STEPS", "FAULT_KEYS", "expand"]
