@@ -101,6 +101,7 @@ def compare(truth: dict, output: dict) -> dict:
             "median_first_fleet": _median([r["fleet_first"] for r in rows]),
             "median_first_change": _median([r["change_first"] for r in rows]),
             "median_first_any": _median([r["change_first_any"] for r in rows]),
+            "not_at_baseline": sum(r["fleet_first"] != 0.0 for r in rows),
             "change_earlier": sum((r["earlier_by"] or 0) > 0 for r in rows),
             "change_later": sum((r["earlier_by"] or 0) < 0 for r in rows),
             "median_earlier_by": _median([r["earlier_by"] for r in rows]),
@@ -116,6 +117,21 @@ def compare(truth: dict, output: dict) -> dict:
         ch = r[next(iter(FLEET_DETECTABLE))]["change_first_any"]
         rows.append({"fleet": min(fl) if fl else None, "change": ch,
                      "earlier_by": None if not fl or ch is None else min(fl) - ch})
+    for name in FLEET_DETECTABLE:
+        rows = [r[name] for r in per.values()]
+        either = [None if r["fleet_first"] is None and r["change_first"] is None else
+                  min(x for x in (r["fleet_first"], r["change_first"]) if x is not None)
+                  for r in rows]
+        leads = [None if e is None or r["lead_fleet"] is None else
+                 r["lead_fleet"] + (r["fleet_first"] - e) for e, r in zip(either, rows)]
+        # both checks run (the fleet check also judges each record's absolute level): the
+        # first alarm of either, against the fleet check's alone
+        summary[name]["either"] = {
+            "earlier_than_fleet": sum(e is not None and r["fleet_first"] is not None and
+                                      e < r["fleet_first"] for e, r in zip(either, rows)),
+            "median_earlier_by": _median([None if e is None or r["fleet_first"] is None else
+                                          r["fleet_first"] - e for e, r in zip(either, rows)]),
+            "median_lead": _median(leads)}
     summary["any"] = {
         "fleet_detected": sum(x["fleet"] is not None for x in rows),
         "fleet_at_first_check": sum(x["fleet"] == 0.0 for x in rows),
@@ -160,6 +176,17 @@ def run_pass(args, table: dict) -> dict:
                          truth=fr.truth, workers=args.workers, progress=False,
                          trend="changes", operating_point=args.operating_point)
     t_rul = time.perf_counter() - t2
+    # the default trend of eha rul --check change: every record identified (the change
+    # check's alarms beside the fleet check's RUL); on the fleet's own interval only
+    t3 = time.perf_counter()
+    mi, ident_failed = {}, []
+    if not args.check_every:
+        ident = run_rul_change(fr.manifest, limits=dict(fleet.limits), fit=fit,
+                               calibration=out / "calibration.json", results=out / "results",
+                               truth=fr.truth, workers=args.workers, progress=False,
+                               trend="identified", operating_point=args.operating_point)
+        mi, ident_failed = (ident.metrics["fleet"] if ident.metrics else {}), ident.failed
+    t_ident = time.perf_counter() - t3
     truth = json.loads(Path(fr.truth).read_text())
     figures = compare(truth, res.output)
     m = res.metrics["fleet"] if res.metrics else {}
@@ -182,9 +209,12 @@ def run_pass(args, table: dict) -> dict:
                                                  "alpha_lambda_checks", "alpha_lambda",
                                                  "coverage", "median_width_rel_at_0.5",
                                                  "cra")},
-            "rul_fleet_check": fleet_rul, "failed": res.failed,
+            "rul_change_identified": {k: mi.get(k) for k in (
+                "alpha_lambda_fraction", "alpha_lambda_checks", "alpha_lambda", "coverage",
+                "median_width_rel_at_0.5", "cra")},
+            "rul_fleet_check": fleet_rul, "failed": res.failed + ident_failed,
             "seconds": {"fleet": round(t_fleet, 1), "calibration": round(t_cal, 1),
-                        "rul_change": round(t_rul, 1),
+                        "rul_change": round(t_rul, 1), "rul_identified": round(t_ident, 1),
                         "identify": round(res.seconds["assess"], 1),
                         "predict": round(res.seconds["predict"], 1)},
             "workers": args.workers}
@@ -208,9 +238,13 @@ def report(doc: dict) -> None:
               f"{s['median_earlier_by']} cycles (confirmed {s['median_earlier_by_confirmed']}); "
               f"median lead time {s['median_lead_fleet']} -> {s['median_lead_change']} "
               f"(confirmed {s['median_lead_change_confirmed']}); median true change at the "
-              f"first alarm {s['median_true_change_at_first']}")
-    print(f"  RUL alpha-lambda fraction: change check "
-          f"{doc['rul_change'].get('alpha_lambda_fraction')}, fleet check "
+              f"first alarm {s['median_true_change_at_first']}; either check: earlier than the "
+              f"fleet check's on {s['either']['earlier_than_fleet']}, median by "
+              f"{s['either']['median_earlier_by']}, median lead {s['either']['median_lead']}")
+    print(f"  RUL alpha-lambda fraction: change check on baseline + change "
+          f"{doc['rul_change'].get('alpha_lambda_fraction')}, on every record identified "
+          f"(eha rul --check change's default) "
+          f"{doc['rul_change_identified'].get('alpha_lambda_fraction')}, fleet check "
           f"{doc['rul_fleet_check'].get('alpha_lambda_fraction')} (rul.json at "
           f"{doc['rul_fleet_check'].get('commit')}); {len(doc['failed'])} failed; times "
           f"{doc['seconds']}")
