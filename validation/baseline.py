@@ -64,14 +64,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="chirp_1cm, 20 held-out pairs, 3 "
                     "actuators a level (a smoke run, not a result)")
-    ap.add_argument("--without-nuisances", action="store_true",
-                    help="Every test-day difference set to zero (what the nuisances cost: "
-                         "the detectable changes with noise and dither alone); its result "
-                         "file is baseline_without_nuisances.json.")
     ap.add_argument("--json", action="store_true", help="write validation/results/baseline.json")
     args = ap.parse_args(argv)
     from eha.design.change import measure
-    from eha.health.change import NUISANCES
 
     commands = [c for c in args.commands.split(",") if c]
     if args.quick:
@@ -85,7 +80,6 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         m = measure(c, 1.0, held_out=args.held_out, per_level=args.per_level,
                     calibration=args.calibration, seed=args.seed,
-                    nuisances={n: 0.0 for n in NUISANCES} if args.without_nuisances else None,
                     on_progress=lambda s: print(s, flush=True))
         m["seconds"] = time.perf_counter() - t0
         name = "design" if c == str(args.design) else c
@@ -104,8 +98,7 @@ def main(argv=None) -> int:
     out = {"settings": vars(args) | {"design": str(args.design) if args.design else None},
            "measured": measured, "seconds": time.perf_counter() - start}
     if args.json and not args.quick:
-        write_result("baseline_without_nuisances" if args.without_nuisances else "baseline",
-                     out)
+        write_result("baseline", out)
     return 0
 
 
