@@ -213,6 +213,10 @@ def test_cli_check_against_a_baseline(files, tmp_path):
     assert data["check"] == "change" and data["faults"]["FDJ"]["display_unit"] == "N"
     lo, hi = data["faults"]["FDJ"]["interval"]
     assert lo <= 150 <= hi
+    # a lone friction change: nothing changed beside it; the faults judged beside it say so
+    assert data["also_changed"] == [] and "beside it" not in proc.stdout
+    assert data["faults"]["BKL"]["beside"]["fault"] == data["isolated"][0]
+    assert not data["faults"]["BKL"]["beside"]["degraded"]
     from eha.campaigns.query import query
 
     rows = query(res, "SELECT fault, reference, baseline, degraded FROM health_verdicts")

@@ -268,6 +268,8 @@ def _check_baseline(record, baseline, calibration, level, json_out, results, col
         verdict = "DEGRADED" if v["degraded"] else "healthy"
         if name in run.isolated:
             verdict += " (isolated)"
+        elif name in run.also:
+            verdict += f" (beside {run.isolated[0]})"
         sign = "±" if FAULTS[name].direction == 0 else ("+" if v["alarm_change"] >= 0 else "-")
         table.add_row(name, _signed(name, v["change"]),
                       interval_text(name, *v["interval"]),
@@ -275,7 +277,8 @@ def _check_baseline(record, baseline, calibration, level, json_out, results, col
     console.print(f"record: {record}; baseline: {baseline}; calibration: {calibration}",
                   highlight=False)
     console.print(table)
-    console.print(f"status: {run.status}; isolated: {' or '.join(run.isolated) or 'none'}; "
+    console.print(f"status: {run.status}; isolated: {' or '.join(run.isolated) or 'none'}"
+                  + (f"; beside it: {', '.join(run.also)}" if run.also else "") + "; "
                   f"noise {1e6 * run.noise_rmse['record']:.3g} µm (baseline "
                   f"{1e6 * run.noise_rmse['baseline']:.3g} µm); {run.seconds:.1f} s",
                   highlight=False)
