@@ -118,19 +118,19 @@ def compare(truth: dict, output: dict) -> dict:
         rows.append({"fleet": min(fl) if fl else None, "change": ch,
                      "earlier_by": None if not fl or ch is None else min(fl) - ch})
     for name in FLEET_DETECTABLE:
-        rows = [r[name] for r in per.values()]
+        frows = [r[name] for r in per.values()]
         either = [None if r["fleet_first"] is None and r["change_first"] is None else
                   min(x for x in (r["fleet_first"], r["change_first"]) if x is not None)
-                  for r in rows]
+                  for r in frows]
         leads = [None if e is None or r["lead_fleet"] is None else
-                 r["lead_fleet"] + (r["fleet_first"] - e) for e, r in zip(either, rows)]
+                 r["lead_fleet"] + (r["fleet_first"] - e) for e, r in zip(either, frows)]
         # both checks run (the fleet check also judges each record's absolute level): the
         # first alarm of either, against the fleet check's alone
         summary[name]["either"] = {
             "earlier_than_fleet": sum(e is not None and r["fleet_first"] is not None and
-                                      e < r["fleet_first"] for e, r in zip(either, rows)),
+                                      e < r["fleet_first"] for e, r in zip(either, frows)),
             "median_earlier_by": _median([None if e is None or r["fleet_first"] is None else
-                                          r["fleet_first"] - e for e, r in zip(either, rows)]),
+                                          r["fleet_first"] - e for e, r in zip(either, frows)]),
             "median_lead": _median(leads)}
     summary["any"] = {
         "fleet_detected": sum(x["fleet"] is not None for x in rows),
