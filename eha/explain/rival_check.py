@@ -81,12 +81,10 @@ def _readings(loop, effect, members, overrides, seeds, by_shift: bool = False) -
     out = []
     for s in seeds:
         again = resimulated(loop, overrides, s)
-        again.current, again.free, again.steps = loop.current, dict(loop.free), list(loop.steps)
-        again.phase = "rival check"
-        start, free = again.candidate_start(members)
-        for st in again.steps:
+        start, free = again.candidate_start(members, loop.current, loop.free)
+        for st in loop.steps:
             free.update(EFFECTS[st.effect].bounds)
-        local, _ = again.local_test(start, free, members)
+        local, _ = again.local_test(start, free, members, "rival check")
         out.append(reading(effect, local, by_shift))
     return out
 
