@@ -21,9 +21,10 @@ from eha.identification.measured import MeasuredData, noise_level
 from eha.models.params import LFParams, ParameterError, resolve
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Problem:
-    """A record and what the loop fits on it (built by :meth:`build`; read-only).
+    """A record and what the loop fits on it (built by :meth:`build`; read-only, compared by
+    identity).
 
     Attributes
     ----------

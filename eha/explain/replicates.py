@@ -176,14 +176,10 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
 
     n = loop.settings.interval_replicates
     seeds = [REPLICATE_SEED + 1000 * loop.settings.seed + k for k in range(n)]
-    phase, loop.phase = loop.phase, f"residual: {n} HF re-simulations of the final model"
-    loop.progress(loop.phase)
-    try:
-        refits = _refits(loop, loop.current, bounds, hf_names, seeds)
-        ratios = [r for _, r in refits if math.isfinite(r)]
-        again = _restarted(loop, bounds, [p for p, _ in refits]) if restarts else []
-    finally:
-        loop.phase = phase
+    loop.progress(f"residual: {n} HF re-simulations of the final model")
+    refits = _refits(loop, loop.current, bounds, hf_names, seeds)
+    ratios = [r for _, r in refits if math.isfinite(r)]
+    again = _restarted(loop, bounds, [p for p, _ in refits]) if restarts else []
     if len(ratios) < 2:
         return {}
     mean, std = float(np.mean(ratios)), float(np.std(ratios, ddof=1))
@@ -271,13 +267,8 @@ def with_replicates(loop, terms: Mapping, bounds: Mapping[str, tuple[float, floa
     if not n:
         return dict(terms), None
     names = [*loop.bounds, *(p for e in added for p in EFFECTS[e].params)]
-    phase, loop.phase = loop.phase, f"intervals: {n} HF re-simulations of the final model"
-    loop.progress(loop.phase)
-    try:
-        spread, seeds = replicate_spread(loop, loop.current, bounds, names, n,
-                                         loop.settings.seed)
-    finally:
-        loop.phase = phase
+    loop.progress(f"intervals: {n} HF re-simulations of the final model")
+    spread, seeds = replicate_spread(loop, loop.current, bounds, names, n, loop.settings.seed)
     if not spread:
         return dict(terms), (f"the {n} HF re-simulations of the final model did not refit: "
                              "intervals without their spread")
