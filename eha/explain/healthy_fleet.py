@@ -37,6 +37,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     """
     from dataclasses import replace
 
+    from eha.explain.decide import relative_gain
     from eha.explain.effects import COMBINATIONS, EFFECTS, missing_requirements
     from eha.explain.fitting import Fitter
     from eha.explain.problem import Problem
@@ -69,8 +70,7 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         if effect.shift_key:
             shifts[effect.shift_key] = effect.shift_at(local)
         ev = fitter.evaluate([local])[0]
-        gains[effect.name] = (1.0 - ev.rmse_score / cur.rmse_score
-                              if cur.rmse_score > 0 else 0.0)
+        gains[effect.name] = relative_gain(cur, ev)
     return shifts, gains, float(ratio)
 
 

@@ -13,7 +13,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.facts import RunFacts
-from eha.explain.decide import edge_of_spread
+from eha.explain.decide import edge_of_spread, relative_gain
 from eha.explain.final_check import FinalCheck
 from eha.explain.fitting import Fitter
 from eha.explain.leads import LeadReport, residual_leads
@@ -171,7 +171,7 @@ class ResidualLoop(Rounds, FinalCheck):
         fitted = self.fitter.refit(start, self.bounds,
                                    f"fit the declared faults with {names} pinned")
         ev = self.fitter.evaluate([fitted])[0]
-        gain = 1.0 - ev.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+        gain = relative_gain(prev, ev)
         faults = {p: getattr(fitted, p) for p in self.bounds}
         for i, effect in enumerate(self.pinned):
             last = i == len(self.pinned) - 1

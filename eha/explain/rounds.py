@@ -10,8 +10,8 @@ import time
 from typing import Mapping, Sequence
 
 from eha.explain.effects import COMBINATIONS, EFFECTS, Effect, missing_requirements
-from eha.explain.decide import (Choice, choose, keeps_effect, significance, split_combination,
-                                trades_position)
+from eha.explain.decide import (Choice, choose, keeps_effect, relative_gain, significance,
+                                split_combination, trades_position)
 from eha.explain.results import (Candidate, Dismissal, Evaluation, Round, Step,
                                  ranking_score)
 from eha.explain.settings import LOOK_AHEAD, SPECIFIC_GAIN, STRUCTURAL, SWAP_CANDIDATES
@@ -64,7 +64,7 @@ class Rounds:
         cand.params = {p: getattr(trial, p) for e in members for p in e.params}
         cand.faults = {p: getattr(trial, p) for p in self.bounds}
         cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
-        cand.gain = 1.0 - ev.rmse_score / cur.rmse_score if cur.rmse_score > 0 else 0.0
+        cand.gain = relative_gain(cur, ev)
         cand.score = cand.gain - s.penalty * len(cand.params)
         added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
         cand.n_eff = ev.n_eff
@@ -284,7 +284,7 @@ class Rounds:
             for later in members[i + 1:]:
                 params_i = later.switch_off(params_i)
             ev_i = ev if i == len(members) - 1 else self.fitter.evaluate([params_i])[0]
-            gain_i = 1.0 - ev_i.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+            gain_i = relative_gain(prev, ev_i)
             added.append(Step(
                 effect=effect.name, params={p: getattr(ev.params, p) for p in effect.params},
                 rmse_before=prev.rmse_all, rmse_after=ev_i.rmse_all,
