@@ -16,8 +16,8 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.explain import (P12_NOISE_FLOOR, ExplainError, LoopSettings, augmented_base, explain,
-                         noise_level, p12_objective_weight, parse_fit)
+from eha.explain import (P12_NOISE_FLOOR, ExplainError, Fitter, LoopSettings, augmented_base,
+                         explain, noise_level, p12_objective_weight, parse_fit)
 from eha.identification.measured import load, synthetic_record
 from eha.models.params import LFParams
 
@@ -377,20 +377,20 @@ def test_batch_runs_start_at_the_recorded_position():
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
 
 
-def scripted(loop):
-    """Replace the loop's fitter by a script: every fit returns its start (the declared
-    faults where they start, a candidate's effects at their probe values) at no cost. For the
-    tests of the loop's control flow (which candidates a round refits, when it stops), as
-    tests/test_explain_decide.py runs the decision rule on canned numbers: the LF runs that
-    score the fits are real. Returns the labels of the fits asked for."""
-    asked = []
+class ScriptedFitter(Fitter):
+    """A fitter whose every fit returns its start (the declared faults where they start, a
+    candidate's effects at their probe values) at no cost, and notes its label (``asked``).
+    For the tests of the loop's control flow (which candidates a round refits, when it
+    stops), as tests/test_explain_decide.py runs the decision rule on canned numbers: the LF
+    runs that score the fits are real."""
 
-    def fit(start, free, label, *args, **kwargs):
-        asked.append(label)
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.asked: list[str] = []
+
+    def fit_with_cost(self, start, free, label, *args, **kwargs):
+        self.asked.append(label)
         return start, 0.0
-
-    loop.fitter.fit_with_cost = fit
-    return asked
 
 
 @pytest.mark.slow
@@ -403,8 +403,9 @@ def test_max_steps_holds_when_a_combination_wins(record):
 
     data = load(record("test", 0.6))
     for max_steps in (1, 2):
-        loop = ResidualLoop.on(data, settings=LoopSettings(candidates=4, max_steps=max_steps))
-        asked = scripted(loop)
+        loop = ResidualLoop.on(data, settings=LoopSettings(candidates=4, max_steps=max_steps),
+                               fitter=ScriptedFitter)
+        asked = loop.fitter.asked
         loop.baseline()
         stop = loop.rounds_until_stop()
         pairs = [c.effect for c in loop.rounds[0].candidates if "+" in c.effect]

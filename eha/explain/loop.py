@@ -47,15 +47,17 @@ class ResidualLoop(Rounds, FinalCheck):
     def __init__(self, problem: Problem, settings: LoopSettings = LoopSettings(),
                  null: Any = None, on_progress: Callable[[str], None] | None = None,
                  pin_structure: bool = False,
-                 first_excluded: Mapping[str, Mapping[str, Any]] | None = None):
+                 first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
+                 fitter: type[Fitter] = Fitter):
         self.started = time.perf_counter()
         self.problem, self.settings = problem, settings
         #: the healthy null (:class:`eha.explain.null.Null`) and its thresholds at ``alpha``
         #: (effect -> largest healthy shift); empty without a null
         self.null = null
         self.progress = on_progress or (lambda message: None)
-        #: the fits and the scores on the problem (:class:`~eha.explain.fitting.Fitter`)
-        self.fitter = Fitter(problem, settings,
+        #: the fits and the scores on the problem (a :class:`~eha.explain.fitting.Fitter`, or
+        #: the ``fitter`` class given: a test's scripted one)
+        self.fitter = fitter(problem, settings,
                              null.thresholds(settings.alpha) if null is not None else {},
                              self.progress)
         #: the faults (and GQ while it is fitted): :meth:`baseline` may release GQ
@@ -96,13 +98,13 @@ class ResidualLoop(Rounds, FinalCheck):
            on_progress: Callable[[str], None] | None = None,
            pin_structure: bool = False, null: Any = None,
            first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
-           **options: float) -> ResidualLoop:
+           fitter: type[Fitter] = Fitter, **options: float) -> ResidualLoop:
         """The loop on ``data``: its :class:`~eha.explain.problem.Problem` built from the
         inputs (see :func:`eha.explain.explain`); ``options`` join ``settings.options``."""
         if options:
             settings = replace(settings, options={**settings.options, **options})
         problem = Problem.build(data, settings, fit, effects, validate, base, fixed)
-        return cls(problem, settings, null, on_progress, pin_structure, first_excluded)
+        return cls(problem, settings, null, on_progress, pin_structure, first_excluded, fitter)
 
     @property
     def thresholds(self) -> dict[str, float]:
