@@ -878,17 +878,21 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(rec
     for name, truth in FAULTS.items():
         assert res.faults_after[name] == pytest.approx(truth, rel=0.02)
 
-    spreads = []
+    spreads, problems = [], []
     real_passes = api._passes
 
-    def passes(data, fit, effects, validate, base, settings, *rest):
+    def passes(problem, settings, *rest):
         spreads.append(settings.flow_gain_spread)
-        return real_passes(data, fit, effects, validate, base, settings, *rest)
+        problems.append(problem)
+        return real_passes(problem, settings, *rest)
 
     monkeypatch.setattr(api, "_passes", passes)
     monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
     again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FIRST_LF)
     assert spreads == [0.1, 0.0]
+    # the second run is the same record's problem with GQ held (not built again)
+    assert "GQ" in problems[0].bounds and "GQ" not in problems[1].bounds
+    assert problems[1].record is problems[0].record
     assert again.facts.flow_gain_released == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1
 
