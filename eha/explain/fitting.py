@@ -19,6 +19,7 @@ from eha.explain.settings import (FINISHED_POLISH_XTOL, GLOBAL_METHODS, LEAST_SQ
                                   MULTISTART, MULTISTART_PARAMS, STRUCTURAL, SWITCHED_OFF,
                                   ExplainError, LoopSettings)
 from eha.identification.intervals import effective_samples
+from eha.models.bounds import Bounds
 from eha.models.params import LFParams
 
 
@@ -95,13 +96,13 @@ class Fitter:
     def candidate_start(self, members: Sequence[Effect], current: LFParams,
                         refitted: Mapping[str, tuple[float, float]],
                         extends: LFParams | None = None
-                        ) -> tuple[LFParams, dict[str, tuple[float, float]]]:
+                        ) -> tuple[LFParams, Bounds]:
         """Where a candidate's refits start and what they fit: the model it extends (the
         current one, or a combination's fit) with the new effects at their off values (at the
         probe where off is outside the search bounds), and everything the rounds refit
         (``refitted``) plus the effects' parameters."""
         start = extends if extends is not None else current
-        free = dict(refitted)
+        free = Bounds(refitted)
         for effect in members:
             if not effect.is_on(start):
                 start = effect.switch_on(start, {

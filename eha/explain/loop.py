@@ -23,6 +23,8 @@ from eha.explain.results import Candidate, Dismissal, Evaluation, ExplainResult,
 from eha.explain.rounds import Rounds
 from eha.explain.settings import REVISITS, STRUCTURAL, LoopSettings
 from eha.identification.measured import MeasuredData
+from eha.models.bounds import Bounds
+from eha.models.estimate import Interval
 from eha.models.params import LFParams
 
 
@@ -354,10 +356,10 @@ class ResidualLoop(Rounds, FinalCheck):
         ratio = self.cur.rmse_all / self.problem.noise_ref
         return model_level(self, final_bounds, names, ratio)
 
-    def final_model(self) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    def final_model(self) -> tuple[Bounds, list[str]]:
         """The final model's fitted parameters with their bounds (the faults and every step's
         effect) and the effects the loop added that are not the structure."""
-        final_bounds = dict(self.bounds)
+        final_bounds = Bounds(self.bounds)
         for step in self.steps:
             final_bounds.update(EFFECTS[step.effect].bounds)
         added = [st.effect for st in self.steps
@@ -385,7 +387,7 @@ class ResidualLoop(Rounds, FinalCheck):
                     effect, entry["detectable"], effect.switch_off(base))]
         return summary
 
-    def final_intervals(self) -> tuple[dict[str, tuple[float, float]], tuple[str, ...], float,
+    def final_intervals(self) -> tuple[dict[str, Interval], tuple[str, ...], float,
                                        bool]:
         """Intervals of the final model's fitted parameters on the whole record (no refit),
         their notes and level, and whether the record is left unexplained (flagged by the

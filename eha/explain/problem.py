@@ -18,6 +18,7 @@ from eha.explain.effects import EFFECTS, Effect, get as get_effects
 from eha.explain.record import Record, initial_position, p12_objective_weight
 from eha.explain.settings import ExplainError, LoopSettings, parse_fit
 from eha.identification.measured import MeasuredData, noise_level
+from eha.models.bounds import Bounds
 from eha.models.params import LFParams, ParameterError, resolve
 
 
@@ -32,7 +33,7 @@ class Problem:
         The record.
     validate : MeasuredData or None
         A second record scored as held-out data.
-    faults : dict of str to (float, float)
+    faults : Bounds
         The declared faults and their search bounds (:func:`parse_fit`).
     flow_gain : (float, float) or None
         The flow gain GQ's bounds when it is fitted with the faults within its healthy
@@ -66,7 +67,7 @@ class Problem:
 
     data: MeasuredData
     validate: MeasuredData | None
-    faults: dict[str, tuple[float, float]]
+    faults: Bounds
     flow_gain: tuple[float, float] | None
     pool: list[Effect]
     base: LFParams
@@ -83,10 +84,10 @@ class Problem:
     score_noise: float
 
     @property
-    def bounds(self) -> dict[str, tuple[float, float]]:
-        """Everything fitted with the declared faults: the faults and, when fitted, GQ (a new
-        dict: the loop's own copy may drop GQ)."""
-        return {**self.faults, **({"GQ": self.flow_gain} if self.flow_gain else {})}
+    def bounds(self) -> Bounds:
+        """Everything fitted with the declared faults: the faults and, when fitted, GQ (new
+        each time: the loop's own copy may drop GQ)."""
+        return Bounds({**self.faults, **({"GQ": self.flow_gain} if self.flow_gain else {})})
 
     def without_flow_gain(self) -> Problem:
         """The same problem with GQ held at the base's value (the loop's second run when the

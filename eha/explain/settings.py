@@ -337,7 +337,7 @@ def optimizer_options() -> list[str]:
 
 
 def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
-              ) -> dict[str, tuple[float, float]]:
+              ) -> Bounds:
     """Fault parameters to fit: ``"BKL,FDJ"`` or ``"BKL=0:1e-3,FDJ=200:4000"`` or a mapping.
 
     Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or
