@@ -16,8 +16,8 @@ import pytest
 from typer.testing import CliRunner
 
 from eha.cli import app
-from eha.explain import (P12_NOISE_FLOOR, ExplainError, LoopSettings, augmented_base, explain,
-                         noise_level, p12_objective_weight, parse_fit)
+from eha.explain import (P12_NOISE_FLOOR, ExplainError, Fitter, LoopSettings, augmented_base,
+                         explain, noise_level, p12_objective_weight, parse_fit)
 from eha.identification.measured import load, synthetic_record
 from eha.models.params import LFParams
 
@@ -377,20 +377,20 @@ def test_batch_runs_start_at_the_recorded_position():
     assert (rows[:, LF.XJ0] == base.XJ0).all()     # the caller's rows are not modified
 
 
-def scripted(loop):
-    """Replace the loop's fitter by a script: every fit returns its start (the declared
-    faults where they start, a candidate's effects at their probe values) at no cost. For the
-    tests of the loop's control flow (which candidates a round refits, when it stops), as
-    tests/test_explain_decide.py runs the decision rule on canned numbers: the LF runs that
-    score the fits are real. Returns the labels of the fits asked for."""
-    asked = []
+class ScriptedFitter(Fitter):
+    """A fitter whose every fit returns its start (the declared faults where they start, a
+    candidate's effects at their probe values) at no cost, and notes its label (``asked``).
+    For the tests of the loop's control flow (which candidates a round refits, when it
+    stops), as tests/test_explain_decide.py runs the decision rule on canned numbers: the LF
+    runs that score the fits are real."""
 
-    def fit(start, free, label, *args, **kwargs):
-        asked.append(label)
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.asked: list[str] = []
+
+    def fit_with_cost(self, start, free, label, *args, **kwargs):
+        self.asked.append(label)
         return start, 0.0
-
-    loop.fit_with_cost = fit
-    return asked
 
 
 @pytest.mark.slow
@@ -403,8 +403,9 @@ def test_max_steps_holds_when_a_combination_wins(record):
 
     data = load(record("test", 0.6))
     for max_steps in (1, 2):
-        loop = ResidualLoop(data, settings=LoopSettings(candidates=4, max_steps=max_steps))
-        asked = scripted(loop)
+        loop = ResidualLoop.on(data, settings=LoopSettings(candidates=4, max_steps=max_steps),
+                               fitter=ScriptedFitter)
+        asked = loop.fitter.asked
         loop.baseline()
         stop = loop.rounds_until_stop()
         pairs = [c.effect for c in loop.rounds[0].candidates if "+" in c.effect]
@@ -439,7 +440,7 @@ def test_final_check_removes_a_stand_in_the_later_effects_made_unnecessary(recor
     from eha.explain import ResidualLoop
 
     data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
-    loop = ResidualLoop(data, effects="offset,external_load",
+    loop = ResidualLoop.on(data, effects="offset,external_load",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "offset", "external_load")
     assert [s.effect for s in loop.steps] == ["offset", "external_load"]
@@ -461,7 +462,7 @@ def test_final_check_swaps_a_stand_in_for_the_effect_it_stands_in_for(record):
 
     data = load(record("mixed", 1.0, {"sensor_delay": 1e-3},
                         model="lf"))
-    loop = ResidualLoop(data, effects="motor_gain,delay,offset,sensor_bias,external_load",
+    loop = ResidualLoop.on(data, effects="motor_gain,delay,offset,sensor_bias,external_load",
                         settings=LoopSettings(pop=12, seed=0, flow_gain_spread=0.0), max_gen=20, stall=5)
     _accept_by_hand(loop, "motor_gain")
     removed = loop.prune()
@@ -481,7 +482,7 @@ def test_final_check_merges_two_stand_ins_into_the_effect_they_stand_in_for(reco
     from eha.explain import ResidualLoop
 
     data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
-    loop = ResidualLoop(data, effects="offset,sensor_bias,external_load,delay,motor_gain",
+    loop = ResidualLoop.on(data, effects="offset,sensor_bias,external_load,delay,motor_gain",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "offset", "sensor_bias")
     merged = loop.merge()
@@ -504,11 +505,11 @@ def test_final_estimates_refit_everything_on_the_whole_record(record):
 
     data = load(record("mixed", 0.6,
                         {"FRC": 2000.0, "Ofs": 0.3}, model="lf"))
-    loop = ResidualLoop(data, effects="external_load,offset",
+    loop = ResidualLoop.on(data, effects="external_load,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "external_load", "offset")
     loop.current = loop.current.replace(FRC=2200.0, Ofs=0.21, FDJ=840.0)
-    loop.cur = loop.evaluate([loop.current])[0]
+    loop.cur = loop.fitter.evaluate([loop.current])[0]
     before = loop.cur.rmse_whole
     loop.estimate()
     assert loop.cur.rmse_whole < before
@@ -528,7 +529,7 @@ def test_supply_pressure_is_tried_with_the_orifice_law_it_requires(record):
 
     data = load(record("chirp_1cm", 0.6,
                         {"orifice_law": 1.0, "PSR": 1.6e7, "FRC": 2000.0}, model="lf"))
-    loop = ResidualLoop(data, effects="orifice_law,supply_pressure,motor_gain,offset",
+    loop = ResidualLoop.on(data, effects="orifice_law,supply_pressure,motor_gain,offset",
                         base=LFParams().replace(FRC=2000.0), fixed=["FRC"],
                         settings=LoopSettings(pop=12, seed=0, candidates=3), max_gen=20,
                         stall=5)
@@ -558,7 +559,7 @@ def test_look_ahead_finds_the_pair_that_stands_out_together(record):
 
     data = load(record("chirp_1cm", 0.6,
                         {"sensor_bias": 1e-4, "His": 0.2, "Kaer": 1.5e5}, model="lf"))
-    loop = ResidualLoop(data, effects="sensor_bias,hysteresis,hinge_moment,delay,offset",
+    loop = ResidualLoop.on(data, effects="sensor_bias,hysteresis,hinge_moment,delay,offset",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "sensor_bias")
     rnd = loop.trace(loop.cur, loop.free, loop.remaining())
@@ -599,7 +600,7 @@ def test_final_check_far_from_the_noise_searches_the_swap_globally(record, monke
 
     data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "Clk": 5e-12, "CJ": 1.6e4}, model="lf"))
-    loop = ResidualLoop(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
+    loop = ResidualLoop.on(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
                         "motor_gain,delay", settings=LoopSettings(pop=20, seed=0))
     _accept_by_hand(loop, "orifice_law+supply_pressure", "leakage")
     assert loop.unexplained()
@@ -625,12 +626,12 @@ def test_final_estimates_restart_the_structure_from_its_physical_values(record):
     data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "SNF": 2513.0, "ZF": 0.6, "Clk": 5e-12,
                          "CJ": 1.6e4}, model="lf"))
-    loop = ResidualLoop(data, effects="orifice_law,flapper_dynamics,leakage,viscous_friction",
+    loop = ResidualLoop.on(data, effects="orifice_law,flapper_dynamics,leakage,viscous_friction",
                         settings=LoopSettings(pop=12, seed=0, flow_gain_spread=0.0), max_gen=20, stall=5)
     _accept_by_hand(loop, "orifice_law+flapper_dynamics", "viscous_friction", "leakage")
     loop.current = loop.current.replace(SNF=1750.0, ZF=0.32, FDJ=897.0, CJ=17500.0,
                                         Clk=4.0e-12, BKL=1.13e-4)
-    loop.cur = loop.evaluate([loop.current])[0]
+    loop.cur = loop.fitter.evaluate([loop.current])[0]
     before = loop.cur.rmse_whole
     loop.estimate()
     assert loop.cur.rmse_whole < 0.5 * before
@@ -649,7 +650,7 @@ def test_faults_without_the_tentative_effects(record):
     from eha.explain import ResidualLoop
 
     data = load(record("mixed", 0.6, {"FRC": 2000.0}, model="lf"))
-    loop = ResidualLoop(data, effects="external_load,orifice_law,flapper_dynamics",
+    loop = ResidualLoop.on(data, effects="external_load,orifice_law,flapper_dynamics",
                         settings=LoopSettings(pop=12, seed=0), max_gen=20, stall=5)
     _accept_by_hand(loop, "external_load")
     without = loop.faults_without_tentative()
@@ -671,7 +672,7 @@ def test_pinned_structure_is_the_first_step_and_held_through_the_rounds(record):
     from eha.explain import ResidualLoop
 
     data = load(record("test", 0.6))
-    loop = ResidualLoop(data, settings=LoopSettings(pop=12, seed=0), pin_structure=True,
+    loop = ResidualLoop.on(data, settings=LoopSettings(pop=12, seed=0), pin_structure=True,
                         max_gen=20, stall=5)
     before = loop.baseline()
     assert [st.effect for st in loop.steps] == ["orifice_law", "flapper_dynamics"]
@@ -724,14 +725,15 @@ def test_global_refits_are_finished_by_least_squares(record, monkeypatch):
     truth = {"orifice_law": 1.0, "SNF": 2513.0, "ZF": 0.6, "FRC": 2000.0, "Clk": 5e-12,
              "GM": 0.008}
     data = load(record("test", 0.6, truth, model="lf"))
-    loop = ResidualLoop(data, settings=LoopSettings(pop=8, seed=0, flow_gain_spread=0.0), max_gen=6, stall=3)
+    loop = ResidualLoop.on(data, settings=LoopSettings(pop=8, seed=0, flow_gain_spread=0.0), max_gen=6, stall=3)
     free = {**loop.bounds, "FRC": (-8000.0, 8000.0), "SNF": (300.0, 2e4), "ZF": (0.1, 2.0),
             "Clk": (0.0, 2e-11), "GM": (0.002, 0.02)}
-    start = loop.base.replace(orifice_law=1.0, SNF=2513.0, ZF=0.6, FRC=2078.0, Clk=4.97e-12,
+    start = loop.problem.base.replace(orifice_law=1.0, SNF=2513.0, ZF=0.6, FRC=2078.0, Clk=4.97e-12,
                               GM=0.00809)
-    finished = loop.evaluate([loop.refit(start, free, "finished", warm_start=True)])[0]
+    finished = loop.fitter.evaluate([loop.fitter.refit(start, free, "finished",
+                                                        warm_start=True)])[0]
     monkeypatch.setattr(fitting, "LEAST_SQUARES_FINISH", False)
-    ga_only = loop.evaluate([loop.refit(start, free, "GA alone", warm_start=True)])[0]
+    ga_only = loop.fitter.evaluate([loop.fitter.refit(start, free, "GA alone", warm_start=True)])[0]
     assert finished.rmse_fit < 1.5 * NOISE and finished.rmse_fit < ga_only.rmse_fit
     assert finished.rmse_hold < ga_only.rmse_hold
     assert abs(finished.params.SNF / 2513.0 - 1) < abs(ga_only.params.SNF / 2513.0 - 1)
@@ -752,7 +754,7 @@ def test_final_check_far_from_the_noise_swaps_one_effect_for_two(record):
 
     data = load(record("test", 0.6,
                         {"orifice_law": 1.0, "Clk": 5e-12, "CJ": 1.6e4}, model="lf"))
-    loop = ResidualLoop(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
+    loop = ResidualLoop.on(data, effects="orifice_law,supply_pressure,leakage,viscous_friction,"
                         "delay", settings=LoopSettings(pop=20, seed=0))
     _accept_by_hand(loop, "orifice_law+supply_pressure")
     assert loop.unexplained()
@@ -778,7 +780,7 @@ class SimpleLoopResult:
     the effects reported)."""
 
     def __init__(self, loop):
-        self.before = loop.evaluate([loop.base])[0]
+        self.before = loop.fitter.evaluate([loop.problem.base])[0]
         self.after = loop.cur
         self.effects = [st.effect for st in loop.steps]
         self.dismissed = loop.dismissed
@@ -795,10 +797,10 @@ def test_a_candidate_that_trades_the_position_for_p12_is_not_added(record):
     assert data.p12 is not None
     truth = LFParams().replace(**FAULTS)
     for weight, switched_off in ((1.0, True), (0.0, False)):
-        loop = ResidualLoop(data, settings=LoopSettings(p12_weight=weight))
-        loop.current = truth.replace(XJ0=loop.base.XJ0)
-        loop.cur = loop.evaluate([loop.current])[0]
-        loop.fit_with_cost = lambda start, free, label, **kw: (start.replace(Clk=2e-11), 0.0)
+        loop = ResidualLoop.on(data, settings=LoopSettings(p12_weight=weight))
+        loop.current = truth.replace(XJ0=loop.problem.base.XJ0)
+        loop.cur = loop.fitter.evaluate([loop.current])[0]
+        loop.fitter.fit_with_cost = lambda start, free, label, **kw: (start.replace(Clk=2e-11), 0.0)
         cand = loop.try_candidate(Candidate("leakage", math.nan, math.nan))
         assert cand.rmse_fit > 2 * loop.cur.rmse_fit
         assert (cand.score == -math.inf) is switched_off, (weight, cand.score)
@@ -813,14 +815,14 @@ def test_flow_gain_spread_is_fitted_with_the_faults_unless_declared_known_or_off
 
     data = load(record("test", 0.6, model="lf"))
     spread = LoopSettings(flow_gain_spread=0.1)
-    assert ResidualLoop(data, settings=spread).bounds == {
+    assert ResidualLoop.on(data, settings=spread).bounds == {
         "BKL": (0.0, 2e-3), "FDJ": (0.0, 8000.0), "GQ": (0.18, 0.22)}
-    assert ResidualLoop(data).bounds["GQ"] == (0.192, 0.208)      # the default 0.04
-    assert "GQ" not in ResidualLoop(data, settings=LoopSettings(flow_gain_spread=0.0)).bounds
-    assert "GQ" not in ResidualLoop(data, fixed=("GQ",), settings=spread).bounds
-    assert ResidualLoop(data, fit="BKL,FDJ,GQ=0.1:0.3", settings=spread).bounds["GQ"] == \
+    assert ResidualLoop.on(data).bounds["GQ"] == (0.192, 0.208)      # the default 0.04
+    assert "GQ" not in ResidualLoop.on(data, settings=LoopSettings(flow_gain_spread=0.0)).bounds
+    assert "GQ" not in ResidualLoop.on(data, fixed=("GQ",), settings=spread).bounds
+    assert ResidualLoop.on(data, fit="BKL,FDJ,GQ=0.1:0.3", settings=spread).bounds["GQ"] == \
         (0.1, 0.3)
-    wide = ResidualLoop(data, base=LFParams(GQ=0.25), settings=LoopSettings(flow_gain_spread=0.2))
+    wide = ResidualLoop.on(data, base=LFParams(GQ=0.25), settings=LoopSettings(flow_gain_spread=0.2))
     assert wide.bounds["GQ"] == (0.2, 0.3)
     with pytest.raises(ExplainError, match=r"`flow_gain_spread` 0.6: allowed range \[0, 0.5\]"):
         LoopSettings(flow_gain_spread=0.6)
@@ -876,17 +878,21 @@ def test_a_flow_loss_beyond_the_healthy_spread_is_not_taken_by_the_flow_gain(rec
     for name, truth in FAULTS.items():
         assert res.faults_after[name] == pytest.approx(truth, rel=0.02)
 
-    spreads = []
+    spreads, problems = [], []
     real_passes = api._passes
 
-    def passes(data, fit, effects, validate, base, settings, *rest):
+    def passes(problem, settings, *rest):
         spreads.append(settings.flow_gain_spread)
-        return real_passes(data, fit, effects, validate, base, settings, *rest)
+        problems.append(problem)
+        return real_passes(problem, settings, *rest)
 
     monkeypatch.setattr(api, "_passes", passes)
     monkeypatch.setattr(api, "flow_gain_at_edge", lambda result: "GQ forced to its edge")
     again = explain(data, effects="motor_gain", flow_gain_spread=0.1, max_steps=1, **FIRST_LF)
     assert spreads == [0.1, 0.0]
+    # the second run is the same record's problem with GQ held (not built again)
+    assert "GQ" in problems[0].bounds and "GQ" not in problems[1].bounds
+    assert problems[1].record is problems[0].record
     assert again.facts.flow_gain_released == "GQ forced to its edge"
     assert again.settings["flow_gain_spread"] == 0.1
 

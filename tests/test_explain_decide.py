@@ -500,3 +500,19 @@ def test_any_statistic_past_its_own_bar_is_enough():
     assert not past_any({"supply_pressure": 4e-6, "supply_pressure.PSR": None}, bars)
     assert not past_any({"leakage": 1.0}, bars)
     assert past_any({"supply_pressure": math.nan}, bars)
+
+
+def test_the_relative_gain_is_one_formula_and_zero_from_a_perfect_fit():
+    """The gain of a candidate, of a pinned structure, of a step and of a healthy record's
+    effect is one function (it was written out four times): the relative reduction of the
+    scored RMSE, 0 from a model that already scores 0."""
+    from eha.explain.decide import relative_gain
+    from eha.explain.results import Evaluation
+    from eha.models.params import LFParams
+
+    def scored(r):
+        return Evaluation(LFParams(), None, r, r, r)
+
+    assert relative_gain(scored(2e-6), scored(0.5e-6)) == pytest.approx(0.75)
+    assert relative_gain(scored(1e-6), scored(2e-6)) == pytest.approx(-1.0)     # worse
+    assert relative_gain(scored(0.0), scored(1e-6)) == 0.0

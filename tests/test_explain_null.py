@@ -137,19 +137,19 @@ def test_the_gate_uses_the_null_threshold_and_falls_back_to_switched_off():
     com = 1e-3 * np.sin(2 * np.pi * 3 * t)
     data = from_arrays(t, com, com + np.random.default_rng(1).normal(0, 1e-6, t.size))
     null = _null({"external_load": [10.0, 20.0, 15.0, 12.0, 18.0]})
-    loop = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=null)
+    loop = ResidualLoop.on(data, settings=LoopSettings(alpha=0.05), null=null)
     thr = null.thresholds(0.05)["external_load"]
     load = EFFECTS["external_load"]
-    assert loop.within_healthy(load, {"FRC": 0.9 * thr})
-    assert loop.within_healthy(load, {"FRC": -0.9 * thr})
-    assert not loop.within_healthy(load, {"FRC": 1.1 * thr})
+    assert loop.fitter.within_healthy(load, {"FRC": 0.9 * thr})
+    assert loop.fitter.within_healthy(load, {"FRC": -0.9 * thr})
+    assert not loop.fitter.within_healthy(load, {"FRC": 1.1 * thr})
     flapper = EFFECTS["flapper_dynamics"]
-    assert loop.within_healthy(flapper, dict(flapper.off))
-    assert not loop.within_healthy(flapper, {"SNF": 2513.0, "ZF": 0.6})
+    assert loop.fitter.within_healthy(flapper, dict(flapper.off))
+    assert not loop.fitter.within_healthy(flapper, {"SNF": 2513.0, "ZF": 0.6})
     # without a null: only a switched-off fit (within 0.1 % of the range, 16 N) is refused
-    plain = ResidualLoop(data)
-    assert not plain.within_healthy(load, {"FRC": 20.0}) and plain.within_healthy(load,
-                                                                                 {"FRC": 0.0})
+    plain = ResidualLoop.on(data)
+    assert not plain.fitter.within_healthy(load, {"FRC": 20.0})
+    assert plain.fitter.within_healthy(load, {"FRC": 0.0})
 
 
 def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
@@ -168,53 +168,53 @@ def test_the_supply_pressure_is_tested_by_its_footprint_on_the_record():
     supply = EFFECTS["supply_pressure"]
     assert supply.footprint and supply.statistic_unit == "m" and supply.tested == "PSR"
     null = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6]})
-    loop = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=null)
+    loop = ResidualLoop.on(data, settings=LoopSettings(alpha=0.05), null=null)
     base = EFFECTS["orifice_law"].switch_on(loop.current)
-    assert loop.statistic_at(supply, base) == 0.0
-    listing = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
-    text = loop.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert loop.fitter.statistic_at(supply, base) == 0.0
+    listing = loop.fitter.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    text = loop.fitter.statistic_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
     assert listing > 1e-5 and text < 1e-6, (listing, text)
     from eha.explain.null import _units, statistic_keys
     units, resolution = _units(["supply_pressure"])
     assert units == {"supply_pressure": "m", "supply_pressure.PSR": "Pa"}
     assert resolution == {"supply_pressure": 1e-7, "supply_pressure.PSR": pytest.approx(2500.0)}
-    assert loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
-    assert not loop.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
+    assert loop.fitter.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert not loop.fitter.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=0.0))
     # with the PSR shift as second statistic (each one of the union bound's) a drop the footprint
     # misses passes by its shift: 4 MPa against a healthy spread of ~1 MPa
     assert statistic_keys(["leakage", "supply_pressure"]) == [
         "leakage", "supply_pressure", "supply_pressure.PSR"]
     both = _null({"supply_pressure": [1e-6, 2e-6, 1.5e-6, 0.5e-6, 1.2e-6],
                   "supply_pressure.PSR": [1e5, 8e5, 3e5, 6e5, 2e5]})
-    loop2 = ResidualLoop(data, settings=LoopSettings(alpha=0.05), null=both)
-    assert not loop2.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
-    assert loop2.within_healthy_at(supply, base.replace(PSR=1.95e7, XSSK=1.0))
+    loop2 = ResidualLoop.on(data, settings=LoopSettings(alpha=0.05), null=both)
+    assert not loop2.fitter.within_healthy_at(supply, base.replace(PSR=1.6e7, XSSK=1.0))
+    assert loop2.fitter.within_healthy_at(supply, base.replace(PSR=1.95e7, XSSK=1.0))
     # the one union rule, against any bars (thresholds or detectable sizes): either
     # statistic past its own bar; a statistic without a bar is never past it
     drop = base.replace(PSR=1.6e7, XSSK=1.0)
-    assert loop2.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6})
-    assert not loop2.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 5e6})
-    assert loop2.past(supply, drop.replace(XSSK=0.0), {"supply_pressure": 1e-5})
-    assert not loop2.past(supply, drop, {})
+    assert loop2.fitter.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6})
+    assert not loop2.fitter.past(supply, drop, {"supply_pressure": 1.0, "supply_pressure.PSR": 5e6})
+    assert loop2.fitter.past(supply, drop.replace(XSSK=0.0), {"supply_pressure": 1e-5})
+    assert not loop2.fitter.past(supply, drop, {})
     # the footprint is simulated once per fitted parameters (the gate and the report ask)
-    assert loop2.record.footprint(supply, drop) == loop2.statistic_at(supply, drop)
-    assert ("supply_pressure", drop) in loop2.record._footprints
+    assert loop2.problem.record.footprint(supply, drop) == loop2.fitter.statistic_at(supply, drop)
+    assert ("supply_pressure", drop) in loop2.problem.record._footprints
     summary = both.summary(0.05)
     assert list(summary["effects"]) == ["supply_pressure"]
     assert summary["effects"]["supply_pressure"]["shift"]["param"] == "PSR"
     # the size that makes a footprint: a drop with the listing's law; none with the text's
     # (its PSR only bounds P12, which this small sine never nears)
-    (listing_law, psr), (text_law, none) = loop.record.footprint_size(supply, 5e-6, base)
+    (listing_law, psr), (text_law, none) = loop.problem.record.footprint_size(supply, 5e-6, base)
     assert listing_law == {"XSSK": 0.0} and text_law == {"XSSK": 1.0} and none is None
     assert 1.5e7 < psr < 2e7
-    assert loop.statistic_at(supply, base.replace(PSR=psr)) == pytest.approx(5e-6, rel=1e-3)
+    assert loop.fitter.statistic_at(supply, base.replace(PSR=psr)) == pytest.approx(5e-6, rel=1e-3)
     # a parameter-shift effect is tested as before
-    assert loop.statistic_at(EFFECTS["external_load"], base.replace(FRC=-30.0)) == 30.0
+    assert loop.fitter.statistic_at(EFFECTS["external_load"], base.replace(FRC=-30.0)) == 30.0
     # a rival past its bar by the PSR shift alone is reported by that shift, in Pa: its
     # footprint (below the footprint's bar) is not what the record cannot rule out, and the
     # verdict said "a footprint of 5.25 µm, beyond the 19.9 µm" (a foreign-ambiguity record)
     from eha.explain.verdict import _rival
-    loop2.thresholds = both.thresholds(0.05)
+    assert loop2.thresholds == both.thresholds(0.05)
     bars = {"supply_pressure": 1.0, "supply_pressure.PSR": 1e6}
     by_shift = loop2.rival_entry(supply, drop, bars)
     assert by_shift["unit"] == "Pa" and by_shift["shift"] == pytest.approx(4e6)
@@ -364,20 +364,19 @@ def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tm
     truth otherwise) gets the exclusion check: the friction's test fit runs beyond a
     detectable size of about 500 N·s/m (listed, with its value within 20 % of the truth: the
     record shows it) and not beyond one of about 1e5 (empty)."""
-    from eha.explain import LoopSettings, ResidualLoop
+    from eha.explain import Problem, ResidualLoop
     from eha.identification.measured import load
     from eha.models.params import LFParams
     from test_explain import FAULTS, _record
 
     truth = {**FAULTS, "CJ": 3000.0}
     data = load(_record(tmp_path, "lf_vf", "mixed", 0.6, overrides=truth, model="lf"))
-    loop = ResidualLoop(data, effects="viscous_friction", settings=LoopSettings())
-    loop.current = LFParams().replace(**FAULTS, XJ0=loop.base.XJ0)
-    loop.cur = loop.evaluate([loop.current])[0]
+    problem = Problem.build(data, effects="viscous_friction")
     for healthy, listed in ((400.0, True), (9e4, False)):
-        loop.null = _null({"viscous_friction": [healthy * f for f in (0.9, 1.1, 1.0, 0.95,
-                                                                      1.05)]})
-        loop.thresholds = loop.null.thresholds(loop.settings.alpha)
+        null = _null({"viscous_friction": [healthy * f for f in (0.9, 1.1, 1.0, 0.95, 1.05)]})
+        loop = ResidualLoop(problem, null=null)
+        loop.current = LFParams().replace(**FAULTS, XJ0=problem.base.XJ0)
+        loop.cur = loop.fitter.evaluate([loop.current])[0]
         rivals = loop.not_excluded()
         assert bool(rivals) is listed, rivals
         if listed:
@@ -412,6 +411,7 @@ def test_a_preset_record_takes_the_shipped_null_and_another_noise_calibrates(mon
     nothing ships."""
     from eha.explain import null as null_module
     from eha.explain.api import healthy_null
+    from eha.explain.problem import Problem
     from eha.explain.library_nulls import library_record
     from eha.explain.settings import LoopSettings
     from eha.identification.measured import from_arrays
@@ -420,14 +420,14 @@ def test_a_preset_record_takes_the_shipped_null_and_another_noise_calibrates(mon
     monkeypatch.setattr(null_module, "ProcessPoolExecutor", None)    # no calibration
     monkeypatch.setattr(null_module, "_fleet_member", None)
     data = library_record("mixed")
-    null = healthy_null(data, None, None, None, LoopSettings(), (), "simulate")
+    null = healthy_null(Problem.build(data), LoopSettings(), "simulate")
     assert (null_module.SHIPPED_DIR / f"{null.key}.json").exists()
     assert null.source.endswith("preset mixed and shipped with eha")      # the verdict says so
     assert not list(tmp_path.rglob("*.json"))                         # nothing calibrated
     noisy = from_arrays(data.t, data.com, data.xu + np.random.default_rng(0).normal(
         0.0, 3e-6, len(data.xu)), command_hold=data.info["command_hold"])
     with pytest.raises(TypeError):             # it would calibrate: the patched pool is None
-        healthy_null(noisy, None, None, None, LoopSettings(), (), "simulate")
+        healthy_null(Problem.build(noisy), LoopSettings(), "simulate")
 
 
 def test_the_fleet_carries_the_effects_its_base_starts_with():
@@ -472,7 +472,7 @@ def test_the_fleet_carries_the_effects_its_base_starts_with():
     from eha.explain import ResidualLoop
     from eha.explain.replicates import model_overrides
 
-    loop = ResidualLoop(data, fit="BKL,FDJ", base=base)
-    carried = model_overrides(loop, loop.base.replace(BKL=2e-4), ["BKL"])
+    loop = ResidualLoop.on(data, fit="BKL,FDJ", base=base)
+    carried = model_overrides(loop, loop.problem.base.replace(BKL=2e-4), ["BKL"])
     assert carried["GM"] == 0.0085 and carried["sensor_bias"] == 2e-5
     assert carried["BKL"] == 2e-4 and "FDJ" not in carried and "SNF" not in carried

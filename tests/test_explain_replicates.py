@@ -33,21 +33,21 @@ def right_model(tmp_path_factory):
     path = tmp_path_factory.mktemp("replicates") / "hinge.csv"
     synthetic_record("chirp_1cm", TRUTH, t_end=1.0, noise=1e-6, seed=3).to_csv(path,
                                                                              index=False)
-    loop = ResidualLoop(load(path), fit="BKL,FDJ", settings=LoopSettings(interval_replicates=3))
-    params, bounds = loop.base.replace(BKL=TRUTH["BKL"], FDJ=TRUTH["FDJ"]), dict(loop.bounds)
+    loop = ResidualLoop.on(load(path), fit="BKL,FDJ", settings=LoopSettings(interval_replicates=3))
+    params, bounds = loop.problem.base.replace(BKL=TRUTH["BKL"], FDJ=TRUTH["FDJ"]), dict(loop.bounds)
     for name in ("orifice_law", "flapper_dynamics", "hinge_moment"):
         effect = EFFECTS[name]
         params = effect.switch_on(params, {"Kaer": TRUTH["Kaer"]} if name == "hinge_moment"
                                   else None)
         bounds.update(effect.bounds)
-    return path, loop.refit(params, bounds, "right model", method="lm", whole=True), bounds
+    return path, loop.fitter.refit(params, bounds, "right model", method="lm", whole=True), bounds
 
 
 def _fitted(right_model, replicates: int = 3):
     """A fresh loop on the record of ``right_model`` whose model is that right model:
     (loop, bounds)."""
     path, params, bounds = right_model
-    loop = ResidualLoop(load(path), fit="BKL,FDJ",
+    loop = ResidualLoop.on(load(path), fit="BKL,FDJ",
                         settings=LoopSettings(interval_replicates=replicates))
     loop.current = params
     return loop, dict(bounds)
@@ -82,9 +82,9 @@ def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(right_
     loop, bounds = _fitted(right_model)
     names = [*loop.bounds, "Kaer"]
     replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
-    cached = dict(loop._replicate_refits)
+    cached = dict(loop.replicate_refits)
     own = model_level(loop, bounds, names, record_ratio=1.0, restarts=False)
-    assert loop._replicate_refits == cached            # nothing simulated again
+    assert loop.replicate_refits == cached            # nothing simulated again
     assert len(own["ratios"]) == 3 and all(0.9 < r < 1.5 for r in own["ratios"])
     mean, std = own["mean"], own["std"]
     assert own["bound"] == pytest.approx(
@@ -104,10 +104,10 @@ def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(right_m
     from eha.identification.intervals import noise_reference
 
     loop, bounds = _fitted(right_model)
-    reference = noise_reference(loop.noise, loop.data.xu)
-    best = loop.evaluate([loop.current])[0].rmse_all / reference
+    reference = noise_reference(loop.problem.noise, loop.problem.data.xu)
+    best = loop.fitter.evaluate([loop.current])[0].rmse_all / reference
     loop.current = loop.current.replace(BKL=1.5 * loop.current.BKL)
-    off = loop.evaluate([loop.current])[0].rmse_all / reference
+    off = loop.fitter.evaluate([loop.current])[0].rmse_all / reference
     assert off > 1.1 * best
     names = [*loop.bounds, "Kaer"]
     own = model_level(loop, bounds, names, record_ratio=off)
@@ -158,17 +158,17 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     path = tmp_path / "load.csv"
     synthetic_record("chirp_1cm", {"BKL": 1e-4, "FDJ": 800.0, "FRC": 800.0}, t_end=1.0,
                      noise=1e-6, seed=2).to_csv(path, index=False)
-    loop = ResidualLoop(load(path), fit="BKL,FDJ",
+    loop = ResidualLoop.on(load(path), fit="BKL,FDJ",
                         settings=LoopSettings(rival_replicates=3, pop=8))
     loop.baseline()
     for name in ("orifice_law", "external_load"):
         loop.accept(Choice(loop.try_candidate(Candidate(name, math.nan, math.nan)), set(),
                            [name]))
     rival = EFFECTS["offset"]
-    start, free = loop.candidate_start([rival])
+    start, free = loop.fitter.candidate_start([rival], loop.current, loop.free)
     for st in loop.steps:
         free.update(EFFECTS[st.effect].bounds)
-    local, _ = loop.local_test(start, free, [rival])
+    local, _ = loop.fitter.local_test(start, free, [rival], "test")
     check = check_rival(loop, rival, [rival], local, detectable=0.01, threshold=0.005)
     assert set(check) == {"record", "without", "with", "size", "threshold", "spread",
                           "shown", "ruled_out", "seeds"}
@@ -186,10 +186,10 @@ def test_the_rival_check_reads_the_rival_without_and_with_it(tmp_path):
     # a supply pressure, tested by its footprint, is checked on its PSR when listed by that
     # shift (it was never checked: two bias/offset records kept it as a rival)
     supply = EFFECTS["supply_pressure"]
-    start, free = loop.candidate_start([supply])
+    start, free = loop.fitter.candidate_start([supply], loop.current, loop.free)
     for st in loop.steps:
         free.update(EFFECTS[st.effect].bounds)
-    local, _ = loop.local_test(start, free, [supply])
+    local, _ = loop.fitter.local_test(start, free, [supply], "test")
     assert check_rival(loop, supply, [supply], local, 2e6, 5e5) == {}   # its footprint: not
     check = check_rival(loop, supply, [supply], local, 2e6, 5e5, by_shift=True)
     assert check["record"] == local.PSR and abs(check["size"]) == 2e6

@@ -54,7 +54,7 @@ def record_path(tmp_path_factory):
 
 
 def _loop(path, null: Null | None = None) -> ResidualLoop:
-    return ResidualLoop(load(path), fit="BKL,FDJ", effects="orifice_law,flapper_dynamics,"
+    return ResidualLoop.on(load(path), fit="BKL,FDJ", effects="orifice_law,flapper_dynamics,"
                         "external_load,offset", settings=LoopSettings(pop=8),
                         pin_structure=True, null=null or _null())
 
@@ -137,7 +137,7 @@ def test_an_effect_read_loosely_is_shown_by_a_record_nothing_else_explains(recor
 
 
 def test_settling_needs_a_null(record_path):
-    loop = ResidualLoop(load(record_path), fit="BKL,FDJ", settings=LoopSettings(pop=8))
+    loop = ResidualLoop.on(load(record_path), fit="BKL,FDJ", settings=LoopSettings(pop=8))
     with pytest.raises(ExplainError, match="healthy null"):
         settle(loop, _prior())
     assert settle(loop, {**_prior(), "not_excluded": []}) is None

@@ -25,69 +25,28 @@ def test_the_healthy_null_says_k_of_n_and_the_time_left():
 
 
 def test_the_exclusion_check_is_not_labelled_as_a_round():
-    from eha.explain.final_check import FinalCheck
+    from eha.explain.fitting import Fitter
     from eha.explain.rounds import Rounds
 
     labels: list[str] = []
 
-    class Probe(Rounds, FinalCheck):
+    class Probe(Rounds):
         phase = ""
         rounds = [object()]
+
+    class Recording(Fitter):
+        def __init__(self):         # no problem: the fits only record their labels
+            pass
 
         def fit_with_cost(self, start, free, label, **kwargs):
             labels.append(label)
             raise StopIteration
 
-    loop = Probe()
+    loop, fitter = Probe(), Recording()
     with pytest.raises(StopIteration):
-        loop.local_test(None, {}, [])
+        fitter.local_test(None, {}, [], loop.fit_phase())
     loop.phase = "exclusion check (does another effect fit as well?)"
     with pytest.raises(StopIteration):
-        loop.local_test(None, {}, [])
+        fitter.local_test(None, {}, [], loop.fit_phase())
     assert labels[0].startswith("round 1: local test")
     assert labels[1].startswith("exclusion check (does another effect fit as well?): local")
-
-
-def test_a_rerun_keeps_the_record_of_the_run_that_did_the_work(tmp_path):
-    """``reports/summary.md``'s campaigns table: a later ``eha reproduce`` that finds every
-    run done (0 run now) keeps the counts and the wall time of the call that ran them."""
-    from eha.campaigns.runner import RunSummary
-    from eha.reports.thesis import _work_record
-
-    first = [RunSummary("thesis-nominal", total=12, done=12, wall_s=61.5)]
-    (work,) = _work_record(tmp_path, first)
-    assert work["done"] == 12 and work["wall_s"] == 61.5
-    again = [RunSummary("thesis-nominal", total=12, skipped=12, wall_s=0.4)]
-    (kept,) = _work_record(tmp_path, again)
-    assert kept == work
-    resumed = [RunSummary("thesis-nominal", total=12, done=2, skipped=10, wall_s=9.0)]
-    assert _work_record(tmp_path, resumed)[0]["done"] == 2
-
-
-def test_reproduce_names_its_phases_after_the_campaigns(tmp_path, monkeypatch):
-    """The figures, the reports and the HTML page (20 s and more after the campaigns, silent
-    before) are each announced."""
-    import contextlib
-
-    import pandas as pd
-
-    import eha.campaigns.executors as executors
-    import eha.campaigns.runner as runner
-    import eha.reports.html as html
-    import eha.reports.thesis as thesis
-
-    monkeypatch.setattr(executors, "LocalPoolExecutor", lambda n: contextlib.nullcontext())
-    monkeypatch.setattr(runner, "run_campaign", lambda *a, **k: runner.RunSummary("x", 0))
-    monkeypatch.setattr(thesis, "campaign_runs", lambda results, name: pd.DataFrame(
-        {"command": [], "model": [], "trace_path": [], "run_key": []}))
-    monkeypatch.setattr(thesis, "plot_campaign", lambda results, name: [])
-    monkeypatch.setattr(thesis, "campaign_report", lambda results, name: tmp_path / "r.csv")
-    monkeypatch.setattr(thesis, "_summary_markdown", lambda *a: tmp_path / "s.md")
-    monkeypatch.setattr(thesis, "thesis_report", lambda results: {
-        "plot": tmp_path / "p.png", "table": tmp_path / "t.csv", "summary": tmp_path / "f.md"})
-    monkeypatch.setattr(html, "build_report", lambda *a: type("R", (), {"path": tmp_path})())
-    said: list[str] = []
-    thesis.reproduce_thesis(tmp_path, on_phase=said.append)
-    assert any(m.startswith("figures and CSV of campaign thesis-nominal") for m in said)
-    assert said[-2].startswith("thesis fault identification report")
-    assert said[-1].startswith("HTML report")

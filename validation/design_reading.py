@@ -60,11 +60,11 @@ def read_one(command: Path, name: str, dev: float, friction: float, seed: int,
     df = eha.synthetic_record(str(command), truth, t_end=2.0, noise=1e-6, seed=seed)
     path = tmp / "record.csv"
     df.to_csv(path, index=False)
-    loop = ResidualLoop(eha.load(path), settings=LoopSettings())
-    values = {k: getattr(loop.base, k) for k in loop.bounds}
+    loop = ResidualLoop.on(eha.load(path), settings=LoopSettings())
+    values = {k: getattr(loop.problem.base, k) for k in loop.bounds}
     values.update(truth)
     start, bounds = model_of(loop, {**{s: {} for s in STRUCTURE}, name: {}}, values)
-    fitted = loop.refit(start, bounds, "right model", method="lm", whole=True)
+    fitted = loop.fitter.refit(start, bounds, "right model", method="lm", whole=True)
     row = spreads(loop, fitted, bounds)[param]
     # the loop's replicate term (eha.explain.replicates), as the loop adds it
     spread, _ = replicate_spread(loop, fitted, bounds, [*loop.bounds, *effect.params],

@@ -78,7 +78,7 @@ def model_of(loop, effects: dict[str, dict[str, float]], values: dict[str, float
     faults at ``values``: (params, bounds of every fitted parameter)."""
     from eha.explain.effects import EFFECTS
 
-    params, bounds = loop.base, dict(loop.bounds)
+    params, bounds = loop.problem.base, dict(loop.bounds)
     for name in effects:
         effect = EFFECTS[name]
         params = effect.switch_on(params, {p: values.get(p, effect.probe.get(p))
@@ -94,10 +94,10 @@ def spreads(loop, params, bounds) -> dict[str, dict[str, float]]:
     from eha.identification.problem import model_form_of
     from eha.identification.intervals import MODEL_FORM, ModelForm, inflation, noise_reference
 
-    data = loop.data
-    iv = intervals_at(data.xu, data.command, params, bounds, level=LEVEL, noise=loop.noise,
-                      recorded_start=loop.record.recorded_start, t_end=data.t_end)
-    widen = inflation(iv.residual_rmse / noise_reference(loop.noise, data.xu))
+    data = loop.problem.data
+    iv = intervals_at(data.xu, data.command, params, bounds, level=LEVEL, noise=loop.problem.noise,
+                      recorded_start=loop.problem.record.recorded_start, t_end=data.t_end)
+    widen = inflation(iv.residual_rmse / noise_reference(loop.problem.noise, data.xu))
     base = MODEL_FORM.get(model_form_of(params), {})
     return {n: {"value": float(getattr(params, n)), "hac": iv.hac_std[n], "widen": widen,
                 "base": base.get(n, ModelForm()).__dict__, "residual": iv.residual_rmse}
@@ -122,10 +122,10 @@ def calibrate(args) -> dict:
             for i, (name, _, _) in enumerate(RECORDS):
                 t0 = time.perf_counter()
                 data, inj, truth = build(i, block, Path(tmp))
-                loop = ResidualLoop(data, settings=LoopSettings())
+                loop = ResidualLoop.on(data, settings=LoopSettings())
                 effects = {**{s: {} for s in STRUCTURAL}, **inj}
                 start, bounds = model_of(loop, effects, truth)
-                fitted = loop.refit(start, bounds, "right model", method="lm", whole=True)
+                fitted = loop.fitter.refit(start, bounds, "right model", method="lm", whole=True)
                 sp = spreads(loop, fitted, bounds)
                 for p, t in truth.items():
                     rows.append({"record": name, "block": block, "param": p, "truth": t,
@@ -167,7 +167,7 @@ def evaluate(args) -> dict:
             estimates = {**r["final_params"], **r["faults_after"]}
             sp = {}
             if r.get("params_after"):
-                loop = ResidualLoop(data, settings=LoopSettings())
+                loop = ResidualLoop.on(data, settings=LoopSettings())
                 params, bounds = model_of(loop, {e: {} for e in r["effects"]},
                                           r["params_after"])
                 sp = spreads(loop, params, bounds)

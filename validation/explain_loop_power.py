@@ -88,6 +88,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from eha.explain import DEFAULT_FAULT_BOUNDS, LoopSettings
     from eha.explain.api import healthy_null
+    from eha.explain.problem import Problem
     from eha.explain.effects import EFFECTS
 
     gate = json.loads(Path(a.gate).read_text())
@@ -106,7 +107,7 @@ def main(argv=None) -> int:
         data = template(cname)
         # the record's null once, here: the workers then read it from the cache
         t0 = time.perf_counter()
-        healthy_null(data, None, None, None, LoopSettings(), (), "simulate")
+        healthy_null(Problem.build(data), LoopSettings(), "simulate")
         null_s = time.perf_counter() - t0
         levels = {r["effect"]: [] for r in cells}   # (multiple, injected, records)
         todo = [r["effect"] for r in cells]

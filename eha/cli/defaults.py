@@ -37,12 +37,6 @@ def fdi_population() -> int:
     return _parameter_default(identify_source, "pop")
 
 
-def explain_population() -> int:
-    from eha.explain.api import explain
-
-    return _parameter_default(explain, "pop")
-
-
 def health_alpha() -> float:
     from eha.health.detection import DEFAULT_ALPHA
 

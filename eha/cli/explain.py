@@ -46,9 +46,9 @@ KNOWN = typer.Option([], "--set", help="Known LF parameter held fixed, NAME=VALU
 JSON_OUT = typer.Option(None, "--json", help="Write rmse_before/after, faults_before/after "
                         "and the steps as JSON.")
 OUT = typer.Option(None, "--out", help="Output folder (default RESULTS/explain/<file stem>).")
-METHOD = typer.Option(..., "--method", default_factory=defaults.fit_method,
+METHOD = typer.Option(..., "--method", default_factory=_setting("method", str),
                       help="Optimizer of every fit (eha fdi).")
-POP = typer.Option(..., "--pop", default_factory=defaults.explain_population,
+POP = typer.Option(..., "--pop", default_factory=_setting("pop", int),
                    help="GA population of every fit.")
 SEED = typer.Option(0, "--seed", help="Optimizer seed (same seed, same result).")
 CANDIDATES = typer.Option(..., "--candidates", default_factory=_setting("candidates", int),
@@ -113,6 +113,7 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
     """
     from eha.campaigns.store import StoreError
     from eha.explain.from_file import explain_file
+    from eha.explain.settings import LoopSettings
 
     if holdout is not None and validate is not None:
         fail("--holdout and --validate exclude each other; give one")
@@ -121,17 +122,19 @@ def explain(data: Path = DATA, fit: str = FIT, effects: Optional[str] = EFFECTS,
     folder = out if out is not None else results / "explain" / data.stem
     check_out_dir(folder, "--out")
     check_seed(seed)
+    # the one settings object the library reads (checked there: a bad value exits 2)
+    settings = LoopSettings().override(dict(
+        holdout=holdout, min_gain=min_gain, alpha=alpha, null_actuators=null_actuators,
+        interval_replicates=interval_replicates, rival_replicates=rival_replicates,
+        max_steps=max_steps, candidates=candidates, p12_weight=p12_weight,
+        flow_gain_spread=flow_gain_spread, method=method, pop=pop, seed=seed))
     record = record_file(data, columns, units)
     with _progress_bar(progress) as step:
         res = explain_file(
-            record, fit=fit, effects=effects, holdout=holdout,
+            record, settings, fit=fit, effects=effects,
             validate=validate and record.at(validate), prior=prior, known=known,
-            command_hold=command_hold, on_progress=step, min_gain=min_gain, alpha=alpha,
-            null_actuators=null_actuators, interval_replicates=interval_replicates,
-            rival_replicates=rival_replicates,
-            max_steps=max_steps, candidates=candidates,
-            p12_weight=p12_weight, flow_gain_spread=flow_gain_spread, method=method, pop=pop,
-            seed=seed, null=record.at(healthy) if healthy is not None else "simulate")
+            command_hold=command_hold, on_progress=step,
+            null=record.at(healthy) if healthy is not None else "simulate")
     paths = res.save(folder, json_out)
     try:
         paths["database"] = res.store(results)

@@ -33,9 +33,11 @@ The package, by concern:
 - :mod:`~eha.explain.decide`: the decision rule, pure functions on numbers;
 - :mod:`~eha.explain.record`: the record, its start and its batches of LF runs;
 - :mod:`~eha.explain.tracing`: the residual traced to the effects' signatures (b);
+- :mod:`~eha.explain.problem`: :class:`Problem`, a record and what is fitted on it, built once
+  per :func:`explain` call; :mod:`~eha.explain.fitting`: :class:`Fitter`, the fits and scores
+  on a problem (the loop's, the healthy null's, the replicates' and the rival check's);
 - :mod:`~eha.explain.loop`: :class:`ResidualLoop`, read top-down, and its parts
-  :mod:`~eha.explain.fitting`, :mod:`~eha.explain.rounds` (b-e) and
-  :mod:`~eha.explain.final_check` (f);
+  :mod:`~eha.explain.rounds` (b-e) and :mod:`~eha.explain.final_check` (f);
 - :mod:`~eha.explain.api`: :func:`explain`, its passes and :func:`healthy_null`;
 - :mod:`~eha.explain.null`: the healthy null; :mod:`~eha.explain.leads`: leads for a residual
   no library effect explains; :mod:`~eha.explain.from_file`: the loop on measured files; :mod:`~eha.explain.outputs`: what a result writes.
@@ -57,9 +59,11 @@ from eha.explain.api import explain, healthy_null
 from eha.explain.decide import (NOTHING_IMPROVED, Choice, better_pass, choose, edge_of_spread,
                                 flow_gain_at_edge, keeps_effect, significance, trades_position,
                                 unspecific)
+from eha.explain.fitting import Fitter
 from eha.explain.leads import LeadReport, residual_leads
 from eha.explain.loop import ResidualLoop
 from eha.explain.null import Null, NullError
+from eha.explain.problem import Problem
 from eha.explain.record import augmented_base, p12_objective_weight
 from eha.explain.results import (Candidate, Dismissal, Evaluation, ExplainResult, Round,
                                  Step)
@@ -75,7 +79,8 @@ from eha.identification.measured import noise_level
 
 __all__ = [
     # running the loop
-    "explain", "healthy_null", "ResidualLoop", "LoopSettings", "DEFAULTS", "ExplainError",
+    "explain", "healthy_null", "ResidualLoop", "Problem", "Fitter", "LoopSettings", "DEFAULTS",
+    "ExplainError",
     "parse_fit", "augmented_base", "p12_objective_weight", "noise_level",
     # what it reports
     "ExplainResult", "Evaluation", "Candidate", "Step", "Dismissal", "Round", "LeadReport",

@@ -7,37 +7,57 @@ final model has it at the edge of its healthy spread) and :func:`healthy_null`.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Mapping
 
 from eha.explain.decide import better_pass, flow_gain_at_edge
 from eha.explain.loop import ResidualLoop
 from eha.explain.null import Null, NullError, records_null, simulated_null
+from eha.explain.problem import Problem
 from eha.explain.results import ExplainResult
 from eha.explain.settings import SECOND_PASS, STRUCTURAL, ExplainError, LoopSettings
-from eha.identification.problem import DEFAULT_METHOD
 from eha.identification.measured import MeasuredData
-from eha.models.params import LFParams
 
 
-def explain(data: MeasuredData, *, fit: Any = None,
-            effects: Iterable[str] | str | None = None, holdout: float | None = None,
-            validate: MeasuredData | None = None, base: LFParams | None = None,
-            fixed: Iterable[str] = (), null: Any = "simulate", method: str | None = None,
-            pop: int = 20, seed: int = 0, min_gain: float | None = None,
-            penalty: float | None = None, alpha: float | None = None,
-            max_steps: int | None = None, candidates: int | None = None,
-            noise_factor: float | None = None, joint: bool | None = None,
-            p12_weight: float | None = None, flow_gain_spread: float | None = None,
-            null_actuators: int | None = None, interval_replicates: int | None = None,
-            rival_replicates: int | None = None, first_excluded: Mapping | None = None,
-            on_progress: Callable[[str], None] | None = None,
-            **fdi_options: float) -> ExplainResult:
+#: :func:`explain`'s keywords that are not settings (:class:`LoopSettings`): what the record
+#: is explained with, and their defaults.
+INPUTS: dict[str, Any] = {"fit": None, "effects": None, "validate": None, "base": None,
+                          "fixed": (), "null": "simulate", "first_excluded": None,
+                          "on_progress": None}
+
+
+def arguments(settings: LoopSettings | None, keywords: Mapping[str, Any]
+              ) -> tuple[dict[str, Any], LoopSettings]:
+    """:func:`explain`'s keywords split into its inputs (:data:`INPUTS`, defaults filled in)
+    and ``settings`` overridden by the rest (:meth:`LoopSettings.override`: an unknown name
+    is refused, naming it)."""
+    inputs = {**INPUTS, **{k: v for k, v in keywords.items() if k in INPUTS}}
+    settings = (settings if settings is not None else LoopSettings()).override(
+        {k: v for k, v in keywords.items() if k not in INPUTS})
+    return inputs, settings
+
+
+def problem_of(data: MeasuredData, settings: LoopSettings, inputs: Mapping[str, Any],
+               validate: bool = True) -> Problem:
+    """The :class:`Problem` of ``data`` and :func:`explain`'s ``inputs`` (without the
+    validation record unless ``validate``)."""
+    return Problem.build(data, settings, inputs["fit"], inputs["effects"],
+                         inputs["validate"] if validate else None, inputs["base"],
+                         inputs["fixed"])
+
+
+def explain(data: MeasuredData, settings: LoopSettings | None = None,
+            **overrides: Any) -> ExplainResult:
     """Find and add the effects the LF model lacks to explain a measured record.
 
     Parameters
     ----------
     data : MeasuredData
         The record (:func:`eha.identification.measured.load`).
+    settings : LoopSettings, optional
+        The loop's settings (default ``LoopSettings()``); ``overrides`` name the ones that
+        differ (``holdout=0.2``, ``significance=0.05``, ``pop=12``) and the fitting
+        optimizer's options (``max_gen=20``), and give the inputs below. A name that is
+        none of these is refused (:class:`ExplainError` naming it).
     fit : str or mapping, optional
         Declared fault parameters and bounds (:func:`parse_fit`); default BKL, FDJ.
     effects : names, optional
@@ -49,9 +69,9 @@ def explain(data: MeasuredData, *, fit: Any = None,
         A second record used as held-out data instead (the first is then fitted whole).
     base : LFParams, optional
         Starting LF parameters (nominal by default; XJ0 is set from the record's command).
-    method, pop, seed, **fdi_options
+    method, pop, seed, and the optimizer's options (``max_gen``, ``stall``, ...)
         Passed to :func:`eha.identification.fdi.identify` for every fit (same seed for all fits).
-    min_gain, penalty, alpha, max_steps, candidates, noise_factor, joint
+    min_gain, penalty, alpha, significance, max_steps, candidates, noise_factor, joint
         The stop and choice rules (:class:`LoopSettings`, where their defaults are).
     p12_weight : float, optional
         Weight of a measured P12 in the fits (:class:`LoopSettings`; 0 = position only).
@@ -86,23 +106,20 @@ def explain(data: MeasuredData, *, fit: Any = None,
     on_progress : callable(str), optional
         Called with a short message before each fit.
 
-    Every setting is a keyword, checked in one place (:meth:`LoopSettings.problems`): a value
-    outside its range raises :class:`ExplainError` naming the keyword (`` `holdout` ``).
+    Every setting is declared once, with its default and its check, in :class:`LoopSettings`
+    (:meth:`LoopSettings.problems`): a value outside its range raises :class:`ExplainError`
+    naming the keyword (`` `holdout` ``). One :class:`Problem` of the record serves the
+    healthy null, every pass and the flow gain's second run.
 
     Returns
     -------
     ExplainResult
     """
-    given = {"holdout": holdout, "min_gain": min_gain, "penalty": penalty, "alpha": alpha,
-             "max_steps": max_steps, "candidates": candidates, "noise_factor": noise_factor,
-             "joint": joint, "p12_weight": p12_weight, "flow_gain_spread": flow_gain_spread,
-             "null_actuators": null_actuators, "interval_replicates": interval_replicates,
-             "rival_replicates": rival_replicates}
-    settings = loop_settings(given, method, pop, seed)
-    null = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
-                        fdi_options)
-    result = _passes(data, fit, effects, validate, base, settings, fixed, on_progress,
-                     fdi_options, null, first_excluded)
+    inputs, settings = arguments(settings, overrides)
+    problem = problem_of(data, settings, inputs)
+    progress = inputs["on_progress"]
+    null = healthy_null(problem, settings, inputs["null"], progress)
+    result = _passes(problem, settings, null, progress, inputs["first_excluded"])
     edge = flow_gain_at_edge(result)
     if edge is None:
         return result
@@ -110,84 +127,65 @@ def explain(data: MeasuredData, *, fit: Any = None,
     # it is the library's to explain (a weak torque motor, a low supply, a clogged filter),
     # not the actuator's own; fitted, GQ would stand in for it. The loop runs again with GQ
     # at the base's value and that run is reported
-    if on_progress:
-        on_progress(f"{edge}: the loop again with GQ at its nominal value")
-    again = _passes(data, fit, effects, validate, base,
-                    replace(settings, flow_gain_spread=0.0), fixed, on_progress, fdi_options,
-                    null, first_excluded)
+    if progress:
+        progress(f"{edge}: the loop again with GQ at its nominal value")
+    again = _passes(problem.without_flow_gain(), replace(settings, flow_gain_spread=0.0), null,
+                    progress, inputs["first_excluded"])
     again.settings["flow_gain_spread"] = settings.flow_gain_spread
     again.facts.flow_gain_released = edge
     again.seconds += result.seconds
     return again
 
 
-def loop_settings(given: Mapping[str, Any], method: str | None = None, pop: int = 20,
-                  seed: int = 0) -> LoopSettings:
-    """:class:`LoopSettings` from :func:`explain`'s keywords (None: the default)."""
-    given = {k: v for k, v in given.items() if v is not None}
-    return LoopSettings(**given, method=method or DEFAULT_METHOD, pop=pop, seed=seed)
-
-
-def settle_prior(data: MeasuredData, prior: Mapping[str, Any], *, fit: Any = None,
-                 effects: Iterable[str] | str | None = None, base: LFParams | None = None,
-                 fixed: Iterable[str] = (), null: Any = "simulate", method: str | None = None,
-                 pop: int = 20, seed: int = 0,
-                 on_progress: Callable[[str], None] | None = None, **keywords: Any):
+def settle_prior(data: MeasuredData, prior: Mapping[str, Any],
+                 settings: LoopSettings | None = None, **overrides: Any):
     """:func:`eha.explain.settle.settle` on ``data``: the first record's explanations
     (``prior``, its ``--json``) against this record, with the healthy null of this command
-    for the nominal ``base`` (known test conditions only). ``keywords``: :func:`explain`'s
-    settings and fit options. Returns the :class:`~eha.explain.settle.Settlement`, or None
-    when the prior lists no rival."""
+    for the nominal ``base`` (known test conditions only). ``settings`` and ``overrides``:
+    :func:`explain`'s (its ``validate`` is not used). Returns the
+    :class:`~eha.explain.settle.Settlement`, or None when the prior lists no rival."""
     from eha.explain.settle import settle
 
-    names = set(LoopSettings.__dataclass_fields__)
-    settings = loop_settings({k: v for k, v in keywords.items() if k in names}, method, pop,
-                             seed)
-    fdi_options = {k: v for k, v in keywords.items() if k not in names and k != "validate"}
-    found = healthy_null(data, fit, effects, base, settings, fixed, null, on_progress,
-                         fdi_options)
-    loop = ResidualLoop(data, fit, effects, None, base, settings, fixed, on_progress,
-                        pin_structure=True, null=found, **fdi_options)
+    inputs, settings = arguments(settings, overrides)
+    problem = problem_of(data, settings, inputs, validate=False)
+    found = healthy_null(problem, settings, inputs["null"], inputs["on_progress"])
+    loop = ResidualLoop(problem, settings, found, inputs["on_progress"], pin_structure=True)
     return settle(loop, prior)
 
 
-def healthy_null(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
-                 base: LFParams | None, settings: LoopSettings, fixed: Iterable[str],
-                 null: Any, on_progress: Callable[[str], None] | None = None,
-                 fdi_options: Mapping[str, float] | None = None):
-    """The :class:`~eha.explain.null.Null` of :func:`explain`'s ``null`` argument for this
-    record: simulated on its command (cached), read from a folder of healthy records, given,
-    or None."""
+def healthy_null(problem: Problem, settings: LoopSettings, null: Any = "simulate",
+                 on_progress: Callable[[str], None] | None = None):
+    """The :class:`~eha.explain.null.Null` of :func:`explain`'s ``null`` argument for the
+    record of ``problem``: simulated on its command (cached), read from a folder of healthy
+    records, given, or None."""
     if null is None or isinstance(null, Null):
         return null
-    probe = ResidualLoop(data, fit, effects, None, base, settings, fixed)
-    names = [e.name for e in probe.pool]
+    data, base = problem.data, problem.given_base
+    names = [e.name for e in problem.pool]
+    options = dict(settings.options)
     try:
         if isinstance(null, str) and null == "simulate":
             return simulated_null(
-                data, probe.bounds, names, settings, actuators=settings.null_actuators,
-                base=probe.base if base is not None else None, fixed=list(fixed),
-                on_progress=on_progress, fdi_options=fdi_options)
-        return records_null(null, probe.bounds, names, settings,
+                data, problem.bounds, names, settings, actuators=settings.null_actuators,
+                base=problem.base if base is not None else None, fixed=list(problem.fixed),
+                on_progress=on_progress, fdi_options=options)
+        return records_null(null, problem.bounds, names, settings,
                             command_hold=data.info.get("command_hold", "auto"), base=base,
-                            fixed=list(fixed), on_progress=on_progress, fdi_options=fdi_options,
-                            record=data)
+                            fixed=list(problem.fixed), on_progress=on_progress,
+                            fdi_options=options, record=data)
     except NullError as exc:
         raise ExplainError(str(exc)) from None
 
 
-def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
-            validate: MeasuredData | None, base: LFParams | None, settings: LoopSettings,
-            fixed: Iterable[str], on_progress: Callable[[str], None] | None,
-            fdi_options: Mapping[str, float], null: Any = None,
+def _passes(problem: Problem, settings: LoopSettings, null: Any = None,
+            on_progress: Callable[[str], None] | None = None,
             first_excluded: Mapping[str, Mapping[str, Any]] | None = None) -> ExplainResult:
     """The loop's first pass and, when it leaves a residual beyond the healthy band
     (``beyond_healthy``), its second pass from
     the structure pinned (:func:`better_pass` picks the result)."""
-    first = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                         null=null, first_excluded=first_excluded, **fdi_options)
+    first = ResidualLoop(problem, settings, null, on_progress, first_excluded=first_excluded)
     result = first.run()
-    structure = [e for e in first.pool if e.name in STRUCTURAL]
+    structure = [e for e in problem.pool if e.name in STRUCTURAL]
     if not (result.beyond_healthy and SECOND_PASS and structure
             and len(structure) <= settings.max_steps):
         return result
@@ -197,9 +195,8 @@ def _passes(data: MeasuredData, fit: Any, effects: Iterable[str] | str | None,
     # once more from the model's known structure at its physical values
     if on_progress:
         on_progress("second pass: the structure pinned at its physical values")
-    second = ResidualLoop(data, fit, effects, validate, base, settings, fixed, on_progress,
-                          pin_structure=True, null=null, first_excluded=first_excluded,
-                          **fdi_options).run()
+    second = ResidualLoop(problem, settings, null, on_progress, pin_structure=True,
+                          first_excluded=first_excluded).run()
     chosen = better_pass(result, second, settings)
     chosen.seconds = result.seconds + second.seconds
     chosen.facts.passes = 2

@@ -27,6 +27,14 @@ from eha.explain.settings import (ALTERNATIVE_MARGIN, CONFIRM_FRACTION, FLOW_GAI
 from eha.models.params import LFParams
 
 
+def relative_gain(before: Evaluation, after: Evaluation) -> float:
+    """The relative reduction of the scored RMSE (:attr:`Evaluation.rmse_score`) from
+    ``before`` to ``after``; 0 when ``before`` scores 0 (nothing left to reduce)."""
+    if before.rmse_score > 0:
+        return 1.0 - after.rmse_score / before.rmse_score
+    return 0.0
+
+
 def significance(before: float, after: float, added: int, n_eff: float) -> float:
     """p-value of the RMSE reduction an added effect brings (an F test on effective samples).
 

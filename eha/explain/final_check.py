@@ -67,17 +67,17 @@ class FinalCheck:
             self.phase = ""
 
     def _not_excluded(self, detectable, in_model, out) -> list[dict]:
-        for effect in self.pool:
+        for effect in self.problem.pool:
             if (effect.name in in_model or effect.name in STRUCTURAL
                     or effect.name not in self.thresholds):
                 continue
             members = [*(EFFECTS[n] for n in missing_requirements(effect, self.current)),
                        effect]
-            start, free = self.candidate_start(members)
+            start, free = self.fitter.candidate_start(members, self.current, self.free)
             for st in self.steps:           # every parameter of the final model free
                 free.update(EFFECTS[st.effect].bounds)
-            local, _ = self.local_test(start, free, members)
-            if not self.past(effect, local, detectable):
+            local, _ = self.fitter.local_test(start, free, members, self.fit_phase())
+            if not self.fitter.past(effect, local, detectable):
                 self.exclude(effect, detectable)
                 continue
             entry = self.rival_entry(effect, local, detectable)
@@ -125,7 +125,7 @@ class FinalCheck:
         footprint, 5 µm, is below the 20 µm this command shows) is reported by that shift, in
         the parameter's unit: its footprint is not what the record cannot rule out."""
         param = effect.tested
-        statistic = float(self.statistic_at(effect, local))
+        statistic = float(self.fitter.statistic_at(effect, local))
         size = float(detectable.get(effect.name, math.inf))
         threshold = float(self.thresholds[effect.name])
         unit = effect.statistic_unit
@@ -167,9 +167,9 @@ class FinalCheck:
                 if other is not step:
                     free.update(EFFECTS[other.effect].bounds)
             start = effect.switch_off(self.current)
-            refitted = self.refit(start, free, f"final check: without {step.effect}",
+            refitted = self.fitter.refit(start, free, f"final check: without {step.effect}",
                                   method="ps")
-            without = min(self.evaluate([start, refitted]), key=ranking_score)
+            without = min(self.fitter.evaluate([start, refitted]), key=ranking_score)
             keep, loss, p = keeps_effect(self.cur.rmse_score, without.rmse_score,
                                          len(effect.params), self.cur.n_eff, s)
             if not keep:
@@ -206,8 +206,8 @@ class FinalCheck:
                   and not missing_requirements(o, without)]
         if len(others) > SWAP_CANDIDATES:
             # a stand-in has the signature of what it stands in for
-            S, _ = signatures(self.record, without, others, {})
-            xu = self.record.run([self.current, without])
+            S, _ = signatures(self.problem.record, without, others, {})
+            xu = self.problem.record.run([self.current, without])
             own = xu[0] - xu[1]
             likeness = [abs(corr(own, S[i])) if np.all(np.isfinite(S[i])) else 0.0
                         for i in range(len(others))]
@@ -232,19 +232,20 @@ class FinalCheck:
                 start = other.switch_on(start)
                 bounds.update(other.bounds)
             name = "+".join(o.name for o in group)
-            local = self.refit(start, bounds, f"final check: {name} for {label}", method="ps")
-            fits.append((group, start, bounds, name, [self.evaluate([local])[0]]))
+            local = self.fitter.refit(start, bounds, f"final check: {name} for {label}",
+                                      method="ps")
+            fits.append((group, start, bounds, name, [self.fitter.evaluate([local])[0]]))
         if self.unexplained():
             ranked = sorted(fits, key=lambda f: ranking_score(f[4][0]))
             for group, start, bounds, name, trials in ranked[:GLOBAL_RIVALS]:
-                found = [self.refit(start, bounds, f"final check: {name} for {label}",
+                found = [self.fitter.refit(start, bounds, f"final check: {name} for {label}",
                                     method=self.settings.method, warm_start=warm)
                          for warm in (True, False)]
-                trials.extend(self.evaluate(found))
+                trials.extend(self.fitter.evaluate(found))
         best = None
         for group, _, _, _, trials in fits:
             trials = [t for t in trials
-                      if not any(self.within_healthy_at(o, t.params) for o in group)]
+                      if not any(self.fitter.within_healthy_at(o, t.params) for o in group)]
             if not trials:
                 continue
             ev = min(trials, key=ranking_score)
@@ -331,10 +332,10 @@ class FinalCheck:
             bounds.update(effect.bounds)
         label = " + ".join(st.effect for st in out)
         rivals = "+".join(o.name for o in others)
-        trial = self.refit(start, bounds, f"final check: {label} from {rivals}'s fit",
+        trial = self.fitter.refit(start, bounds, f"final check: {label} from {rivals}'s fit",
                            method="ps")
-        mine = self.evaluate([trial])[0]
-        inside = any(self.within_healthy_at(EFFECTS[st.effect], trial) for st in out)
+        mine = self.fitter.evaluate([trial])[0]
+        inside = any(self.fitter.within_healthy_at(EFFECTS[st.effect], trial) for st in out)
         if mine.rmse_score < self.cur.rmse_score and not inside:
             self.current, self.cur = trial, mine
 

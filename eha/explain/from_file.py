@@ -11,10 +11,10 @@ import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from eha.explain.api import explain, settle_prior
+from eha.explain.api import INPUTS, arguments, explain, settle_prior
 from eha.explain.record import augmented_base
 from eha.explain.results import ExplainResult
-from eha.explain.settings import ExplainError
+from eha.explain.settings import ExplainError, LoopSettings
 from eha.explain.settle import excluded_of, rivals_of
 from eha.identification.measured import load
 from eha.models.params import ParameterError, parse_assignments, resolve
@@ -52,8 +52,8 @@ def read_prior_json(path: str | Path) -> dict:
     return prior if isinstance(prior, dict) else {"steps": steps}
 
 
-def explain_file(data: str | Path, *, validate: str | Path | None = None,
-                 prior: str | Path | None = None,
+def explain_file(data: str | Path, settings: LoopSettings | None = None, *,
+                 validate: str | Path | None = None, prior: str | Path | None = None,
                  known: Mapping[str, float] | list[str] | None = None,
                  command_hold: str = "auto", **keywords: Any) -> ExplainResult:
     """Run the residual loop on a measured file; nothing is written (the result's
@@ -64,6 +64,9 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
     data : path or RecordFile
         The record (:func:`eha.identification.measured.load`; a
         :class:`eha.identification.measured.RecordFile` carries its columns and units).
+    settings : LoopSettings, optional
+        The loop's settings (``eha explain`` builds them from its options), overridden by
+        ``keywords`` as :func:`eha.explain.api.explain` does.
     validate : path or RecordFile, optional
         A second record scored as held-out data.
     prior : path, optional
@@ -80,14 +83,17 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
         How the records' commands are rebuilt between their samples
         (:data:`eha.identification.measured.COMMAND_HOLDS`).
     **keywords
-        :func:`eha.explain.api.explain`'s settings (``fit``, ``effects``, ``holdout``,
-        ``null``, ``alpha``, ...).
+        :func:`eha.explain.api.explain`'s inputs and settings (``fit``, ``effects``,
+        ``holdout``, ``null``, ``alpha``, ...); an unknown name is refused.
 
     Returns
     -------
     ExplainResult
         With ``run_id`` naming the run by the file's bytes and everything else that went in.
     """
+    # the settings are checked (and an unknown keyword refused) before any file is read
+    settings = arguments(settings, keywords)[1]
+    keywords = {k: v for k, v in keywords.items() if k in INPUTS}
     if known is not None and not isinstance(known, Mapping):
         try:
             known = parse_assignments(known, "`known`")
@@ -101,7 +107,7 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
     if first is not None and rivals_of(first):
         # the first record could not tell its finding from a rival: this record decides
         # between them, and the one that stands starts the loop (eha.explain.settle)
-        settled = settle_prior(record, first, base=_known_base(known, None),
+        settled = settle_prior(record, first, settings, base=_known_base(known, None),
                                fixed=tuple(known or ()), **keywords)
         if settled is not None and settled.winner is not None:
             steps = settled.steps
@@ -109,7 +115,7 @@ def explain_file(data: str | Path, *, validate: str | Path | None = None,
     # the follow-up of a first record: what it excluded stays excluded where this record,
     # designed for the pair, does not show it (eha.explain.rival_check.deferred_to_first)
     first_excluded = excluded_of(first) if settled is not None else None
-    result = explain(record, validate=check, base=base, fixed=tuple(known or ()),
+    result = explain(record, settings, validate=check, base=base, fixed=tuple(known or ()),
                      first_excluded=first_excluded, **keywords)
     result.settled = settled.to_json() if settled is not None else None
     digest = hashlib.sha1(Path(data).read_bytes())

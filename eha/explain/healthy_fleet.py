@@ -24,7 +24,8 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
     The declared faults are fitted with the model's known structure at its physical values
     (the structure the loop adds first on a simulated record), then each effect of
     ``effects`` is refitted on top as a round of the loop refits it
-    (:meth:`eha.explain.loop.ResidualLoop.try_candidate`, with no gate).
+    (:meth:`eha.explain.loop.ResidualLoop.try_candidate`, with no gate), on the record's
+    :class:`~eha.explain.problem.Problem` and a :class:`~eha.explain.fitting.Fitter`.
 
     Returns
     -------
@@ -34,41 +35,42 @@ def healthy_statistics(data, fit: Mapping[str, tuple[float, float]], effects: Se
         The residual of faults and structure over the record's noise (what the verdict
         compares with the flag ratio).
     """
+    from dataclasses import replace
+
+    from eha.explain.decide import relative_gain
     from eha.explain.effects import COMBINATIONS, EFFECTS, missing_requirements
-    from eha.explain.loop import ResidualLoop
+    from eha.explain.fitting import Fitter
+    from eha.explain.problem import Problem
 
     STRUCTURAL_ORDER = [name for combo in COMBINATIONS for name in combo]
 
     # the structure is always in the pool: the null's baseline carries it
     pool = list(dict.fromkeys([*STRUCTURAL_ORDER, *effects]))
-    loop = ResidualLoop(data, dict(fit), pool, None, base, settings, fixed,
-                        pin_structure=True, **dict(fdi_options or {}))
-    loop.thresholds = None          # the statistic itself: no gate
-    start, free = loop.current, dict(loop.bounds)
-    for effect in loop.pinned:
+    settings = replace(settings, options=dict(fdi_options or {}))
+    problem = Problem.build(data, settings, dict(fit), pool, None, base, fixed)
+    fitter = Fitter(problem, settings)          # the statistic itself: no gate
+    start, free = problem.base, problem.bounds
+    for effect in [e for e in problem.pool if e.name in STRUCTURAL]:
         start = effect.switch_on(start)
         free.update(effect.bounds)
     # the state of the loop once it has added the structure: its parameters are refitted
     # with the faults in every later round (joint refits)
     # (one GA start: the null's baseline needs to be good, not the best of several)
-    loop.current = loop.refit(start, free, "healthy record: the declared faults", starts=1)
-    loop.cur = loop.evaluate([loop.current])[0]
-    loop.free = free
-    from eha.identification.intervals import noise_reference
-    ratio = loop.cur.rmse_all / noise_reference(loop.noise, data.xu)
+    current = fitter.refit(start, free, "healthy record: the declared faults", starts=1)
+    cur = fitter.evaluate([current])[0]
+    ratio = cur.rmse_all / problem.noise_ref
     shifts, gains = {}, {}
-    for effect in loop.pool:
+    for effect in problem.pool:
         if effect.name in STRUCTURAL or effect.name not in effects or not effect.params:
             continue
-        members = [EFFECTS[n] for n in missing_requirements(effect, loop.current)] + [effect]
-        start, free_e = loop.candidate_start(members)
-        local, _ = loop.local_test(start, free_e, members)
-        shifts[effect.name] = loop.statistic_at(effect, local)
+        members = [EFFECTS[n] for n in missing_requirements(effect, current)] + [effect]
+        start, free_e = fitter.candidate_start(members, current, free)
+        local, _ = fitter.local_test(start, free_e, members, "round 0")
+        shifts[effect.name] = fitter.statistic_at(effect, local)
         if effect.shift_key:
             shifts[effect.shift_key] = effect.shift_at(local)
-        ev = loop.evaluate([local])[0]
-        gains[effect.name] = (1.0 - ev.rmse_score / loop.cur.rmse_score
-                              if loop.cur.rmse_score > 0 else 0.0)
+        ev = fitter.evaluate([local])[0]
+        gains[effect.name] = relative_gain(cur, ev)
     return shifts, gains, float(ratio)
 
 

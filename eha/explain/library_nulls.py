@@ -48,11 +48,10 @@ def library_record(command: str):
 def _null_arguments(data):
     """``(fit, effects)`` of :func:`eha.explain.api.healthy_null` for ``data`` at the loop's
     defaults."""
-    from eha.explain.loop import ResidualLoop
-    from eha.explain.settings import LoopSettings
+    from eha.explain.problem import Problem
 
-    probe = ResidualLoop(data, None, None, None, None, LoopSettings(), ())
-    return probe.bounds, [e.name for e in probe.pool]
+    problem = Problem.build(data)
+    return problem.bounds, [e.name for e in problem.pool]
 
 
 def library_key(command: str) -> str:

@@ -11,22 +11,24 @@ import time
 from dataclasses import fields, replace
 from typing import Any, Callable, Iterable, Mapping
 
-from eha.explain.effects import EFFECTS, Effect, get as get_effects, missing_requirements
+from eha.explain.effects import EFFECTS, Effect, missing_requirements
 from eha.explain.facts import RunFacts
-from eha.explain.decide import edge_of_spread
+from eha.explain.decide import edge_of_spread, relative_gain
 from eha.explain.final_check import FinalCheck
-from eha.explain.fitting import Fitting
+from eha.explain.fitting import Fitter
 from eha.explain.leads import LeadReport, residual_leads
-from eha.explain.record import Record, initial_position, p12_objective_weight
+from eha.explain.problem import Problem
 from eha.explain.replicates import at_a_bound, explains
-from eha.explain.results import Dismissal, Evaluation, ExplainResult, Round, Step
+from eha.explain.results import Candidate, Dismissal, Evaluation, ExplainResult, Round, Step
 from eha.explain.rounds import Rounds
-from eha.explain.settings import REVISITS, STRUCTURAL, ExplainError, LoopSettings, parse_fit
-from eha.identification.measured import MeasuredData, noise_level
-from eha.models.params import LFParams, ParameterError, resolve
+from eha.explain.settings import REVISITS, STRUCTURAL, LoopSettings
+from eha.identification.measured import MeasuredData
+from eha.models.bounds import Bounds
+from eha.models.estimate import Interval
+from eha.models.params import LFParams
 
 
-class ResidualLoop(Rounds, FinalCheck, Fitting):
+class ResidualLoop(Rounds, FinalCheck):
     """The residual loop on one record; each step of the loop is a method.
 
     :meth:`run` reads top-down: :meth:`baseline` fits the declared faults (a); the rounds
@@ -37,36 +39,31 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
     refitted without it, :meth:`confirm`) and add it (:meth:`accept`), until a stop rule holds
     (e, :meth:`stop_rule`); the final check (f, :class:`~eha.explain.final_check.FinalCheck`)
     checks each added effect once more with all the others in (:meth:`prune`); the final
-    estimates (g, :meth:`estimate`) and :meth:`result` end it. The fits are
-    :class:`~eha.explain.fitting.Fitting`'s. See :func:`eha.explain.explain` for the
-    parameters.
+    estimates (g, :meth:`estimate`) and :meth:`result` end it. The fits are those of a
+    :class:`~eha.explain.fitting.Fitter` (:attr:`fitter`) on the loop's
+    :class:`~eha.explain.problem.Problem`, which the loop reads and never changes (its own
+    state: :attr:`bounds`, :attr:`current`, :attr:`free`, :attr:`steps`, ...). Build one with
+    :meth:`on` from a record and :func:`eha.explain.explain`'s inputs.
     """
 
-    def __init__(self, data: MeasuredData, fit: Any = None,
-                 effects: Iterable[str] | str | None = None,
-                 validate: MeasuredData | None = None, base: LFParams | None = None,
-                 settings: LoopSettings = LoopSettings(), fixed: Iterable[str] = (),
-                 on_progress: Callable[[str], None] | None = None,
-                 pin_structure: bool = False, null: Any = None,
+    def __init__(self, problem: Problem, settings: LoopSettings = LoopSettings(),
+                 null: Any = None, on_progress: Callable[[str], None] | None = None,
+                 pin_structure: bool = False,
                  first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
-                 **fdi_options: float):
+                 fitter: type[Fitter] = Fitter):
         self.started = time.perf_counter()
-        self.settings = settings
+        self.problem, self.settings = problem, settings
         #: the healthy null (:class:`eha.explain.null.Null`) and its thresholds at ``alpha``
         #: (effect -> largest healthy shift); empty without a null
         self.null = null
-        self.thresholds: dict[str, float] | None = \
-            null.thresholds(settings.alpha) if null is not None else {}
-        self.data, self.validate = data, validate
-        self.bounds = parse_fit(fit)
-        pool = get_effects(effects) if effects is not None else list(EFFECTS.values())
-        try:
-            base = initial_position(data, resolve("lf", {}, base=base) if base else LFParams())
-        except ParameterError as exc:
-            raise ExplainError(str(exc)) from None
-        fixed = set(fixed)
-        #: known parameters held at the base's values (test conditions)
-        self.fixed = fixed
+        self.progress = on_progress or (lambda message: None)
+        #: the fits and the scores on the problem (a :class:`~eha.explain.fitting.Fitter`, or
+        #: the ``fitter`` class given: a test's scripted one)
+        self.fitter = fitter(problem, settings,
+                             null.thresholds(settings.alpha) if null is not None else {},
+                             self.progress)
+        #: the faults (and GQ while it is fitted): :meth:`baseline` may release GQ
+        self.bounds = problem.bounds
         #: rivals of the exclusion check ruled out by the rival check (FinalCheck.not_excluded)
         self.rivals_ruled_out: list[dict] = []
         #: what the exclusion check excluded: effect -> {param, beyond, unit} (FinalCheck)
@@ -74,64 +71,51 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         #: what a first record of this actuator excluded (its --json's ``excluded``): a
         #: rival this record does not show stays excluded (rival_check.deferred_to_first)
         self.first_excluded = {k: dict(v) for k, v in (first_excluded or {}).items()}
-        for name in sorted(fixed):
-            if name in self.bounds:
-                raise ExplainError(f"`fixed` {name}: also a fitted fault (`fit`); give it one "
-                                   "role")
-            if name == "XJ0":
-                raise ExplainError("`fixed` XJ0: the initial position is taken from the record")
-        self.flow_gain_fitted = (settings.flow_gain_spread > 0 and "GQ" not in self.bounds
-                                 and "GQ" not in fixed)
-        if self.flow_gain_fitted:
-            # the healthy flow gain is the actuator's own: fitted with the faults throughout
-            # (bounds to 6 significant digits, as typed: 0.2 +- 10 % is GQ=0.18:0.22)
-            spread = settings.flow_gain_spread
-            self.bounds["GQ"] = (float(f"{base.GQ * (1.0 - spread):.6g}"),
-                                 float(f"{base.GQ * (1.0 + spread):.6g}"))
+        self.flow_gain_fitted = problem.flow_gain is not None
         #: why the flow gain stopped being fitted (:meth:`baseline`), or None
         self.flow_gain_released: str | None = None
-        # effects already in the base (a prior), overlapping the declared faults or touching
-        # a known (fixed) parameter are not tried
-        self.pool = [e for e in pool if not set(e.params) & set(self.bounds)
-                     and not e.is_on(base) and not set(e.off) & fixed]
-        self.base = base
         #: the structure put in at its physical values before the rounds and held there until
         #: the final estimates (:meth:`baseline`, :func:`explain`'s second pass)
-        self.pinned = [e for e in self.pool if e.name in STRUCTURAL] if pin_structure else []
-        self.progress = on_progress or (lambda message: None)
+        self.pinned = [e for e in problem.pool if e.name in STRUCTURAL] if pin_structure else []
         #: the phase the progress labels name ("" : the rounds, "round N")
         self.phase = ""
-        self.fdi_options = fdi_options
-        n = len(data)
-        if validate is not None:
-            self.n_fit = n
-            self.holdout_text = (f"validation record {validate.source} ({len(validate)} "
-                                 f"samples)")
-        else:
-            self.n_fit = n - int(round(settings.holdout * n))
-            self.holdout_text = (f"last {settings.holdout:.0%} of the record "
-                                 f"({n - self.n_fit} samples)" if self.n_fit < n
-                                 else "none (scored on the fitted data)")
-        if self.n_fit < 20:
-            raise ExplainError(f"record: {self.n_fit} samples left to fit after the hold-out; "
-                               f"at least 20 are required (lower `holdout`)")
-        self.record = Record(data, base)
-        self.check = (Record(validate, initial_position(validate, base))
-                      if validate is not None else None)
-        self.noise = float(data.info.get("noise_m", noise_level(data.xu)))
-        # the measured load pressure joins every fit and score when the record has it
-        self.p12_weight, self.p12_noise = p12_objective_weight(
-            self.noise, data.p12, settings.p12_weight)
-        # the score of a model that leaves only noise (the P12 noise in metres of position)
-        self.score_noise = math.hypot(self.noise, self.p12_weight * self.p12_noise) \
-            if self.p12_weight else self.noise
         self.steps: list[Step] = []
         self.dismissed: list[Dismissal] = []
         self.rounds: list[Round] = []
-        self.current: LFParams = base
+        #: each candidate tried (by ``id``) and its fit (:meth:`fit_of`)
+        self.fits: dict[int, tuple[Candidate, Evaluation]] = {}
+        #: the HF re-simulations' refits of the final model, shared by the intervals'
+        #: replicate term and the model's own level (:mod:`eha.explain.replicates`)
+        self.replicate_refits: dict[tuple, list] = {}
+        self.current: LFParams = problem.base
         self.cur: Evaluation | None = None
         # refitted every round: the faults (and, with joint=True, the effects already added)
         self.free = dict(self.bounds)
+
+    @classmethod
+    def on(cls, data: MeasuredData, fit: Any = None,
+           effects: Iterable[str] | str | None = None,
+           validate: MeasuredData | None = None, base: LFParams | None = None,
+           settings: LoopSettings = LoopSettings(), fixed: Iterable[str] = (),
+           on_progress: Callable[[str], None] | None = None,
+           pin_structure: bool = False, null: Any = None,
+           first_excluded: Mapping[str, Mapping[str, Any]] | None = None,
+           fitter: type[Fitter] = Fitter, **options: float) -> ResidualLoop:
+        """The loop on ``data``: its :class:`~eha.explain.problem.Problem` built from the
+        inputs (see :func:`eha.explain.explain`); ``options`` join ``settings.options``."""
+        if options:
+            settings = replace(settings, options={**settings.options, **options})
+        problem = Problem.build(data, settings, fit, effects, validate, base, fixed)
+        return cls(problem, settings, null, on_progress, pin_structure, first_excluded, fitter)
+
+    @property
+    def thresholds(self) -> dict[str, float]:
+        """The healthy null's thresholds at ``alpha`` (the fitter's), empty without a null."""
+        return self.fitter.thresholds
+
+    def fit_of(self, cand: Candidate) -> Evaluation:
+        """The fit of a candidate :meth:`try_candidate` tried."""
+        return self.fits[id(cand)][1]
 
     # -- the run ---------------------------------------------------------------------------
     def run(self) -> ExplainResult:
@@ -162,16 +146,16 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         (Left free, it would share the loss with the effect that causes it: on an LF record
         with a torque motor at 80 % of its gain, GQ 0.188 and GM 0.0085, their product
         right, each wrong.)"""
-        self.current = self.refit(self.base, self.bounds, "fit the declared faults")
+        self.current = self.fitter.refit(self.problem.base, self.bounds, "fit the declared faults")
         edge = edge_of_spread(self.current.GQ, self.bounds["GQ"]) \
             if self.flow_gain_fitted else None
         if edge is not None:
             self.flow_gain_fitted, self.flow_gain_released = False, edge
             del self.bounds["GQ"]
             self.free.pop("GQ", None)
-            self.current = self.refit(self.base, self.bounds,
+            self.current = self.fitter.refit(self.problem.base, self.bounds,
                                       f"{edge}: fit the declared faults with GQ at nominal")
-        self.cur = self.evaluate([self.current])[0]
+        self.cur = self.fitter.evaluate([self.current])[0]
         before = self.cur
         if self.pinned:
             self.pin_structure()
@@ -188,19 +172,22 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         for effect in self.pinned:
             start = effect.switch_on(start)         # at its probe: the physical values
         names = "+".join(e.name for e in self.pinned)
-        fitted = self.refit(start, self.bounds, f"fit the declared faults with {names} pinned")
-        ev = self.evaluate([fitted])[0]
-        gain = 1.0 - ev.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
+        fitted = self.fitter.refit(start, self.bounds,
+                                   f"fit the declared faults with {names} pinned")
+        ev = self.fitter.evaluate([fitted])[0]
+        gain = relative_gain(prev, ev)
         faults = {p: getattr(fitted, p) for p in self.bounds}
         for i, effect in enumerate(self.pinned):
             last = i == len(self.pinned) - 1
+            after = ev if last else prev     # the fit with all of them is the last's
             self.steps.append(Step(
-                effect.name, {p: getattr(fitted, p) for p in effect.params},
-                prev.rmse_all, ev.rmse_all if last else prev.rmse_all, prev.rmse_fit,
-                ev.rmse_fit if last else prev.rmse_fit, prev.rmse_hold,
-                ev.rmse_hold if last else prev.rmse_hold, faults0, faults,
-                gain if last else 0.0, gain if last else 0.0, {},
-                f"{names} pinned at physical values", gain))
+                effect=effect.name, params={p: getattr(fitted, p) for p in effect.params},
+                rmse_before=prev.rmse_all, rmse_after=after.rmse_all,
+                rmse_fit_before=prev.rmse_fit, rmse_fit_after=after.rmse_fit,
+                rmse_hold_before=prev.rmse_hold, rmse_hold_after=after.rmse_hold,
+                faults_before=faults0, faults_after=faults, gain=gain if last else 0.0,
+                score=gain if last else 0.0, alternatives={},
+                chosen=f"{names} pinned at physical values", chosen_score=gain))
         self.current, self.cur = fitted, ev
 
     def rounds_until_stop(self) -> str:
@@ -229,18 +216,18 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         s, cur = self.settings, self.cur
         if len(self.steps) >= s.max_steps:
             return f"reached max_steps={s.max_steps:g}"
-        if cur.rmse_score <= s.noise_factor * self.score_noise:
-            what = " with P12" if self.p12_weight else ""
+        if cur.rmse_score <= s.noise_factor * self.problem.score_noise:
+            what = " with P12" if self.problem.p12_weight else ""
             return (f"RMSE {1e6 * cur.rmse_score:.3g} µm (fitted and held-out parts{what}) is "
-                    f"at the noise level ({1e6 * self.score_noise:.3g} µm estimated from the "
-                    f"record)")
+                    f"at the noise level ({1e6 * self.problem.score_noise:.3g} µm estimated from "
+                    f"the record)")
         if not self.remaining():
             return "every candidate effect is already in the model"
         return ""
 
     def remaining(self) -> list[Effect]:
         added = {st.effect for st in self.steps} | {d.effect for d in self.dismissed}
-        return [e for e in self.pool if e.name not in added]
+        return [e for e in self.problem.pool if e.name not in added]
 
     def unexplained(self) -> bool:
         """Does the current model leave the record unexplained: its position residual above
@@ -248,10 +235,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         (:meth:`eha.explain.null.Null.residual_limit`, at most
         :data:`eha.identification.intervals.FLAG_RATIO` times the noise; without a null, that
         ratio)?"""
-        from eha.identification.intervals import noise_reference
-
-        return self.cur.rmse_all > self.residual_limit * noise_reference(self.noise,
-                                                                          self.data.xu)
+        return self.cur.rmse_all > self.residual_limit * self.problem.noise_ref
 
     def at_noise_level(self) -> bool:
         """Is the current model's position residual at the record's noise level (at most
@@ -259,10 +243,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         only at the found model's own level (:func:`eha.explain.replicates.explains`), not by
         what healthy actuators leave on the command: a residual of 1.6× the noise over a
         thousand samples is not noise (ExplainResult.verdict)."""
-        from eha.identification.intervals import noise_reference
-
-        return self.cur.rmse_all <= self.settings.noise_factor * noise_reference(
-            self.noise, self.data.xu)
+        return self.cur.rmse_all <= self.settings.noise_factor * self.problem.noise_ref
 
     @property
     def residual_limit(self) -> float:
@@ -305,13 +286,13 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             starts.append(self.current.replace(**physical))
         polished, ev = self.current, self.cur
         for start in starts:
-            trial = self.refit(start, free, "final estimates on the whole record",
+            trial = self.fitter.refit(start, free, "final estimates on the whole record",
                                method="lm", whole=True)
             # an added effect polished back inside its healthy band would be reported
             # without being one: such a polish is not taken
-            if any(self.within_healthy_at(EFFECTS[st.effect], trial) for st in self.steps):
+            if any(self.fitter.within_healthy_at(EFFECTS[st.effect], trial) for st in self.steps):
                 continue
-            ev_t = self.evaluate([trial])[0]
+            ev_t = self.fitter.evaluate([trial])[0]
             if ev_t.rmse_whole < ev.rmse_whole:
                 polished, ev = trial, ev_t
         if ev is not self.cur:
@@ -327,11 +308,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                ) -> ExplainResult:
         """The run's :class:`ExplainResult`: the final model, its intervals
         (:meth:`final_intervals`), the settings, the rounds and the residual's leads."""
-        for rnd in self.rounds:
-            for c in rnd.candidates:
-                c.__dict__.pop("_evaluation", None)
         bounds, notes, level, flagged = self.final_intervals()
-        data, s = self.data, self.settings
+        data, s = self.problem.data, self.settings
         model_level = {}
         if not flagged and not self.at_noise_level() and s.interval_replicates:
             # above the noise, within the healthy band: what does the found model itself
@@ -346,18 +324,18 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                 # the rest is the found model's own: explained, as a record at the noise
                 # is, when nothing outside the model fits as well (the exclusion check)
                 self.rivals = self.not_excluded()
-        settings = {**{f.name: getattr(s, f.name) for f in fields(s)}, **self.fdi_options}
+        settings = s.as_dict()
         facts = RunFacts(
-            n_fit=self.n_fit, candidates=[e.name for e in self.pool],
+            n_fit=self.problem.n_fit, candidates=[e.name for e in self.problem.pool],
             command_hold=data.info.get("command_hold", "linear"),
-            p12_used=bool(self.p12_weight), p12_noise_pa=self.p12_noise,
-            p12_m_per_pa=self.p12_weight, structure_pinned=[e.name for e in self.pinned],
+            p12_used=bool(self.problem.p12_weight), p12_noise_pa=self.problem.p12_noise,
+            p12_m_per_pa=self.problem.p12_weight, structure_pinned=[e.name for e in self.pinned],
             flow_gain_fitted=self.flow_gain_fitted, flow_gain_released=self.flow_gain_released)
         return ExplainResult(
             source=data.source, fit_bounds=self.bounds, faults_before=faults_before,
             faults_after={k: getattr(self.current, k) for k in self.bounds}, before=before,
-            after=self.cur, steps=self.steps, rounds=self.rounds, noise_rmse=self.noise,
-            stop_reason=stop, holdout=self.holdout_text, t=data.t.copy(),
+            after=self.cur, steps=self.steps, rounds=self.rounds, noise_rmse=self.problem.noise,
+            stop_reason=stop, holdout=self.problem.holdout_text, t=data.t.copy(),
             measured=data.xu.copy(), settings=settings, facts=facts,
             seconds=time.perf_counter() - self.started, intervals=bounds, level=level,
             unexplained=flagged or not (self.at_noise_level() or model_level.get("explains"))
@@ -373,17 +351,15 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         """:func:`eha.explain.replicates.model_level` of the final model, on the re-simulations
         of its intervals' replicate term (the same fitted parameters and HF values)."""
         from eha.explain.replicates import model_level
-        from eha.identification.intervals import noise_reference
-
         final_bounds, added = self.final_model()
         names = [*self.bounds, *(p for e in added for p in EFFECTS[e].params)]
-        ratio = self.cur.rmse_all / noise_reference(self.noise, self.data.xu)
+        ratio = self.cur.rmse_all / self.problem.noise_ref
         return model_level(self, final_bounds, names, ratio)
 
-    def final_model(self) -> tuple[dict[str, tuple[float, float]], list[str]]:
+    def final_model(self) -> tuple[Bounds, list[str]]:
         """The final model's fitted parameters with their bounds (the faults and every step's
         effect) and the effects the loop added that are not the structure."""
-        final_bounds = dict(self.bounds)
+        final_bounds = Bounds(self.bounds)
         for step in self.steps:
             final_bounds.update(EFFECTS[step.effect].bounds)
         added = [st.effect for st in self.steps
@@ -407,11 +383,11 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                 base = EFFECTS[needed].switch_on(base)
             entry["detectable_as"] = [
                 {"setting": setting, "param": effect.tested, "value": value}
-                for setting, value in self.record.footprint_size(
+                for setting, value in self.problem.record.footprint_size(
                     effect, entry["detectable"], effect.switch_off(base))]
         return summary
 
-    def final_intervals(self) -> tuple[dict[str, tuple[float, float]], tuple[str, ...], float,
+    def final_intervals(self) -> tuple[dict[str, Interval], tuple[str, ...], float,
                                        bool]:
         """Intervals of the final model's fitted parameters on the whole record (no refit),
         their notes and level, and whether the record is left unexplained (flagged by the
@@ -423,7 +399,7 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
         from eha.explain.replicates import with_replicates
 
         final_bounds, added = self.final_model()
-        data = self.data
+        data = self.problem.data
         # a model the loop built carries its model-form floor (the LF with the right effects
         # is still not the actuator); a model to which nothing was added keeps its base's
         form = model_form_of(self.current)
@@ -433,8 +409,8 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
             # how far the reading moves on the HF simulated again (eha.explain.replicates)
             terms, replicated = with_replicates(self, terms, final_bounds, added)
         iv = intervals_at(data.xu, data.command, self.current, final_bounds,
-                          level=DEFAULT_LEVEL, noise=self.noise,
-                          recorded_start=self.record.recorded_start, t_end=data.t_end,
+                          level=DEFAULT_LEVEL, noise=self.problem.noise,
+                          recorded_start=self.problem.record.recorded_start, t_end=data.t_end,
                           model_form=form, terms=terms)
         bounds, notes = dict(iv.bounds), (*iv.notes, *([replicated] if replicated else []))
         flagged = iv.flagged or self.unexplained()
@@ -467,15 +443,15 @@ class ResidualLoop(Rounds, FinalCheck, Fitting):
                 wo = effect.switch_off(wo)
         if wo == self.current:
             return {}
-        fitted = self.refit(wo, free, "faults without the tentative effects", method="lm",
+        fitted = self.fitter.refit(wo, free, "faults without the tentative effects", method="lm",
                             whole=True)
         return {k: float(getattr(fitted, k)) for k in self.bounds}
 
     def leads(self) -> LeadReport:
         """The current residual's relation to signal features of the current model (whole
         record; P12 measured when the record has it, else the model's)."""
-        data = self.data
-        full = self.record.full(self.current)
+        data = self.problem.data
+        full = self.problem.record.full(self.current)
         p12 = data.p12 if data.p12 is not None else full["p12"]
         return residual_leads(data.xu - self.cur.xu, data.t, data.com, self.cur.xu,
-                              full["dxj"], p12, self.noise)
+                              full["dxj"], p12, self.problem.noise)

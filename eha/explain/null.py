@@ -17,7 +17,7 @@ never fits above a few hundred). The null is
 2. on each healthy record, the loop's own candidate test (:func:`eha.explain.healthy_fleet.healthy_statistics`): the
    declared faults and the model's known structure fitted (the state of the loop once it has
    added the structure), then each library effect refitted on top by the loop's local test
-   (:meth:`eha.explain.loop.ResidualLoop.local_test`: least squares from the effect off and
+   (:meth:`eha.explain.fitting.Fitter.local_test`: least squares from the effect off and
    from its probe, the better fit); the statistic is the parameter's distance from its off value
    (:meth:`eha.explain.effects.Effect.shift`), or for an effect whose parameters trade (the
    supply pressure and its law) its footprint on the record, the RMS change of the position

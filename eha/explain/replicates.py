@@ -63,19 +63,24 @@ def model_overrides(loop, params, names) -> dict[str, float]:
     """What a re-simulation of ``loop``'s model ``params`` puts on the HF: the known test
     conditions, the effects the loop started with (:func:`started_effects`) and ``names`` at
     their values in ``params`` (those the HF has)."""
-    return {**hf_overrides(loop.base, loop.fixed), **started_effects(loop.base, loop.bounds),
+    base = loop.problem.base
+    return {**hf_overrides(base, loop.problem.fixed), **started_effects(base, loop.bounds),
             **hf_overrides(params, names)}
 
 
 def resimulated(loop, overrides: Mapping[str, float], seed: int):
-    """A loop like ``loop`` (its fit, base, settings, known parameters and fit options) on a
-    re-simulation of the nominal HF with ``overrides``, on ``loop``'s command, sampling and
-    noise, with fresh dither and noise from ``seed``; it fits nothing yet."""
+    """A :class:`~eha.explain.fitting.Fitter` of ``loop``'s fit (its bounds now, base,
+    settings and known parameters) on a re-simulation of the nominal HF with ``overrides``,
+    on ``loop``'s command, sampling and noise, with fresh dither and noise from ``seed``: the
+    re-simulation's own :class:`~eha.explain.problem.Problem`, no null and no progress."""
+    from eha.explain.fitting import Fitter
+    from eha.explain.problem import Problem
     from eha.explain.simulated_record import healthy_record
 
-    record, _ = healthy_record(loop.data, {}, seed, overrides, scatter=False)
-    return type(loop)(record, dict(loop.bounds), [], None, loop.base, loop.settings,
-                      loop.fixed, **loop.fdi_options)
+    record, _ = healthy_record(loop.problem.data, {}, seed, overrides, scatter=False)
+    problem = Problem.build(record, loop.settings, dict(loop.bounds), [], None,
+                            loop.problem.base, loop.problem.fixed)
+    return Fitter(problem, loop.settings)
 
 
 def replicate_spread(loop, params, bounds: Mapping[str, tuple[float, float]],
@@ -125,12 +130,11 @@ def _refits(loop, params, bounds: Mapping[str, tuple[float, float]], hf_names,
             seeds: list[int]) -> list[tuple]:
     """``(refit, residual-to-noise ratio)`` of ``params`` refitted by least squares on the whole
     of each HF re-simulation of it (one per seed; none where the HF refuses the model). Kept on
-    ``loop``: the intervals' replicate term and :func:`model_level` share them."""
-    from eha.identification.intervals import noise_reference
-
+    ``loop`` (its ``replicate_refits``): the intervals' replicate term and :func:`model_level`
+    share them."""
     key = (tuple(sorted(bounds)), tuple(sorted(hf_names)), tuple(seeds),
            tuple(float(getattr(params, n)) for n in sorted({*bounds, *hf_names})))
-    cache = loop.__dict__.setdefault("_replicate_refits", {})
+    cache = loop.replicate_refits
     if key in cache:
         return cache[key]
     overrides = model_overrides(loop, params, hf_names)
@@ -143,7 +147,7 @@ def _refits(loop, params, bounds: Mapping[str, tuple[float, float]], hf_names,
         refit = again.refit(params, dict(bounds), "interval replicate", method="lm",
                             whole=True)
         ev = again.evaluate([refit])[0]
-        out.append((refit, ev.rmse_all / noise_reference(again.noise, again.data.xu)))
+        out.append((refit, ev.rmse_all / again.problem.noise_ref))
     cache[key] = out
     return out
 
@@ -172,14 +176,10 @@ def model_level(loop, bounds: Mapping[str, tuple[float, float]], hf_names,
 
     n = loop.settings.interval_replicates
     seeds = [REPLICATE_SEED + 1000 * loop.settings.seed + k for k in range(n)]
-    phase, loop.phase = loop.phase, f"residual: {n} HF re-simulations of the final model"
-    loop.progress(loop.phase)
-    try:
-        refits = _refits(loop, loop.current, bounds, hf_names, seeds)
-        ratios = [r for _, r in refits if math.isfinite(r)]
-        again = _restarted(loop, bounds, [p for p, _ in refits]) if restarts else []
-    finally:
-        loop.phase = phase
+    loop.progress(f"residual: {n} HF re-simulations of the final model")
+    refits = _refits(loop, loop.current, bounds, hf_names, seeds)
+    ratios = [r for _, r in refits if math.isfinite(r)]
+    again = _restarted(loop, bounds, [p for p, _ in refits]) if restarts else []
     if len(ratios) < 2:
         return {}
     mean, std = float(np.mean(ratios)), float(np.std(ratios, ddof=1))
@@ -234,18 +234,18 @@ def _restarted(loop, bounds: Mapping[str, tuple[float, float]], refits) -> list[
     ``bounds`` (see :func:`model_level`); none for a start whose fit fails (the list stays
     plain JSON)."""
     from eha.explain.settings import ExplainError
-    from eha.identification.intervals import noise_reference
 
-    reference = noise_reference(loop.noise, loop.data.xu)
+    reference = loop.problem.noise_ref
     out = []
     for refit in refits:
         start = loop.current.replace(**{
             name: min(max(2.0 * getattr(loop.current, name) - getattr(refit, name), lo), hi)
             for name, (lo, hi) in bounds.items()})
         try:
-            fitted = loop.refit(start, dict(bounds), "residual: the record from another start",
-                                method="lm", whole=True)
-            ratio = float(loop.evaluate([fitted])[0].rmse_all / reference)
+            fitted = loop.fitter.refit(start, dict(bounds),
+                                       "residual: the record from another start",
+                                       method="lm", whole=True)
+            ratio = float(loop.fitter.evaluate([fitted])[0].rmse_all / reference)
         except (ExplainError, ParameterError, FloatingPointError, ValueError):
             continue
         if math.isfinite(ratio):
@@ -267,13 +267,8 @@ def with_replicates(loop, terms: Mapping, bounds: Mapping[str, tuple[float, floa
     if not n:
         return dict(terms), None
     names = [*loop.bounds, *(p for e in added for p in EFFECTS[e].params)]
-    phase, loop.phase = loop.phase, f"intervals: {n} HF re-simulations of the final model"
-    loop.progress(loop.phase)
-    try:
-        spread, seeds = replicate_spread(loop, loop.current, bounds, names, n,
-                                         loop.settings.seed)
-    finally:
-        loop.phase = phase
+    loop.progress(f"intervals: {n} HF re-simulations of the final model")
+    spread, seeds = replicate_spread(loop, loop.current, bounds, names, n, loop.settings.seed)
     if not spread:
         return dict(terms), (f"the {n} HF re-simulations of the final model did not refit: "
                              "intervals without their spread")

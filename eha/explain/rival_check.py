@@ -81,12 +81,10 @@ def _readings(loop, effect, members, overrides, seeds, by_shift: bool = False) -
     out = []
     for s in seeds:
         again = resimulated(loop, overrides, s)
-        again.current, again.free, again.steps = loop.current, dict(loop.free), list(loop.steps)
-        again.phase = "rival check"
-        start, free = again.candidate_start(members)
-        for st in again.steps:
+        start, free = again.candidate_start(members, loop.current, loop.free)
+        for st in loop.steps:
             free.update(EFFECTS[st.effect].bounds)
-        local, _ = again.local_test(start, free, members)
+        local, _ = again.local_test(start, free, members, "rival check")
         out.append(reading(effect, local, by_shift))
     return out
 
@@ -123,8 +121,7 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
     without = model_overrides(loop, loop.current, names)
     first = RIVAL_SEED + 1000 * loop.settings.seed
     seeds = [first + k for k in range(n)], [first + 500 + k for k in range(n)]
-    phase, loop.phase = loop.phase, f"rival check: {effect.name}, {2 * n} HF re-simulations"
-    loop.progress(loop.phase)
+    loop.progress(f"rival check: {effect.name}, {2 * n} HF re-simulations")
     try:
         r0 = _readings(loop, effect, members, without, seeds[0], by_shift)
         record = reading(effect, local, by_shift)
@@ -138,8 +135,6 @@ def check_rival(loop, effect, members: Sequence, local, detectable: float,
             local.replace(**rival), list(rival))}, seeds[1], by_shift)
     except (ParameterError, FloatingPointError, ValueError):
         return {}       # a re-simulation the HF refuses decides nothing: the rival stays
-    finally:
-        loop.phase = phase
     m1, s1 = float(np.mean(r1)), float(np.std(r1, ddof=1))
     spread = float(student.ppf(1.0 - loop.settings.alpha / 2.0, n - 1)) * s0
     finite = all(math.isfinite(v) for v in (*r0, *r1, record))

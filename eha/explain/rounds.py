@@ -10,8 +10,8 @@ import time
 from typing import Mapping, Sequence
 
 from eha.explain.effects import COMBINATIONS, EFFECTS, Effect, missing_requirements
-from eha.explain.decide import (Choice, choose, keeps_effect, significance, split_combination,
-                                trades_position)
+from eha.explain.decide import (Choice, choose, keeps_effect, relative_gain, significance,
+                                split_combination, trades_position)
 from eha.explain.results import (Candidate, Dismissal, Evaluation, Round, Step,
                                  ranking_score)
 from eha.explain.settings import LOOK_AHEAD, SPECIFIC_GAIN, STRUCTURAL, SWAP_CANDIDATES
@@ -29,7 +29,12 @@ class Rounds:
     def trace(self, evaluation: Evaluation, free: Mapping[str, tuple[float, float]],
               effects: Sequence[Effect]) -> Round:
         """(b) Trace the residual of ``evaluation`` to the effects' signatures."""
-        return trace_residual(self.record, evaluation, free, effects, self.n_fit)
+        return trace_residual(self.problem.record, evaluation, free, effects, self.problem.n_fit)
+
+    def fit_phase(self) -> str:
+        """What the progress messages of a fit now name: the phase (the exclusion check, a
+        re-simulation), else the round (``round 2``)."""
+        return self.phase or f"round {len(self.rounds)}"
 
     def try_candidate(self, cand: Candidate, extends: LFParams | None = None) -> Candidate:
         """(c) Refit the faults with the candidate's effects free and score the fit.
@@ -41,118 +46,42 @@ class Rounds:
         s, cur = self.settings, self.cur
         members = [EFFECTS[name] for name in cand.effect.split("+")]
         t0 = time.perf_counter()
-        start, free = self.candidate_start(members, extends)
-        trial, trial_cost = self.fit_with_cost(
+        start, free = self.fitter.candidate_start(members, self.current, self.free, extends)
+        trial, trial_cost = self.fitter.fit_with_cost(
             start, free, f"round {len(self.rounds)}: refit with {cand.effect}",
             warm_start=True)
         # the healthy null's test: the same local refit the null ran on healthy records,
         # and the refit itself where it reached a deeper basin than both of its starts
         tested = [e for e in members if e.name in (self.thresholds or {})]
-        local, local_cost = self.local_test(start, free, members, also=(trial, trial_cost)) \
+        local, local_cost = self.fitter.local_test(start, free, members, self.fit_phase(),
+                                                   also=(trial, trial_cost)) \
             if tested else (trial, trial_cost)
         # the candidate's fit is the best of its fits: the local test's least squares can
         # reach a basin the GA's warm start missed (the supply pressure's other law)
         trial = local if local_cost < trial_cost else trial
-        ev = self.evaluate([trial])[0]
+        ev = self.fitter.evaluate([trial])[0]
         cand.refit = True
         cand.params = {p: getattr(trial, p) for e in members for p in e.params}
         cand.faults = {p: getattr(trial, p) for p in self.bounds}
         cand.rmse_fit, cand.rmse_hold, cand.rmse_all = ev.rmse_fit, ev.rmse_hold, ev.rmse_all
-        cand.gain = 1.0 - ev.rmse_score / cur.rmse_score if cur.rmse_score > 0 else 0.0
+        cand.gain = relative_gain(cur, ev)
         cand.score = cand.gain - s.penalty * len(cand.params)
         added = sum(max(len(e.params), 1) for e in members if not e.is_on(self.current))
         cand.n_eff = ev.n_eff
         cand.p_value = significance(cur.rmse_score, ev.rmse_score, added, ev.n_eff)
-        cand.shifts = {e.name: self.statistic_at(e, local) for e in tested}
+        cand.shifts = {e.name: self.fitter.statistic_at(e, local) for e in tested}
         cand.shifts.update({e.shift_key: e.shift_at(local) for e in tested if e.shift_key})
-        if any(e.params and (self.within_healthy_at(e, local) if e in tested else
-                             self.within_healthy(e, cand.params)) for e in members):
+        if any(e.params and (self.fitter.within_healthy_at(e, local) if e in tested else
+                             self.fitter.within_healthy(e, cand.params)) for e in members):
             # the fit left an effect within the band healthy actuators reach on this command:
             # any gain is the optimizer's or a healthy spread's, not the effect's
             cand.score = -math.inf
-        elif self.p12_weight and trades_position(cur, ev):
+        elif self.problem.p12_weight and trades_position(cur, ev):
             # the gain is the pressure's alone, bought with a worse position
             cand.score = -math.inf
         cand.seconds = time.perf_counter() - t0
-        cand._evaluation = ev          # kept for the step, not reported
+        self.fits[id(cand)] = (cand, ev)    # kept for the step (not reported)
         return cand
-
-    def candidate_start(self, members: Sequence[Effect], extends: LFParams | None = None
-                        ) -> tuple[LFParams, dict[str, tuple[float, float]]]:
-        """Where a candidate's refits start and what they fit: the model it extends (the
-        current one, or a combination's fit) with the new effects at their off values (at the
-        probe where off is outside the search bounds), and everything the rounds refit plus
-        the effects' parameters."""
-        start = extends if extends is not None else self.current
-        free = dict(self.free)
-        for effect in members:
-            if not effect.is_on(start):
-                start = effect.switch_on(start, {
-                    p: effect.off[p] for p, (lo, hi) in effect.bounds.items()
-                    if lo <= effect.off[p] <= hi})
-            free.update(effect.bounds)
-        return start, free
-
-    def local_test(self, start: LFParams, free: Mapping[str, tuple[float, float]],
-                   members: Sequence[Effect],
-                   also: tuple[LFParams, float] | None = None) -> tuple[LFParams, float]:
-        """The statistic of the healthy null (:mod:`eha.explain.null`): the candidate refitted
-        by least squares from two starts, ``start`` (:meth:`candidate_start`: the effects off)
-        and the same with the effects at their probes, keeping the better fit. The null runs
-        it alike on each healthy record; how far it moves an effect's parameter from off is
-        tested against the healthy band.
-
-        Why two starts: from off alone least squares stalls where the cost is flat at off
-        (a viscous friction of 3000 N·s/m on held steps: the GA refit found 623 with a 17 %
-        gain, the local fit stayed at 50), so the test was blind; from the probe alone it
-        stalls at the probe on healthy records and the null's band becomes the probe. The
-        better of the two follows the data from either side, on records and null alike.
-
-        ``also``: the candidate's global refit and its cost (:meth:`try_candidate`), taken
-        when it is the better fit: both least-squares starts can stall in a side basin
-        where a second parameter trades against the effect (a leakage of 6e-12 on held
-        steps with the dry friction: from 1e-12 least squares stops at 7e-13 and 45 µm,
-        the GA refit finds 4.4e-12 and 8 µm). The null runs no global refit; what this
-        adds to the false-positive rate on healthy records is measured by
-        ``validation/explain_fp.py``.
-
-        Further starts: the effects' :attr:`~eha.explain.effects.Effect.other_starts` (the
-        supply pressure's other law), and every start again with the structure in the model at
-        its physical values when it has moved from them (it may have taken the effect's place).
-
-        Returns
-        -------
-        params, cost
-            The best fit and the objective it reached.
-        """
-        label = f"{self.phase or f'round {len(self.rounds)}'}: local test of " \
-                f"{'+'.join(e.name for e in members)}"
-        best, cost = self.fit_with_cost(start, free, label, method="lm")
-        probe = start
-        for effect in members:
-            values = {p: v for p, v in effect.probe.items()
-                      if p in effect.bounds and effect.bounds[p][0] <= v <= effect.bounds[p][1]}
-            if values:
-                probe = probe.replace(**values)
-        starts = [probe, *(probe.replace(**values) for effect in members
-                           for values in effect.other_starts)]
-        # the structure in the model may have taken the effect's place (a flapper at 2150
-        # rad/s and 0.53 for a low supply pressure): the starts are also tried with it at its
-        # physical values (the probe: the thesis' flapper)
-        physical = {p: v for e in EFFECTS.values() if e.name in STRUCTURAL and e.is_on(start)
-                    for p, v in e.probe.items() if p in free}
-        if physical and any(getattr(start, p) != v for p, v in physical.items()):
-            starts += [other.replace(**physical) for other in starts]
-        for k, other in enumerate(starts):
-            if other == start:
-                continue
-            fit, fit_cost = self.fit_with_cost(other, free, f"{label} (start {k + 1})",
-                                               method="lm")
-            if fit_cost < cost:
-                best, cost = fit, fit_cost
-        if also is not None and also[1] < cost:
-            best, cost = also
-        return best, cost
 
     def candidates_of_round(self, remaining: list[Effect]) -> tuple[Round, list[Candidate]]:
         """(b, c) Trace the current residual and refit the best-ranked candidates; also the
@@ -197,12 +126,12 @@ class Rounds:
             combo_free = dict(self.free)
             for name in combo:
                 combo_free.update(EFFECTS[name].bounds)
-            on_top = self.trace(pair._evaluation, combo_free, rest)
+            on_top = self.trace(self.fit_of(pair), combo_free, rest)
             ranked_on_top = sorted(on_top.candidates, key=lambda c: -c.explained)
             for c in ranked_on_top if s.candidates <= 0 else ranked_on_top[:s.candidates]:
                 cand = self.try_candidate(Candidate("+".join((*combo, c.effect)), math.nan,
                                                     c.explained),
-                                          extends=pair._evaluation.params)
+                                          extends=self.fit_of(pair).params)
                 rnd.candidates.append(cand)
                 chosen.append(cand)
         return rnd, chosen
@@ -211,11 +140,11 @@ class Rounds:
         """(d) :func:`choose` with this record's evaluations."""
         def split(best: Candidate) -> list[str]:
             members = [EFFECTS[name] for name in best.effect.split("+")]
-            return [e.name for e in split_combination(members, best._evaluation,
-                                                       self.evaluate, self.settings.penalty)]
+            return [e.name for e in split_combination(members, self.fit_of(best),
+                                                       self.fitter.evaluate, self.settings.penalty)]
 
         def refit_members(best: Candidate, kept: list[str]) -> Candidate | None:
-            params = best._evaluation.params
+            params = self.fit_of(best).params
             for name in best.effect.split("+"):
                 if name not in kept:
                     params = EFFECTS[name].switch_off(params)
@@ -248,7 +177,7 @@ class Rounds:
         added = []
         for name in heads:
             head = next((c for c in [*tried, *rnd.candidates] if c.effect == name
-                         and getattr(c, "_evaluation", None) is not None), None)
+                         and id(c) in self.fits), None)
             members = set(name.split("+"))
             if head is None or len(members) + 1 > room:
                 continue
@@ -257,17 +186,17 @@ class Rounds:
                 free.update(EFFECTS[member].bounds)
             rest = [e for e in self.remaining() if e.name not in members
                     and e.name not in STRUCTURAL and e.params
-                    and not missing_requirements(e, head._evaluation.params)]
+                    and not missing_requirements(e, self.fit_of(head).params)]
             if not rest:
                 continue
-            on_top = self.trace(head._evaluation, free, rest)
+            on_top = self.trace(self.fit_of(head), free, rest)
             for c in sorted(on_top.candidates, key=lambda c: -c.explained)[:SWAP_CANDIDATES]:
                 pair = f"{name}+{c.effect}"
                 key = frozenset(pair.split("+"))
                 if key in known or c.effect not in names_left:
                     continue
                 cand = self.try_candidate(Candidate(pair, math.nan, c.explained),
-                                          extends=head._evaluation.params)
+                                          extends=self.fit_of(head).params)
                 rnd.candidates.append(cand)
                 added.append(cand)
                 known.add(key)
@@ -292,7 +221,7 @@ class Rounds:
         model already in place becomes the current model. None: nothing is added this round.
         """
         best = choice.best
-        s, ev = self.settings, best._evaluation
+        s, ev = self.settings, self.fit_of(best)
         kept, params = list(choice.members), ev.params
         dropped, last = [], ev
         for name in [n for n in choice.members if n not in STRUCTURAL]:
@@ -304,9 +233,9 @@ class Rounds:
                 if other != name:
                     free.update(EFFECTS[other].bounds)
             start = effect.switch_off(params)
-            refitted = self.refit(start, free, f"round {len(self.rounds) - 1}: is {name} "
+            refitted = self.fitter.refit(start, free, f"round {len(self.rounds) - 1}: is {name} "
                                   f"needed in {best.effect}? (refit without it)", method="ps")
-            without = min(self.evaluate([start, refitted]), key=ranking_score)
+            without = min(self.fitter.evaluate([start, refitted]), key=ranking_score)
             keep, loss, p = keeps_effect(ev.rmse_score, without.rmse_score,
                                          len(effect.params), ev.n_eff, s)
             if not keep:
@@ -335,13 +264,13 @@ class Rounds:
         members off."""
         s, best = self.settings, choice.best
         members = [EFFECTS[name] for name in choice.members]
-        ev = best._evaluation
+        ev = self.fit_of(best)
         joint_free = dict(self.free)
         for effect in [EFFECTS[st.effect] for st in self.steps] + members:
             joint_free.update(effect.bounds)
-        polished = self.refit(ev.params, joint_free,
+        polished = self.fitter.refit(ev.params, joint_free,
                               f"round {len(self.rounds)}: joint polish", method="ps")
-        ev_p = self.evaluate([polished])[0]
+        ev_p = self.fitter.evaluate([polished])[0]
         if ev_p.rmse_score < ev.rmse_score:
             ev = ev_p
         faults_after = {p: getattr(ev.params, p) for p in self.bounds}
@@ -354,14 +283,17 @@ class Rounds:
             params_i = ev.params
             for later in members[i + 1:]:
                 params_i = later.switch_off(params_i)
-            ev_i = ev if i == len(members) - 1 else self.evaluate([params_i])[0]
-            gain_i = 1.0 - ev_i.rmse_score / prev.rmse_score if prev.rmse_score > 0 else 0.0
-            added.append(Step(effect.name, {p: getattr(ev.params, p) for p in effect.params},
-                              prev.rmse_all, ev_i.rmse_all, prev.rmse_fit, ev_i.rmse_fit,
-                              prev.rmse_hold, ev_i.rmse_hold, faults0, faults_after,
-                              gain_i, gain_i - s.penalty * len(effect.params),
-                              choice.alternatives if i == told else {}, best.effect,
-                              best.score))
+            ev_i = ev if i == len(members) - 1 else self.fitter.evaluate([params_i])[0]
+            gain_i = relative_gain(prev, ev_i)
+            added.append(Step(
+                effect=effect.name, params={p: getattr(ev.params, p) for p in effect.params},
+                rmse_before=prev.rmse_all, rmse_after=ev_i.rmse_all,
+                rmse_fit_before=prev.rmse_fit, rmse_fit_after=ev_i.rmse_fit,
+                rmse_hold_before=prev.rmse_hold, rmse_hold_after=ev_i.rmse_hold,
+                faults_before=faults0, faults_after=faults_after, gain=gain_i,
+                score=gain_i - s.penalty * len(effect.params),
+                alternatives=choice.alternatives if i == told else {}, chosen=best.effect,
+                chosen_score=best.score))
             prev, faults0 = ev_i, faults_after
         self.steps.extend(added)
         self.current, self.cur = ev.params, ev

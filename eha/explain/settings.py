@@ -9,11 +9,11 @@ passes (:mod:`eha.explain.api`) and the healthy null (:mod:`eha.explain.null`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Iterable, Mapping, Sequence
 
 from eha.explain.effects import COMBINATIONS
-from eha.identification.problem import DEFAULT_METHOD
+from eha.identification.problem import DEFAULT_METHOD, METHOD_DEFAULTS
 from eha.models.faults import Bounds, search_bounds
 from eha.models.params import ParameterError, parse_name_value
 from eha.errors import InputError
@@ -34,7 +34,7 @@ DEFAULT_FAULT_BOUNDS: Bounds = search_bounds(purpose="loop", declared=True)
 MULTISTART_PARAMS = 5
 MULTISTART = 2
 #: The loop's global methods; each of their searches is finished by least squares
-#: (:meth:`ResidualLoop.refit`) when LEAST_SQUARES_FINISH is on.
+#: (:meth:`Fitter.refit`) when LEAST_SQUARES_FINISH is on.
 GLOBAL_METHODS = ("ga", "ga+ps")
 LEAST_SQUARES_FINISH = True
 #: Smallest step (of each search range) of the compass polish in a ``ga+ps`` refit that least
@@ -219,6 +219,12 @@ class LoopSettings:
         with it, that may rule it out, in [0, 100] (0: none; :mod:`eha.explain.rival_check`).
     method, pop, seed
         Optimizer of every fit (:func:`eha.identification.fdi.identify`), same seed for all fits.
+    options : dict of str to float
+        Further options of ``method`` (``max_gen``, ``stall``, ...: the keys of
+        :data:`eha.identification.problem.METHOD_DEFAULTS`), passed to every global fit.
+
+    :meth:`override` sets settings and options by name (an unknown name is refused, naming
+    it); every value is checked once, here (:meth:`problems`).
     """
 
     holdout: float = 0.3
@@ -238,11 +244,40 @@ class LoopSettings:
     method: str = DEFAULT_METHOD
     pop: int = 20
     seed: int = 0
+    options: Mapping[str, float] = field(default_factory=dict, hash=False)
 
     def __post_init__(self):
         problems = self.problems()
         if problems:
             raise ExplainError(problems)
+
+    def override(self, values: Mapping[str, Any]) -> LoopSettings:
+        """These settings with ``values`` set by name: a setting (None keeps it) or an option
+        of an optimizer (joined to :attr:`options`).
+
+        Raises
+        ------
+        ExplainError
+            A name that is neither (one line naming it and the names allowed), or a value
+            outside its range (:meth:`problems`).
+        """
+        names = [f.name for f in fields(self) if f.name != "options"]
+        known = optimizer_options()
+        unknown = [k for k in values if k not in names and k not in known]
+        if unknown:
+            raise ExplainError(
+                f"{', '.join(f'`{k}`' for k in unknown)}: not a setting of the residual loop "
+                f"(settings: {', '.join(names)}; optimizer options: {', '.join(known)})")
+        given = {k: v for k, v in values.items() if k in names and v is not None}
+        options = {k: v for k, v in values.items() if k not in names}
+        if options:
+            given["options"] = {**self.options, **options}
+        return replace(self, **given) if given else self
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every setting by name, the options among them (a result's ``settings``)."""
+        return {**{f.name: getattr(self, f.name) for f in fields(self) if f.name != "options"},
+                **self.options}
 
     def problems(self) -> list[str]:
         """One line per setting outside its range, naming its option (``--min-gain``) and the
@@ -284,15 +319,25 @@ class LoopSettings:
         if self.method not in GLOBAL_METHODS:
             problems.append(f"`method` {self.method}: the loop's refits search globally; "
                             f"allowed ga, ga+ps")
+        else:
+            allowed = METHOD_DEFAULTS[self.method]
+            problems += [f"`{k}`: not an option of method {self.method} (allowed "
+                         f"{', '.join(allowed)})" for k in self.options if k not in allowed]
         return problems
 
 
 #: Defaults of the loop (see :class:`LoopSettings`), for the CLI.
-DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(LoopSettings)}
+DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(LoopSettings)
+                            if f.name != "options"}
+
+
+def optimizer_options() -> list[str]:
+    """The options of the loop's global optimizers (:data:`GLOBAL_METHODS`), by name."""
+    return list(dict.fromkeys(k for m in GLOBAL_METHODS for k in METHOD_DEFAULTS[m]))
 
 
 def parse_fit(spec: str | Mapping[str, Sequence[float]] | Iterable[str] | None
-              ) -> dict[str, tuple[float, float]]:
+              ) -> Bounds:
     """Fault parameters to fit: ``"BKL,FDJ"`` or ``"BKL=0:1e-3,FDJ=200:4000"`` or a mapping.
 
     Names without bounds take :data:`DEFAULT_FAULT_BOUNDS` or

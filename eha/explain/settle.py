@@ -16,7 +16,7 @@ all three hold:
    healthy thresholds and :data:`SAME_EFFECT_SPREAD` of its size, added in quadrature: it is
    the same effect at the same size;
 3. the record shows it: each of its effects is beyond the healthy band here (the loop's own
-   test, :meth:`~eha.explain.fitting.Fitting.within_healthy_at`: its reading, or for the
+   test, :meth:`~eha.explain.fitting.Fitter.within_healthy_at`: its reading, or for the
    supply pressure its footprint, beyond what healthy actuators reach on this command), or
    the record is beyond the healthy residual without any effect (the declared faults and the
    structure alone). Without this a healthy record "settles" on an effect whose reading is
@@ -176,7 +176,7 @@ def _fit(loop, h: Hypothesis):
         members += [EFFECTS[n] for n in missing_requirements(EFFECTS[name], loop.current)
                     if EFFECTS[n] not in members]
         members.append(EFFECTS[name])
-    start, free = loop.candidate_start(members)
+    start, free = loop.fitter.candidate_start(members, loop.current, loop.free)
     at_first, probe = start, start
     for name, params in h.effects.items():
         e = EFFECTS[name]
@@ -185,11 +185,10 @@ def _fit(loop, h: Hypothesis):
     for e in members:
         probe = probe.replace(**{p: v for p, v in e.probe.items()
                                  if p in e.bounds and e.bounds[p][0] <= v <= e.bounds[p][1]})
-    loop.phase = f"settling the prior: {h.name}"
-    fits = [loop.fit_with_cost(s, free, f"{loop.phase} (start {k + 1})", method="lm",
-                               whole=True)
+    phase = f"settling the prior: {h.name}"
+    fits = [loop.fitter.fit_with_cost(s, free, f"{phase} (start {k + 1})", method="lm",
+                                      whole=True)
             for k, s in enumerate(dict.fromkeys([at_first, start, probe]))]
-    loop.phase = ""
     return min(fits, key=lambda fit: fit[1])[0]
 
 
@@ -215,8 +214,6 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
     ExplainError
         The loop has no healthy null: without it nothing says what this command shows.
     """
-    from eha.identification.intervals import noise_reference
-
     hyps = hypotheses(prior)
     if not hyps:
         return None
@@ -225,14 +222,14 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
                            "this command; run with a null (simulated or records)")
     loop.baseline()
     limit = loop.residual_limit
-    reference = noise_reference(loop.noise, loop.data.xu)
+    reference = loop.problem.noise_ref
     # without any effect (the declared faults and the structure): beyond the healthy residual,
     # the record needs an effect, whatever the effects' own readings say
     base_ratio = float(loop.cur.rmse_all / reference) if reference > 0 else math.inf
     out = Settlement(residual_limit=float(limit), baseline_ratio=base_ratio)
     for h in hyps:
         fitted = _fit(loop, h)
-        ev = loop.evaluate([fitted])[0]
+        ev = loop.fitter.evaluate([fitted])[0]
         ratio = float(ev.rmse_all / reference) if reference > 0 else math.inf
         readings = [_reading(loop, n, fitted, h.effects[n], h.first_thresholds.get(n, 0.0))
                     for n in h.effects]
@@ -242,7 +239,7 @@ def settle(loop, prior: Mapping[str, Any]) -> Settlement | None:
             # shown: the loop's own test (beyond what healthy actuators read on this
             # command), or a record that no model without an effect explains
             r["present"] = (base_ratio > limit
-                            or not loop.within_healthy_at(EFFECTS[r["effect"]], fitted))
+                            or not loop.fitter.within_healthy_at(EFFECTS[r["effect"]], fitted))
         absent = [r for r in readings if not r["present"]]
         why = "" if fits else f"its best fit leaves {ratio:.2g}x the noise, beyond the " \
                               f"{limit:.2g}x healthy actuators leave"
