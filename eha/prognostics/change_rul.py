@@ -15,7 +15,7 @@
    change (the change's interval its spread; reference 'baseline'). Measured on the
    fleet-validation fleet (``validation/baseline_fleet.py``): the changes, estimated one fault
    at a time on signatures of small changes, are biased when two faults grow together and
-   large (alpha-lambda 6 % against 57 %): the default keeps the identification's trend.
+   large (alpha-lambda 2 % against 53 %): the default keeps the identification's trend.
 4. Stored: ``change_checks`` (by the jobs), ``change_alarms`` and ``rul_predictions``; the JSON
    gains ``check``, ``trend``, ``calibration`` and per actuator its baseline, its changes and
    first alarms.
