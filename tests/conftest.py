@@ -5,6 +5,10 @@
 - ``slow``: marker of the end-to-end tests that take more than a few seconds
   (``pytest -m "not slow"`` skips them; CI runs everything; markers are strict).
 
+Under pytest-xdist (``-n 2``) the tests of each module in :data:`ONE_WORKER` run on one worker,
+so that its module fixtures (results folders that commands wrote, calibrations) are built once,
+not once per worker that gets one of its tests (:func:`pytest_xdist_make_scheduler`).
+
 Plain helper functions (``run_eha``, ``invoke_eha``, ``error_line``, ``write_campaign``,
 ``close``, ``files_under``) are in tests/helpers.py: tests import them from there, never
 from this file (pytest imports conftest itself).
@@ -21,6 +25,32 @@ from helpers import run_eha
 # Rich sizes tables to the terminal: a wide one in every process of the suite (pytest-xdist's
 # workers have none), so that no check of printed text depends on where the tests run.
 os.environ["COLUMNS"] = "200"
+
+
+#: Test modules whose module-scoped fixtures cost seconds: under pytest-xdist each runs on one
+#: worker. xdist's default distribution sent their tests to both workers, and each worker built
+#: the fixtures again (``--dist loadgroup`` would do this with marks, but it stopped grouping
+#: with pytest 9.2: pytest-xdist issue 1386).
+ONE_WORKER = ("test_results_matrix.py", "test_reports_html.py", "test_health_change.py",
+              "test_prognostics_change.py", "test_exit_codes.py", "test_identification_cases.py",
+              "test_reliability_processes.py")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """xdist's scheduler for ``-n N`` (its default ``load``; an explicit ``--dist`` is kept):
+    one work unit per test, as ``load``, except the tests of a module in :data:`ONE_WORKER`,
+    one unit for the module (units with the most tests are sent first)."""
+    if config.getoption("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class OneWorkerModules(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module.rsplit("/", 1)[-1] in ONE_WORKER else nodeid
+
+    return OneWorkerModules(config, log)
 
 
 @pytest.fixture(autouse=True, scope="session")
