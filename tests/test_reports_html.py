@@ -311,12 +311,16 @@ HOSTILE = "A1<!--<script>x</script>&[/]"
 
 
 @pytest.fixture(scope="module")
-def hostile(tmp_path_factory):
+def hostile(tmp_path_factory, canned):
     """The canned folder with an actuator id and a record name that an HTML parser reads as
     markup, and the residual loop's record given with a folder (``data/run1.csv``)."""
+    import shutil
+
     import duckdb
 
-    results = report_data.build(tmp_path_factory.mktemp("hostile") / "results")
+    # a copy of the canned folder (its database records paths relative to the folder)
+    results = tmp_path_factory.mktemp("hostile") / "results"
+    shutil.copytree(canned[0], results)
     con = duckdb.connect(str(results / "eha.duckdb"))
     for table in ("health_checks", "rul_predictions"):
         con.execute(f"UPDATE {table} SET actuator = ? WHERE actuator = 'A1'", [HOSTILE])
