@@ -504,7 +504,8 @@ def test_a_kill_the_moment_the_database_appears_leaves_a_usable_store(tmp_path):
 _RACE = """
 import os, sys, time
 from eha.campaigns.store import StoreError, connect
-go = float(sys.argv[2])
+print('ready', flush=True)
+go = float(sys.stdin.readline())
 while time.time() < go:
     pass
 try:
@@ -521,12 +522,21 @@ def test_writers_creating_the_database_at_once_share_one_whole_file(tmp_path):
     # its own temporary and links it into place; only the first link succeeds (in ad-hoc runs
     # up to three links failed on the file already there), and every writer opens the one
     # file (or is told another process holds it). None sees a damaged file or leaves one.
+    # They start together: each says when its imports are done, then all spin to one moment
+    # just after the last is ready (a fixed 3 s start had four processes spin for seconds).
     results = tmp_path / "r"
-    go = time.time() + 3.0
-    procs = [subprocess.Popen([sys.executable, "-c", _RACE, str(results), str(go)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    procs = [subprocess.Popen([sys.executable, "-c", _RACE, str(results)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
              for _ in range(4)]
-    outs = [p.communicate(timeout=60) for p in procs]
+    assert [p.stdout.readline() for p in procs] == ["ready\n"] * 4
+    go = time.time() + 0.05
+    for p in procs:                 # to every process before any is waited for
+        p.stdin.write(f"{go}\n")
+        p.stdin.close()
+    outs = [(p.stdout.read(), p.stderr.read()) for p in procs]    # a few lines each
+    for p in procs:
+        p.wait(timeout=60)
     assert all(p.returncode == 0 for p in procs), outs
     lines = [out.strip() for out, _ in outs]
     assert all(line == "opened" or "is locked by another process" in line
