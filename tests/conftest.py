@@ -17,6 +17,8 @@ from this file (pytest imports conftest itself).
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import pytest
 
@@ -51,6 +53,34 @@ def pytest_xdist_make_scheduler(config, log):
             return module if module.rsplit("/", 1)[-1] in ONE_WORKER else nodeid
 
     return OneWorkerModules(config, log)
+
+
+#: What compiles the model kernels (numba, ``cache=True``), in three processes: the HF kernels,
+#: chirp phase and metrics (about 3 s), the LF kernel (about 10 s), the LF batch (about 7 s).
+WARM_UP = (
+    "from eha.models.simulate import simulate, simulate_hf_batch\n"
+    "from eha.models.run_metrics import trace_metrics\n"
+    "trace_metrics(simulate('hf', 'chirp_1cm', t_end=0.01))\n"
+    "simulate_hf_batch([{}, {}], 'chirp_1cm', 0.01, [0, 1])",
+    "from eha.models.simulate import simulate\nsimulate('lf', 'chirp_1cm', t_end=0.01)",
+    "from eha.models.simulate import simulate_lf_rows\n"
+    "simulate_lf_rows([{}, {}], 'chirp_1cm', t_end=0.01)",
+)
+
+
+def pytest_sessionstart(session):
+    """Under pytest-xdist, before the workers start (xdist starts them last): the kernels are
+    compiled into numba's cache once, side by side (:data:`WARM_UP`). From a fresh clone (CI)
+    both workers, and the command lines the first tests run, otherwise compiled the same
+    kernels at once, each for itself (about 20 s of CPU each); with a cache they load it in
+    about a second."""
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for code in WARM_UP]
+    for proc in procs:   # a failure here shows again, with its message, in the tests
+        proc.wait(timeout=600)
 
 
 @pytest.fixture(autouse=True, scope="session")
