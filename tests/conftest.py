@@ -68,19 +68,33 @@ WARM_UP = (
 )
 
 
+_WARMING: list[subprocess.Popen] = []
+
+
 def pytest_sessionstart(session):
-    """Under pytest-xdist, before the workers start (xdist starts them last): the kernels are
-    compiled into numba's cache once, side by side (:data:`WARM_UP`). From a fresh clone (CI)
-    both workers, and the command lines the first tests run, otherwise compiled the same
-    kernels at once, each for itself (about 20 s of CPU each); with a cache they load it in
-    about a second."""
+    """Under pytest-xdist the kernels are compiled into numba's cache once, side by side
+    (:data:`WARM_UP`), while the workers start and collect; no test is sent to a worker before
+    they are (:func:`pytest_xdist_node_collection_finished`). From a fresh clone (CI) both
+    workers, and the command lines the first tests run, otherwise compiled the same kernels at
+    once, each for itself (about 20 s of CPU each); with a cache they load it in a second."""
     config = session.config
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
-    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL) for code in WARM_UP]
-    for proc in procs:   # a failure here shows again, with its message, in the tests
-        proc.wait(timeout=600)
+    _WARMING.extend(subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL) for code in WARM_UP)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids):
+    """The controller schedules the tests once every worker has collected: until then, it
+    waits here for the kernels (a failure shows again, with its message, in the tests)."""
+    while _WARMING:
+        _WARMING.pop().wait(timeout=600)
+
+
+def pytest_sessionfinish(session):
+    while _WARMING:   # a run that ended before any worker collected
+        _WARMING.pop().wait(timeout=600)
 
 
 @pytest.fixture(autouse=True, scope="session")
