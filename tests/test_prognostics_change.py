@@ -150,6 +150,10 @@ def test_baseline_column_names_the_baseline(tmp_path, fleet):
     (["--check", "change", "--trend", "changes", "--skip-flagged", "--calibration", "CAL"],
      "--skip-flagged: not with --trend changes"),
     (["--check", "change", "--calibration", "missing.json"], "missing.json: no such file"),
+    (["--check", "change", "--operating-point", "x", "--calibration", "CAL"],
+     "--operating-point 'x': allowed baseline, calibration"),
+    (["--operating-point", "calibration"],
+     "--operating-point calibration: only with --check change"),
 ])
 def test_bad_change_options_one_line_nothing_written(fleet, tmp_path, extra, message):
     root, manifest, _ = fleet

@@ -47,7 +47,6 @@ def _inputs(check: str, calibration, trend: str, skip_flagged: bool,
     if operating_point not in OPERATING_POINTS:
         raise PrognosticsError(f"`operating_point` {operating_point!r}: allowed "
                                f"{', '.join(OPERATING_POINTS)}")
-
     if check not in CHECKS:
         raise PrognosticsError(f"`check` {check!r}: allowed {', '.join(CHECKS)}")
     if trend not in TRENDS:
@@ -55,6 +54,8 @@ def _inputs(check: str, calibration, trend: str, skip_flagged: bool,
     if skip_flagged and trend == "changes":
         raise PrognosticsError("`skip_flagged`: not with `trend` changes (no record is "
                                "identified but the baselines)")
+    if check != "change" and operating_point != "baseline":
+        raise PrognosticsError(f"`operating_point` {operating_point}: only with `check` change")
     if check != "change" and trend != "identified":
         raise PrognosticsError(f"`trend` {trend}: only with `check` change")
     if check != "change":
