@@ -6,6 +6,7 @@ against the same actuator's own earlier record. Round trips with known truth on 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import math
 
 import numpy as np
@@ -215,6 +216,7 @@ def test_cli_check_against_a_baseline(files, tmp_path):
     assert lo <= 150 <= hi
     # a lone friction change: nothing changed beside it; the faults judged beside it say so
     assert data["also_changed"] == [] and "beside it" not in proc.stdout
+    assert not any("two-fault" in n for n in data["notes"])
     assert data["faults"]["BKL"]["beside"]["fault"] == data["isolated"][0]
     assert not data["faults"]["BKL"]["beside"]["degraded"]
     from eha.campaigns.query import query
@@ -226,6 +228,17 @@ def test_cli_check_against_a_baseline(files, tmp_path):
     proc = invoke_eha("health", "check", files["later"], "--baseline", files["earlier"],
                       "--calibration", files["cal"], "--json", out, "--results", res)
     assert proc.returncode == 0 and json.loads(out.read_text())["status"] == "healthy"
+
+
+def test_a_calibration_without_the_two_fault_reading_says_so(files, tmp_path):
+    """A change calibration of an older eha (no operating point, no leaks) is still read; a
+    degraded check then says that no fault is judged beside the isolated one."""
+    old = json.loads(Path(files["cal"]).read_text())
+    del old["operating_point"], old["second"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    out = check_change(files["worse"], files["earlier"], tmp_path / "old.json", results=None)
+    assert out.status == "degraded" and out.also == [] and out.second == {}
+    assert any("no two-fault reading" in n for n in out.notes)
 
 
 def test_a_baseline_unlike_the_fleet_is_used_and_said_so(files, tmp_path):

@@ -262,6 +262,11 @@ def check_change(record, baseline, calibration, level: float | None = None,
                      f"fault's fit: a change beyond the check's linear range or of several "
                      "faults; the sizes are indicative (eha health check without --baseline, "
                      "or eha explain, fits the whole model)")
+    if isolated and not cal.second:
+        notes.append(f"the calibration {calibration} has no two-fault reading (made without "
+                     "the gain curves, or by an older eha): no fault is judged beside "
+                     f"{isolated[0]}; calibrate again to judge one (eha health calibrate "
+                     "--baseline)")
     for name, v in judged.items():
         if v["blind"]:
             notes.append(f"{name}: this command does not move it; a change is not seen")
