@@ -158,7 +158,7 @@ def test_a_backlash_grown_beside_a_friction_is_named_beside_it(calibrated):
     actuators (another fault on at most 1), with the backlash's change read back within a
     factor 2 when it is the one beside."""
     cal, _ = calibrated
-    both = wrong = 0
+    both = wrong = read = covered = 0
     for seed in range(900, 906):
         judged, isolated, second, also = _pair(cal, seed, "FDJ", 100.0, whole=True,
                                                beside={"BKL": 1e-5})
@@ -167,7 +167,14 @@ def test_a_backlash_grown_beside_a_friction_is_named_beside_it(calibrated):
         both += "BKL" in named and bool(named & {"FDJ", "Clk"})
         wrong += bool(named - {"FDJ", "Clk", "BKL"})
         if also == ["BKL"]:
-            assert 5e-6 < second["BKL"]["change"] < 2e-5, second["BKL"]
+            b = second["BKL"]
+            assert 5e-6 < b["change"] < 2e-5, b
+            # its interval (90 %) holds the reading and, on most actuators, the truth
+            lo, hi = b["interval"]
+            assert lo < b["change"] < hi, b
+            read += 1
+            covered += lo <= 1e-5 <= hi
+    assert covered >= read - 1, (covered, read)
     # on 0.5-s records one actuator's backlash is just under its threshold beside the
     # friction and the offset's reading (which the backlash moves) is just over its own
     assert both >= 5 and wrong <= 1
@@ -219,6 +226,8 @@ def test_cli_check_against_a_baseline(files, tmp_path):
     assert not any("two-fault" in n for n in data["notes"])
     assert data["faults"]["BKL"]["beside"]["fault"] == data["isolated"][0]
     assert not data["faults"]["BKL"]["beside"]["degraded"]
+    lo, hi = data["faults"]["BKL"]["beside"]["interval"]
+    assert lo <= data["faults"]["BKL"]["beside"]["change"] <= hi
     from eha.campaigns.query import query
 
     rows = query(res, "SELECT fault, reference, baseline, degraded FROM health_verdicts")

@@ -24,8 +24,10 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from eha.health.change import (GAIN_SIZES, NUISANCES, GainCurve, Signatures, check_nuisances,
+from eha.health.change import (NUISANCES, GainCurve, Signatures, check_nuisances,
                                draw_test_day, probe)
+from eha.health.change_runs import (GAIN_ACTUATORS, LATER_SEED_SHIFT, _faulted, _gains,
+                                    _record, later_seed, sign_of)
 from eha.identification.healthy import DetectionError, built_calibration, draw_actuator
 from eha.models.faults import FAULTS
 
@@ -35,16 +37,6 @@ CHANGE_FORMAT = 1
 MIN_PAIRS = 5
 #: Most healthy pairs of a calibration.
 MAX_PAIRS = 10000
-#: Actuators on which each fault's HF gain is measured (the first of the calibration's).
-GAIN_ACTUATORS = 8
-#: The later record of actuator ``s`` is recorded with noise and dither seed ``s + SHIFT``.
-LATER_SEED_SHIFT = 2**30
-
-
-def later_seed(seed: int) -> int:
-    """Noise and dither seed of the later record of the actuator of ``seed``."""
-    return (int(seed) + LATER_SEED_SHIFT) % 2**31
-
 
 @dataclass(frozen=True)
 class ChangeCalibration:
@@ -166,11 +158,6 @@ def tail_factor(values: np.ndarray, p: float) -> float:
     return max(cf / z, 1.0)
 
 
-def sign_of(name: str) -> float:
-    """+1 or -1: the direction of degradation of fault ``name`` (+1 for the offset)."""
-    return -1.0 if FAULTS[name].direction < 0 else 1.0
-
-
 def judge(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2: float,
           level: float | None = None) -> dict[str, dict[str, Any]]:
     """:func:`judge_estimates` of the record difference ``r`` [m] (its linear estimates,
@@ -204,8 +191,6 @@ def judge_estimates(cal: ChangeCalibration, names: Sequence[str], est: np.ndarra
     estimate's spread (Student's t) mapped the same way, widened by the gain's spread over
     actuators.
     """
-    from scipy.stats import t as student
-
     level = cal.level if level is None else float(level)
     out = {}
     m = len(cal.faults)
@@ -223,21 +208,35 @@ def judge_estimates(cal: ChangeCalibration, names: Sequence[str], est: np.ndarra
         margin = tolerance_factor(n, cal.alpha / m / (2.0 if two else 1.0)) * sd * \
             f.get("tail", 1.0)
         curve = cal.gain(name)
-        change = curve.invert(s * d, s)
-        qi = float(student.ppf(0.5 + level / 2.0, n - 1))
-        lo_e, hi_e = s * (d - qi * scale), s * (d + qi * scale)
-        lo, hi = sorted((curve.invert(lo_e, s), curve.invert(hi_e, s)))
-        extra = qi * curve.relative_spread(change) * abs(change)
-        lo, hi = lo - extra, hi + extra
-        # beyond the response's growing range the size is only bounded on its near side
-        open_end = curve.beyond(hi_e if s > 0 else lo_e, s)
-        if open_end:
-            lo, hi = (lo, math.inf) if s > 0 else (-math.inf, hi)
+        change, lo, hi, open_end = change_interval(curve, s, d, scale, n, level)
         out[name] = {"change": change, "interval": [lo, hi], "open_ended": open_end,
                      "statistic": stat, "threshold": margin, "z": stat / scale,
                      "degraded": bool(stat > margin), "alarm_change": curve.invert(s * margin, s),
                      "blind": name in blind}
     return out
+
+
+def change_interval(curve: GainCurve, sign: float, d: float, scale: float, n: int,
+                    level: float, relative: float = 0.0) -> tuple[float, float, float, bool]:
+    """A fault's change and its interval at ``level`` from its linear statistic ``d`` (the
+    estimate in the direction of degradation, less the healthy pairs' mean) whose spread over
+    healthy pairs is ``scale`` (``n`` pairs: Student's t with n - 1 degrees of freedom): both
+    ends read back through the fault's HF gain curve, widened by the gain's spread over
+    actuators and by a further ``relative`` error of the change (added in quadrature: a
+    reading beside another grown fault, :func:`eha.health.change_runs._interactions`). Returns ``(change, low, high, open_ended)``; beyond the response's growing range
+    the interval is open on its far side."""
+    from scipy.stats import t as student
+
+    change = curve.invert(sign * d, sign)
+    qi = float(student.ppf(0.5 + level / 2.0, n - 1))
+    lo_e, hi_e = sign * (d - qi * scale), sign * (d + qi * scale)
+    lo, hi = sorted((curve.invert(lo_e, sign), curve.invert(hi_e, sign)))
+    extra = qi * math.hypot(curve.relative_spread(change), relative) * abs(change)
+    lo, hi = lo - extra, hi + extra
+    open_end = curve.beyond(hi_e if sign > 0 else lo_e, sign)
+    if open_end:
+        lo, hi = (lo, math.inf) if sign > 0 else (-math.inf, hi)
+    return change, lo, hi, open_end
 
 
 #: How much smaller (in the log-likelihood ratio, 2 ln LR) a fault's fit of the difference may
@@ -275,26 +274,6 @@ def isolate(judged: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 # --------------------------------------------------------------------------------------------
 # calibration
-
-
-def _record(command, hf: Mapping[str, float], t_end: float, noise: float, seed: int):
-    from eha.identification.measured import from_arrays
-    from eha.identification.synthetic import synthetic_record
-
-    df = synthetic_record(command, dict(hf), t_end=t_end, noise=noise, seed=seed)
-    return from_arrays(df["t"].to_numpy(), df["com"].to_numpy(), df["xu"].to_numpy(),
-                       source="calibration")
-
-
-def _faulted(hf: Mapping[str, float], name: str, change: float) -> tuple[dict, float]:
-    """``hf`` with fault ``name`` changed by ``change`` from its own value, within the
-    parameter's range; the change applied."""
-    from eha.models.params import SPECS
-
-    spec = SPECS[name]
-    v0 = float(hf.get(name, FAULTS[name].healthy))
-    v = min(max(v0 + change, spec.lo), spec.hi)
-    return {**hf, name: v}, v - v0
 
 
 def _prediction_bound(values: np.ndarray, alpha: float, two: bool) -> float:
@@ -429,7 +408,7 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
         for f, per in leaks.items():
             for g, leak in per.items():
                 if g in second.get(f, {}):
-                    second[f][g]["leak"] = leak
+                    second[f][g].update(leak)
     else:
         gains = {n: {"sizes": [probe(n)], "gains": [1.0], "spread": [0.0]} for n in names}
         second = {}         # without the leaks, no second fault is judged
@@ -468,51 +447,6 @@ def _leave_one_out(est: np.ndarray, noise2: np.ndarray, sig: Signatures,
     return {"alarms": alarms, "n": n}
 
 
-def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, seed: int,
-           t_end: float, noise: float, at: Mapping[str, float]) -> dict[str, dict[str, list]]:
-    """Per fault, the HF gain curve of its estimate (:class:`GainCurve`): the later record
-    with the fault grown by each size of :data:`GAIN_SIZES` x its probe minus the same record
-    without it (same noise and dither seed: the noise cancels), over the first
-    :data:`GAIN_ACTUATORS` actuators."""
-    out, leaks = {}, {}
-    k_max = min(actuators, GAIN_ACTUATORS)
-    later = []
-    for k in range(k_max):
-        s = seed + k
-        hf = draw_test_day({**draw_actuator(s), **at}, widths, s)
-        later.append((hf, later_seed(s), _record(cmd, hf, t_end, noise, later_seed(s)).xu))
-    signs = np.array([sign_of(n) for n in sig.faults])
-    for i, name in enumerate(sig.faults):
-        sizes, gains, spread = [], [], []
-        cond = sig.conditional(i)
-        leak: dict[str, dict[str, list]] = {n: {"sizes": [], "mean": [], "std": []}
-                                            for j, n in enumerate(sig.faults) if j != i}
-        for mult in GAIN_SIZES:
-            g, applied, other = [], [], []
-            for hf, s, xb in later:
-                faulty, change = _faulted(hf, name, mult * probe(name))
-                if change == 0:
-                    continue
-                xf = _record(cmd, faulty, t_end, noise, s).xu
-                g.append(sig.estimate(xf - xb)[i] / change)
-                other.append(signs * (cond @ (xf - xb)))
-                applied.append(change)
-            if len(g) < 2 or abs(np.mean(applied)) < 0.5 * abs(mult * probe(name)):
-                continue                           # clipped at the parameter's range
-            sizes.append(float(np.mean(applied)))
-            gains.append(float(np.mean(g)))
-            spread.append(float(np.std(g, ddof=1)))
-            other = np.array(other)
-            for j, n in enumerate(sig.faults):
-                if j != i:
-                    leak[n]["sizes"].append(sizes[-1])
-                    leak[n]["mean"].append(float(other[:, j].mean()))
-                    leak[n]["std"].append(float(other[:, j].std(ddof=1)))
-        out[name] = {"sizes": sizes, "gains": gains, "spread": spread}
-        leaks[name] = leak
-    return out, leaks
-
-
 def _second_pairs(sig: Signatures, diffs: np.ndarray, noise2: np.ndarray, alpha: float
                   ) -> dict[str, dict[str, dict[str, Any]]]:
     """Per fault ``f`` and other fault ``g``, the healthy pairs' figures of ``g``'s change
@@ -538,6 +472,6 @@ def _second_pairs(sig: Signatures, diffs: np.ndarray, noise2: np.ndarray, alpha:
 
 
 __all__ = ["CHANGE_FORMAT", "ChangeCalibration", "load_change_calibration", "calibrate_change",
-           "judge", "judge_estimates", "check_operating_point", "isolate", "isolate_group", "tail_factor",
+           "judge", "judge_estimates", "change_interval", "check_operating_point", "isolate", "isolate_group", "tail_factor",
            "tolerance_factor",
            "AMBIGUITY_MARGIN", "later_seed", "sign_of", "MIN_PAIRS", "NUISANCES"]

@@ -78,7 +78,8 @@ class ChangeCheckResult:
                          f"{interval_text(name, *v['interval'])} since the baseline")
         which = " or ".join(parts)
         beside = "".join(f"; and {name} ({FAULTS[name].description}) changed beside it, by "
-                         f"about {_signed(name, self.second[name]['change'])}"
+                         f"{_signed(name, self.second[name]['change'])} "
+                         f"{interval_text(name, *self.second[name]['interval'])}"
                          for name in self.also)
         return f"degraded: {which}{beside}"
 
@@ -99,6 +100,8 @@ class ChangeCheckResult:
             if name in self.second:
                 b = self.second[name]
                 faults[name]["beside"] = {"fault": b["beside"], "change": b["change"],
+                                          "interval": [_json_number(x) for x in b["interval"]],
+                                          "open_ended": bool(b["open_ended"]),
                                           "statistic": b["statistic"],
                                           "threshold": b["threshold"],
                                           "degraded": b["degraded"]}

@@ -17,13 +17,13 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from eha.health.change import Signatures
-from eha.health.change_calibration import (ChangeCalibration, isolate_group, judge, sign_of,
-                                           tolerance_factor)
+from eha.health.change_calibration import (ChangeCalibration, change_interval, isolate_group,
+                                           judge, sign_of, tolerance_factor)
 
 
 def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2: float,
-                 judged: Mapping[str, Mapping[str, Any]], isolated: Sequence[str]
-                 ) -> dict[str, dict[str, Any]]:
+                 judged: Mapping[str, Mapping[str, Any]], isolated: Sequence[str],
+                 level: float | None = None) -> dict[str, dict[str, Any]]:
     """The other faults judged beside the first isolated one: each one's change estimated
     jointly with a free change of it (:meth:`Signatures.conditional`), less what the first
     one's own nonlinear response leaves there at its estimated size (the calibration's
@@ -33,9 +33,14 @@ def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
     not judged; a calibration without leaks (``gains=False``) judges none.
 
     Returns per judged fault: ``statistic``, ``threshold``, ``degraded``, ``change`` (read
-    through its gain curve) and ``beside`` (the first fault)."""
+    through its gain curve), its ``interval`` at ``level`` (default the calibration's: the
+    joint estimate's spread over the healthy pairs with the leak's spread added, read back as
+    :func:`change_interval` reads the single-fault one, widened by the calibration's
+    ``interaction``: how far the reading strayed with both faults grown, relative to the
+    change, at the first fault's size), ``open_ended`` and ``beside`` (the first fault)."""
     if not isolated or not cal.second:
         return {}
+    level = cal.level if level is None else float(level)
     first = isolated[0]
     figures = cal.second.get(first) or {}
     cond = sig.conditional(sig.faults.index(first))
@@ -61,11 +66,19 @@ def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
         sd = math.sqrt(max(f["other_var"] + f["noise_factor"] * noise2 + spread ** 2, 1e-300))
         thr = tolerance_factor(int(f["n"]), cal.alpha / m / (2.0 if two else 1.0)) * sd * \
             f.get("tail", 1.0)
+        n = int(f["n"])
+        inter = f.get("interaction") or {}
+        relative = float(np.interp(size, np.r_[0.0, inter["sizes"]], np.r_[0.0, inter["rel"]])) \
+            if inter.get("sizes") else 0.0
+        change, lo, hi, open_end = change_interval(cal.gain(g), s, d,
+                                                   sd * math.sqrt(1.0 + 1.0 / n), n, level,
+                                                   relative)
         out[g] = {"statistic": stat, "threshold": thr, "degraded": bool(stat > thr),
                   # the two-fault fit's gain in likelihood over the first fault alone (the
                   # model's variance at the record's noise): which one is beside it
                   "glr": float(d * d * info[j] * sig.noise2 / max(noise2, 1e-30)),
-                  "change": cal.gain(g).invert(s * d, s), "beside": first}
+                  "change": change, "interval": [lo, hi], "open_ended": open_end,
+                  "beside": first}
     return out
 
 
@@ -91,7 +104,7 @@ def judge_change(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
     (:func:`judge_second`) and those changed beside it (:func:`also_changed`)."""
     judged = judge(cal, sig, r, noise2, level)
     isolated = isolate_group(judged)
-    second = judge_second(cal, sig, r, noise2, judged, isolated)
+    second = judge_second(cal, sig, r, noise2, judged, isolated, level)
     return judged, isolated, second, also_changed(second)
 
 
