@@ -411,6 +411,13 @@ def change_only(tmp_path_factory):
             lines.append(f"{a},{100 * k},{a}_{k}.csv")
     (fleet / "manifest.csv").write_text("\n".join(lines) + "\n")
     check_change(fleet / "A1_3.csv", fleet / "A1_0.csv", root / "cal.json", results=results)
+    # a friction and a backlash grown together: the backlash is read beside the friction
+    hf = draw_actuator(25)
+    for k, grow in enumerate(({}, {"FDJ": hf["FDJ"] + 150.0, "BKL": hf.get("BKL", 0.0) + 2e-5})):
+        synthetic_record("chirp_1cm", {**hf, **grow}, t_end=0.3, noise=1e-6, seed=25 + 1000 * k
+                         )[["t", "com", "xu"]].to_csv(root / f"B_{k}.csv", index=False)
+    two = check_change(root / "B_1.csv", root / "B_0.csv", root / "cal.json", results=results)
+    assert two.also == ["BKL"], two.finding()
     m = read_manifest(fleet / "manifest.csv")
     bases = baselines_of(m)
     run_id = "rul-manifest-x-change"
@@ -454,6 +461,21 @@ def test_report_of_a_folder_with_only_change_check_rows(change_only):
                                "fault = 'FDJ'", [aid])["first_alarm"][0]
         assert num(r["FDJ_alarm"]) == first == 100.0
     # the single check against its baseline: named as the change check
-    checks = page.tables["health checks"]
-    assert [c["check#text"] for c in checks] == ["change since A1_0.csv"]
-    assert checks[0]["verdict#text"] == "degraded"
+    checks = {c["check#text"]: c for c in page.tables["health checks"]}
+    assert sorted(checks) == ["change since A1_0.csv", "change since B_0.csv"]
+    assert {c["verdict#text"] for c in checks.values()} == {"degraded"}
+    # the change read beside the isolated one, with its interval, as the database holds it
+    b = json.loads(query(results, "SELECT beside FROM health_verdicts WHERE fault = 'BKL' AND "
+                                  "baseline LIKE '%B_0.csv'")["beside"][0])
+    assert b["named"] and b["interval"][0] < b["change"] < b["interval"][1]
+    assert checks["change since B_0.csv"]["beside#text"] == \
+        f"BKL {1e6 * b['change']:+.4g} µm [{1e6 * b['interval'][0]:.4g}, " \
+        f"{1e6 * b['interval'][1]:.4g}]"
+    assert checks["change since A1_0.csv"]["beside#text"] == "-"
+    # the fleet's table: what its last check read beside the isolated fault
+    for aid, r in table.items():
+        last = [x for x in rows if x["actuator"] == aid][-1]
+        if last["also"]:
+            assert r["beside#text"].startswith(last["also"][0] + " "), r["beside#text"]
+        else:
+            assert r["beside#text"] == "-"

@@ -223,8 +223,9 @@ def change_interval(curve: GainCurve, sign: float, d: float, scale: float, n: in
     healthy pairs is ``scale`` (``n`` pairs: Student's t with n - 1 degrees of freedom): both
     ends read back through the fault's HF gain curve, widened by the gain's spread over
     actuators and by a further ``relative`` error of the change (added in quadrature: a
-    reading beside another grown fault, :func:`eha.health.change_runs._interactions`). Returns ``(change, low, high, open_ended)``; beyond the response's growing range
-    the interval is open on its far side."""
+    reading beside another grown fault, :func:`eha.health.change_runs._interactions`).
+    Returns ``(change, low, high, open_ended)``; beyond the response's growing range the
+    interval is open on its far side."""
     from scipy.stats import t as student
 
     change = curve.invert(sign * d, sign)

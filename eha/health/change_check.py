@@ -294,6 +294,18 @@ def check_change(record, baseline, calibration, level: float | None = None,
     return out
 
 
+def _beside_cell(out: ChangeCheckResult, name: str) -> dict[str, Any] | None:
+    """``health_verdicts.beside`` of fault ``name``: its reading beside the first isolated
+    fault (None where it was not judged)."""
+    b = out.second.get(name)
+    if b is None:
+        return None
+    return {"fault": b["beside"], "change": b["change"],
+            "interval": [_json_number(x) for x in b["interval"]],
+            "statistic": b["statistic"], "threshold": b["threshold"],
+            "degraded": bool(b["degraded"]), "named": name in out.also}
+
+
 def _store(out: ChangeCheckResult, results) -> None:
     """The check's rows in ``health_verdicts`` (``reference`` 'baseline')."""
     from eha.campaigns.store import StoreError, replace_rows
@@ -305,7 +317,8 @@ def _store(out: ChangeCheckResult, results) -> None:
              "level": out.level,
              "healthy": None, "threshold": v["threshold"], "statistic": v["statistic"],
              "degraded": v["degraded"], "weight": None, "isolated": n in out.isolated,
-             "flagged": bool(out.screen), "reference": "baseline", "baseline": out.baseline}
+             "flagged": bool(out.screen), "reference": "baseline", "baseline": out.baseline,
+             "beside": _beside_cell(out, n)}
             for n, v in out.judged.items()]
     try:
         out.paths["database"] = replace_rows(results, "health_verdicts", rows,

@@ -127,6 +127,8 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
            "degraded": {n: bool(v["degraded"]) for n, v in judged.items()},
            "isolated": isolated, "also": also,
            "beside": {g: {"fault": v["beside"], "change": float(v["change"]),
+                          "interval": [float(x) if math.isfinite(x) else None
+                                       for x in v["interval"]],
                           "statistic": float(v["statistic"]),
                           "threshold": float(v["threshold"])} for g, v in second.items()},
            "screen": screen_baseline(cal, sig, earlier.xu),

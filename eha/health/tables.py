@@ -73,7 +73,9 @@ ASSESSMENTS = Table("health_assessments", HEALTH_ASSESSMENTS, per_run=True)
 #: healthy fleet; 'baseline': the change since the actuator's own earlier record, whose path
 #: ``baseline`` names; then ``estimate``, ``lo``, ``hi`` are the fault's change) and, for a
 #: calibration, which check its thresholds are for. Older rows read NULL: the fleet check.
-VERDICTS_ADDED = (("reference", "VARCHAR"), ("baseline", "VARCHAR"))
+#: ``beside`` (a change check's row): the fault's change read beside the first isolated fault
+#: (JSON: fault, change, interval, statistic, threshold, degraded, named; NULL where not judged).
+VERDICTS_ADDED = (("reference", "VARCHAR"), ("baseline", "VARCHAR"), ("beside", "JSON"))
 THRESHOLDS_ADDED = (("reference", "VARCHAR"),)
 
 register_table("health_verdicts", HEALTH_VERDICTS, added=VERDICTS_ADDED)

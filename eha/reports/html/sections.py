@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from eha.reports.html import figures as F
-from eha.reports.html.data import Fleet, Health, Identification, fleet_table, unit_of
+from eha.reports.html.data import Fleet, Health, Identification, _json, fleet_table, unit_of
 from eha.reports.html.fits import fit_figures
 from eha.reports.html.page import Column, Page, esc, fmt_int, fmt_num, tag
 
@@ -89,6 +89,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
             row[f"{name}_text"] = "-" if ch is None else f"{f * ch:+.4g} [{ends[0]}, {ends[1]}]"
             first = (fleet.alarms.get(str(aid), {}).get(name) or {})
             row[f"{name}_alarm"] = _num_or_none(first.get("first_alarm"))
+        beside = _decoded(last.get("beside"), dict)
+        row["beside"] = "; ".join(_beside_text(name, beside.get(name) or {})
+                                  for name in _decoded(last.get("also"), list)) or "-"
         rows.append(row)
     cols = [Column("actuator", "actuator", text=True),
             Column("baseline", "baseline record", text=True),
@@ -99,6 +102,7 @@ def _changes(page: Page, fleet: Fleet) -> str:
                         show=f"{name}_text"),
                  Column(f"{name}_alarm", f"{name} first alarm", fmt_int)]
     cols.append(Column("isolated", "last check isolated to", text=True))
+    cols.append(Column("beside", "changed beside it (90 % interval)", text=True))
     figs = {r["actuator"]: F.change_figure(fleet, r["actuator"]) for r in rows}
     choice_html, pid = page.choice("Actuator:", figs, selected=rows[0]["actuator"])
     return ("<h4>Change check: each record against its actuator's baseline</h4>"
@@ -106,10 +110,27 @@ def _changes(page: Page, fleet: Fleet) -> str:
             "earlier, eha health check --baseline), with its 90 % interval (<i>open</i>: "
             "beyond the range where the fault's response grows, the change only bounded on "
             "that side); first alarm: the "
-            "first check at which the fault alarms and the change is isolated to it. Click a "
-            "row to show its actuator below.</p>"
+            "first check at which the fault alarms and the change is isolated to it; changed "
+            "beside it: a second fault's change read jointly with the isolated one's (the "
+            "two-fault reading). Click a row to show its actuator below.</p>"
             + page.table(cols, rows, f"changes {fleet.run_id}", choice=(pid, "actuator"))
             + choice_html)
+
+
+def _decoded(value: Any, kind: type) -> Any:
+    """A JSON cell decoded, or an empty ``kind`` where it is NULL (an older row)."""
+    value = _json(value)
+    return value if isinstance(value, kind) else kind()
+
+
+def _beside_text(name: str, beside: dict) -> str:
+    """``BKL +8.47 µm [7.01, 9.95]``: a fault's change read beside the isolated one."""
+    if beside.get("change") is None:
+        return name
+    unit, f = unit_of(name)
+    ends = ["open" if v is None else fmt_num()(f * v)
+            for v in (beside.get("interval") or [None, None])]
+    return f"{name} {f * beside['change']:+.4g} {unit} [{ends[0]}, {ends[1]}]"
 
 
 def _num_or_none(v: Any) -> float | None:
@@ -132,7 +153,11 @@ def health_section(page: Page, health: Health) -> str:
             isolated = [r.fault for r in grp.itertuples() if r.isolated]
             calibrated = grp["degraded"].notna().any()
             change = first.get("reference") == "baseline"
-            rows.append({"check": "change since " + _base_name(first.get("baseline"))
+            beside = [(r["fault"], _decoded(r.get("beside"), dict))
+                      for r in grp.to_dict("records")] if "beside" in grp else []
+            rows.append({"beside": "; ".join(_beside_text(n, b) for n, b in beside
+                                             if b.get("named")) or "-",
+                         "check": "change since " + _base_name(first.get("baseline"))
                          if change else "fleet",
                          "record": str(first["record"]), "check_id": cid,
                          "created_at": str(first["created_at"])[:19],
@@ -146,6 +171,7 @@ def health_section(page: Page, health: Health) -> str:
                 Column("verdict", "verdict", tag), Column("degraded", "degraded faults",
                                                           text=True),
                 Column("isolated", "isolated fault", text=True),
+                Column("beside", "changed beside it (90 % interval)", text=True),
                 Column("flagged", "flagged", lambda x: tag("flagged") if x else "")]
         parts.append("<h3>Health checks (eha health check)</h3>"
                      + page.table(cols, rows, "health checks") + page.plot(F.verdict_figure(v)))
