@@ -104,6 +104,43 @@ def test_each_record_judged_against_its_baseline_and_first_alarms(fleet):
     assert set(first["reference"]) == {"baseline"}
 
 
+def test_a_baseline_unlike_the_healthy_fleet_is_the_first_alarm(fleet, tmp_path):
+    """An actuator that arrives with 15 µm of backlash (the fleet check's healthy fleet has
+    none; its change never grows): its first backlash alarm is its baseline's own cycle, by
+    the healthy calibration's screen, also where its checks run on a calibration at another
+    operating point; the healthy actuator's is not."""
+    root, _, cal = fleet
+    folder = tmp_path / "fleet"
+    folder.mkdir()
+    lines = ["actuator,cycle,record"]
+    for a, seed, bkl in (("A1", 31, 1.5e-5), ("A2", 32, 0.0)):
+        hf = {**draw_actuator(seed), "BKL": bkl}
+        for k, cycle in enumerate(CYCLES[:3]):
+            synthetic_record("chirp_1cm", hf, t_end=T_END, noise=1e-6, seed=seed + 100 * k)[
+                ["t", "com", "xu"]].to_csv(folder / f"{a}_{cycle}.csv", index=False)
+            lines.append(f"{a},{cycle},{a}_{cycle}.csv")
+    (folder / "manifest.csv").write_text("\n".join(lines) + "\n")
+    m = read_manifest(folder / "manifest.csv")
+    # the checks on a calibration of its own (a copy stands for one at an operating point)
+    own = tmp_path / "own.json"
+    own.write_text(Path(cal["path"]).read_text())
+    jobs = change_jobs(m, baselines_of(m), {"A1": own, "A2": own}, "s", screen=cal["path"])
+    assert {j.spec["screen_calibration"] for j in jobs} == {str(cal["path"])}
+    run_campaign(Campaign("s", "", str(folder), {}, tuple(jobs)), tmp_path / "res",
+                 executor=Inline(), progress=False)
+    rows = read_change_rows(tmp_path / "res", "s")
+    assert {r["actuator"]: r["screen"][0] if r["screen"] else None for r in rows} == \
+        {"A1": "BKL", "A2": None}
+    alarms = first_alarms(rows)
+    assert alarms["A1"]["BKL"]["first_alarm"] == 0.0 and alarms["A1"]["BKL"]["at_baseline"]
+    assert alarms["A1"]["BKL"]["first_confirmed"] is None    # no change: none confirmed
+    assert alarms["A2"]["BKL"]["first_alarm"] is None
+    assert not any(a["at_baseline"] for a in alarms["A2"].values())
+    store_alarms(tmp_path / "res", "run-s", alarms)
+    stored = query(tmp_path / "res", "SELECT actuator FROM change_alarms WHERE at_baseline")
+    assert list(stored["actuator"]) == ["A1"]
+
+
 def test_a_record_of_another_command_fails_its_job_alone(fleet, tmp_path):
     root, manifest, cal = fleet
     folder = tmp_path / "f"

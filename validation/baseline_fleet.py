@@ -11,8 +11,9 @@ baselines identified as ``eha rul`` does; RUL on baseline + change).
 Per actuator and fault it compares
 
 - the change check's first alarm (the first check at which the fault alarms and the change is
-  isolated to it), its first confirmed alarm (two such checks in a row) and the first check at
-  which anything alarms;
+  isolated to it, or the baseline's own cycle where the baseline record is screened unlike
+  the healthy fleet, farthest in this fault), the first by a change alone, its first
+  confirmed alarm (two such checks in a row) and the first check at which anything alarms;
 - the fleet check's first detection: the first check at which the true deviation from healthy
   reaches the fleet check's detectable size on chirp_1cm (docs/health.md section 5, measured on
   1 µm records: BKL 20 µm, FDJ +100 N; on these 3 µm records the fleet check would need more,
@@ -81,6 +82,10 @@ def compare(truth: dict, output: dict) -> dict:
             row[name] = {
                 "initial": base, "fleet_first": fl, "change_first": ch,
                 "change_confirmed": conf, "change_first_any": al.get("first_degraded"),
+                # the first alarm by a change alone, and whether the first one is the
+                # baseline's own (screened unlike the healthy fleet in this fault)
+                "change_only_first": al.get("first_change", ch),
+                "at_baseline": bool(al.get("at_baseline")),
                 "change_first_statistic": al.get("first_statistic"),
                 "true_change_at_first": None if ch is None else first[ch]["true"][name] - base,
                 "earlier_by": None if fl is None or ch is None else fl - ch,
@@ -104,6 +109,13 @@ def compare(truth: dict, output: dict) -> dict:
             "not_at_baseline": sum(r["fleet_first"] != 0.0 for r in rows),
             "change_earlier": sum((r["earlier_by"] or 0) > 0 for r in rows),
             "change_later": sum((r["earlier_by"] or 0) < 0 for r in rows),
+            "at_baseline": sum(r["at_baseline"] for r in rows),
+            "change_only_earlier": sum(r["fleet_first"] is not None and
+                                       r["change_only_first"] is not None and
+                                       r["change_only_first"] < r["fleet_first"] for r in rows),
+            "change_only_later": sum(r["fleet_first"] is not None and
+                                     (r["change_only_first"] is None or
+                                      r["change_only_first"] > r["fleet_first"]) for r in rows),
             "median_earlier_by": _median([r["earlier_by"] for r in rows]),
             "median_earlier_by_confirmed": _median([r["earlier_by_confirmed"] for r in rows]),
             "median_lead_fleet": _median([r["lead_fleet"] for r in rows]),
@@ -236,6 +248,9 @@ def report(doc: dict) -> None:
               f"{s['change_detected']} (confirmed {s['change_confirmed']}); earlier on "
               f"{s['change_earlier']}, later on {s['change_later']}; median earlier by "
               f"{s['median_earlier_by']} cycles (confirmed {s['median_earlier_by_confirmed']}); "
+              f"first alarm at the baseline (screened) on {s['at_baseline']}; by a change "
+              f"alone earlier on {s['change_only_earlier']}, later or never on "
+              f"{s['change_only_later']}; "
               f"median lead time {s['median_lead_fleet']} -> {s['median_lead_change']} "
               f"(confirmed {s['median_lead_change_confirmed']}); median true change at the "
               f"first alarm {s['median_true_change_at_first']}; either check: earlier than the "

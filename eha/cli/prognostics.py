@@ -212,12 +212,21 @@ def _render_alarms(output) -> None:
                   *[f"{n} first alarm (confirmed)" for n in names],
                   title="change check: first alarm since the baseline")
     fmt = lambda v: "-" if v is None else f"{v:g}"  # noqa: E731
+    screened = False
     for aid, a in acts.items():
         fa = a.get("first_alarms", {})
-        table.add_row(aid, fmt(a.get("baseline_cycle")),
-                      *[f"{fmt(fa.get(n, {}).get('first_alarm'))} "
-                        f"({fmt(fa.get(n, {}).get('first_confirmed'))})" for n in names])
+        cells = []
+        for n in names:
+            f = fa.get(n, {})
+            mark = "*" if f.get("at_baseline") else ""
+            screened = screened or bool(mark)
+            cells.append(f"{fmt(f.get('first_alarm'))}{mark} ({fmt(f.get('first_confirmed'))})")
+        table.add_row(aid, fmt(a.get("baseline_cycle")), *cells)
     console.print(table)
+    if screened:
+        console.print("* at the baseline: the baseline record itself is unlike the healthy "
+                      "fleet, farthest in this fault (the calibration's screen)",
+                      highlight=False)
 
 
 @keywords_as(requirement="--require")

@@ -90,6 +90,22 @@ def _read(path: str, columns, units, cal, what: str):
     return data
 
 
+def _screen(spec: Mapping[str, Any], cal, sig, earlier) -> list[str]:
+    """The faults in which the baseline is unlike the healthy fleet, farthest first
+    (:func:`eha.health.change_check.screen_baseline`), by the job's healthy calibration: the
+    spec's ``screen_calibration`` where the job's own is at an operating point (a fleet
+    screened at the baseline's faults would see none of them), else its own."""
+    from eha.health.change_check import screen_baseline
+
+    path = spec.get("screen_calibration")
+    if path and path != spec["calibration"]:
+        healthy = _calibration(path, spec["screen_calibration_sha"])
+        sig = _estimator(path, spec["screen_calibration_sha"], healthy.command_sig,
+                         earlier.command)
+        cal = healthy
+    return screen_baseline(cal, sig, earlier.xu)
+
+
 def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
                       trace_file: str) -> dict[str, Any]:
     """Worker of a ``change_record`` job: its ``change_checks`` row (see the module docstring).
@@ -101,7 +117,6 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
         calibration that is not a change calibration (the job fails with that line).
     """
     from eha.health.change_second import judge_change
-    from eha.health.change_check import screen_baseline
     from eha.identification.measured import noise_level
 
     start = time.perf_counter()
@@ -131,7 +146,7 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
                                        for x in v["interval"]],
                           "statistic": float(v["statistic"]),
                           "threshold": float(v["threshold"])} for g, v in second.items()},
-           "screen": screen_baseline(cal, sig, earlier.xu),
+           "screen": _screen(spec, cal, sig, earlier),
            "noise_rmse": float(n_b), "baseline_rmse": float(n_a)}
     row["seconds"] = time.perf_counter() - start
     return {"rows": {"change_checks": row}, "sim_s": row["seconds"]}

@@ -50,7 +50,11 @@ CHANGE_ALARMS = """
             created_at      TIMESTAMP,
             PRIMARY KEY (run_id, actuator, fault))"""
 
-register_table("change_alarms", CHANGE_ALARMS)
+#: Columns added after the first release: ``at_baseline``, the first alarm is the baseline's
+#: own (screened unlike the healthy fleet, farthest in this fault; older rows NULL).
+ALARMS_ADDED = (("at_baseline", "BOOLEAN"),)
+
+register_table("change_alarms", CHANGE_ALARMS, added=ALARMS_ADDED)
 
 
 @dataclass
@@ -140,10 +144,12 @@ def calibration_jobs(points: Mapping[str, Mapping[str, float]], calibration: Pat
 
 
 def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration, name: str,
-                columns=None, units=None) -> list:
+                columns=None, units=None, screen=None) -> list:
     """One ``change_record`` job (:class:`eha.campaigns.files.Job`) per record after its
     actuator's baseline (run key: the campaign, both records' contents, how they are read and
-    the calibration's content); ``calibration``: one file for all, or per actuator."""
+    the calibration's content); ``calibration``: one file for all, or per actuator (each at
+    its baseline's operating point: then ``screen``, the healthy calibration, screens the
+    baselines against the healthy fleet)."""
     from eha.campaigns.files import Job
     from eha.models.simulate import MODEL_VERSION
     from eha.prognostics.jobs import file_sha
@@ -151,6 +157,7 @@ def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration, name: 
     files = calibration if isinstance(calibration, Mapping) else \
         {aid: calibration for aid in manifest.actuators}
     jobs = []
+    screen_sha = None if screen is None else file_sha(screen)
     for aid in manifest.actuators:
         if aid not in files:
             continue
@@ -167,6 +174,8 @@ def change_jobs(manifest, baselines: Mapping[str, Baseline], calibration, name: 
                     "columns": c.columns or _columns(columns), "units": c.units or units,
                     "baseline_columns": base.columns or _columns(columns),
                     "baseline_units": base.units or units}
+            if screen is not None and str(screen) != str(files[aid]):
+                spec.update(screen_calibration=str(screen), screen_calibration_sha=screen_sha)
             key = hashlib.sha256(json.dumps({"campaign": name, "kind": "change_record",
                                              "spec": spec, "model_version": MODEL_VERSION},
                                             sort_keys=True, default=str).encode()
@@ -213,10 +222,13 @@ def read_change_rows(results: Path, campaign: str) -> list[dict[str, Any]]:
 def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
     """Per actuator and fault, from its ``change_checks`` rows: ``first_alarm`` (the first
     cycle its change alarms and the check is isolated to it, among the faults the records do
-    not tell apart), ``first_confirmed`` (the first of two such checks in a row),
-    ``first_statistic`` (the first cycle its own statistic is beyond its threshold, whatever
-    the isolation), ``first_degraded`` (the first cycle any fault alarms), ``checks`` and
-    ``baseline_cycle``; None where it never does."""
+    not tell apart, or changed beside it; the baseline's own cycle where the baseline itself
+    screened unlike the healthy fleet, farthest in this fault: ``at_baseline``),
+    ``first_change`` (the first change alarm, whatever the baseline's screen),
+    ``first_confirmed`` (the first of two change alarms in a row), ``first_statistic`` (the
+    first cycle its own statistic is beyond its threshold, whatever the isolation),
+    ``first_degraded`` (the first cycle any fault alarms), ``checks`` and ``baseline_cycle``;
+    None where it never does."""
     out: dict[str, dict[str, dict[str, Any]]] = {}
     by_act: dict[str, list] = {}
     for r in rows:
@@ -224,6 +236,11 @@ def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[
     for aid, rs in by_act.items():
         rs = sorted(rs, key=lambda r: float(r["cycle"]))
         degraded = next((float(r["cycle"]) for r in rs if any(r["degraded"].values())), None)
+        base = rs[0].get("baseline_cycle")
+        base = None if base is None or base != base else float(base)
+        # the baseline screened unlike the healthy fleet, farthest in this fault: the
+        # actuator arrived with it (a baseline outside the manifest has no cycle to alarm at)
+        screen = list(rs[0].get("screen") or [])
         out[aid] = {}
         for name in rs[0]["changes"]:
             # the fault's own statistic also moves with another fault's change (each is
@@ -235,12 +252,12 @@ def first_alarms(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[
             confirmed = next((float(rs[k]["cycle"]) for k in range(len(rs) - 1)
                               if alarms[k] and alarms[k + 1]), None)
             own = next((float(r["cycle"]) for r in rs if r["degraded"][name]), None)
-            base = rs[0].get("baseline_cycle")
-            out[aid][name] = {"first_alarm": first, "first_confirmed": confirmed,
+            at_baseline = bool(screen) and screen[0] == name and base is not None
+            out[aid][name] = {"first_alarm": base if at_baseline else first,
+                              "first_change": first, "first_confirmed": confirmed,
                               "first_statistic": own, "first_degraded": degraded,
-                              "checks": len(rs),
-                              "baseline_cycle": None if base is None or base != base
-                              else float(base)}
+                              "checks": len(rs), "baseline_cycle": base,
+                              "at_baseline": at_baseline}
     return out
 
 
@@ -310,7 +327,7 @@ def store_alarms(results, run_id: str,
              "first_confirmed": a["first_confirmed"],
              "first_statistic": a["first_statistic"],
              "first_degraded": a["first_degraded"], "checks": a["checks"],
-             "created_at": now}
+             "at_baseline": bool(a.get("at_baseline")), "created_at": now}
             for aid, per in alarms.items() for n, a in per.items()]
     replace_rows(results, "change_alarms", rows, {"run_id": run_id})
 

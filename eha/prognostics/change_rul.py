@@ -182,7 +182,8 @@ def _campaign(manifest, baselines, chosen, seed, base_model, columns, units, run
     def with_changes(files) -> Campaign:
         return Campaign(camp.name, identify.description, camp.source, definition,
                         camp.jobs + tuple(change_jobs(manifest, baselines, files, run_id,
-                                                      columns, units)), camp.model_version)
+                                                      columns, units, screen=calibration)),
+                        camp.model_version)
 
     return identify, with_changes
 

@@ -110,7 +110,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
             "earlier, eha health check --baseline), with its 90 % interval (<i>open</i>: "
             "beyond the range where the fault's response grows, the change only bounded on "
             "that side); first alarm: the "
-            "first check at which the fault alarms and the change is isolated to it; changed "
+            "first check at which the fault alarms and the change is isolated to it (the "
+            "baseline's own cycle where the baseline record itself is unlike the healthy "
+            "fleet, farthest in that fault); changed "
             "beside it: a second fault's change read jointly with the isolated one's (the "
             "two-fault reading). Click a row to show its actuator below.</p>"
             + page.table(cols, rows, f"changes {fleet.run_id}", choice=(pid, "actuator"))
