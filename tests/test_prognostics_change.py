@@ -278,3 +278,26 @@ def test_the_identified_trend_identifies_every_record_and_a_named_baseline(fleet
     judged = [r for k, r in kinds["changes"] if k == "change_record"]
     assert sorted(judged) == sorted([f"A1_{c}.csv" for c in CYCLES]
                                     + [f"A2_{c}.csv" for c in CYCLES[1:]])
+
+
+def test_the_console_marks_a_first_alarm_at_the_baseline():
+    """The first-alarm table: an alarm at the baseline (the screen) is marked and said."""
+    from eha.cli.guard import console
+    from eha.cli.prognostics import _render_alarms
+
+    output = {"fit": ["BKL", "FDJ"], "actuators": {
+        "A1": {"baseline_cycle": 0.0, "first_alarms": {
+            "BKL": {"first_alarm": 0.0, "first_confirmed": None, "at_baseline": True},
+            "FDJ": {"first_alarm": 200.0, "first_confirmed": 300.0, "at_baseline": False}}},
+        "A2": {"baseline_cycle": 0.0, "first_alarms": {
+            "BKL": {"first_alarm": None, "first_confirmed": None, "at_baseline": False},
+            "FDJ": {"first_alarm": 100.0, "first_confirmed": 100.0, "at_baseline": False}}}}}
+    with console.capture() as cap:
+        _render_alarms(output)
+    text = cap.get()
+    assert "0* (-)" in text and "200 (300)" in text and "100 (100)" in text
+    assert "* at the baseline: the baseline record itself is unlike the healthy fleet" in text
+    del output["actuators"]["A1"]
+    with console.capture() as cap:
+        _render_alarms(output)
+    assert "*" not in cap.get()
