@@ -205,7 +205,10 @@ def files(tmp_path_factory, calibrated):
                                                      later_seed(777))),
            "other": _write(folder / "other.csv", rec(hf, 777, "mixed")),
            "short": _write(folder / "short.csv", rec(hf, 777, t=0.4)),
-           "stuck": _write(folder / "stuck.csv", rec({**hf, "BKL": 2e-4}, 777))}
+           "stuck": _write(folder / "stuck.csv", rec({**hf, "BKL": 2e-4}, 777)),
+           "both": _write(folder / "both.csv", rec({**later, "FDJ": later["FDJ"] + 150,
+                                                    "BKL": later.get("BKL", 0.0) + 2e-5},
+                                                   later_seed(777)))}
     return out
 
 
@@ -233,6 +236,18 @@ def test_cli_check_against_a_baseline(files, tmp_path):
     rows = query(res, "SELECT fault, reference, baseline, degraded FROM health_verdicts")
     assert set(rows["reference"]) == {"baseline"} and len(rows) == 7
     assert rows.set_index("fault").loc["FDJ", "degraded"]
+    # a friction and a backlash grown together: the backlash's row shows its change as read
+    # beside the isolated fault, with that reading's interval (the JSON's and the finding's)
+    proc = invoke_eha("health", "check", files["both"], "--baseline", files["earlier"],
+                      "--calibration", files["cal"], "--json", out, "--results", res)
+    data = json.loads(out.read_text())
+    assert data["also_changed"] == ["BKL"], proc.stdout
+    b = data["faults"]["BKL"]["beside"]
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("│ BKL"))
+    shown = [c.strip() for c in row.strip("│").split("│")]
+    assert shown[1] == f"+{1e6 * b['change']:.3g} µm" and shown[3] == "-", shown
+    assert shown[4] == f"DEGRADED (beside {data['isolated'][0]})"
+    assert f"changed beside it, by +{1e6 * b['change']:.3g} µm" in proc.stdout
     # the same actuator on its later test day without a fault
     proc = invoke_eha("health", "check", files["later"], "--baseline", files["earlier"],
                       "--calibration", files["cal"], "--json", out, "--results", res)

@@ -271,9 +271,11 @@ def _check_baseline(record, baseline, calibration, level, json_out, results, col
         elif name in run.also:
             verdict += f" (beside {run.isolated[0]})"
         sign = "±" if FAULTS[name].direction == 0 else ("+" if v["alarm_change"] >= 0 else "-")
-        table.add_row(name, _signed(name, v["change"]),
-                      interval_text(name, *v["interval"]),
-                      f"{sign}{show(name, abs(v['alarm_change']))}", verdict)
+        alarm = f"{sign}{show(name, abs(v['alarm_change']))}"
+        if name in run.also:         # its change as read jointly with the isolated one's
+            v, alarm = run.second[name], "-"
+        table.add_row(name, _signed(name, v["change"]), interval_text(name, *v["interval"]),
+                      alarm, verdict)
     console.print(f"record: {record}; baseline: {baseline}; calibration: {calibration}",
                   highlight=False)
     console.print(table)
