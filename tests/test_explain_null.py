@@ -363,8 +363,11 @@ def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tm
     """On an LF record with a viscous friction of 3000 N·s/m, the model without it (the
     truth otherwise) gets the exclusion check: the friction's test fit runs beyond a
     detectable size of about 500 N·s/m (listed, with its value within 20 % of the truth: the
-    record shows it) and not beyond one of about 1e5 (empty)."""
-    from eha.explain import Problem, ResidualLoop
+    record shows it) and not beyond one of about 1e5 (empty). The listing is the exclusion
+    check's own test fit; the HF re-check of a listed rival (``rival_replicates``, 12 HF
+    re-simulations and their refits, 6 of this test's 7 s) is off here: its readings and
+    decision are tested in tests/test_explain_replicates.py."""
+    from eha.explain import LoopSettings, Problem, ResidualLoop
     from eha.identification.measured import load
     from eha.models.params import LFParams
     from test_explain import FAULTS, _record
@@ -374,7 +377,7 @@ def test_the_exclusion_check_lists_a_missing_effect_beyond_its_threshold_only(tm
     problem = Problem.build(data, effects="viscous_friction")
     for healthy, listed in ((400.0, True), (9e4, False)):
         null = _null({"viscous_friction": [healthy * f for f in (0.9, 1.1, 1.0, 0.95, 1.05)]})
-        loop = ResidualLoop(problem, null=null)
+        loop = ResidualLoop(problem, LoopSettings(rival_replicates=0), null=null)
         loop.current = LFParams().replace(**FAULTS, XJ0=problem.base.XJ0)
         loop.cur = loop.fitter.evaluate([loop.current])[0]
         rivals = loop.not_excluded()
