@@ -143,26 +143,50 @@ def test_settling_needs_a_null(record_path):
     assert settle(loop, {**_prior(), "not_excluded": []}) is None
 
 
-def test_explain_with_a_prior_that_lists_rivals_starts_from_the_one_that_stands(
-        record_path, tmp_path):
-    """``explain_file(..., prior=FIRST)`` settles first: the result carries the settlement
-    (JSON key ``settled``) and the loop's base has the load at this record's reading, so the
-    loop does not add it again."""
+@pytest.fixture(scope="module")
+def follow_ups(record_path, tmp_path_factory):
+    """Two follow-ups through ``explain_file`` with a first record that lists rivals (an
+    external load found, a motor offset it could not rule out; a canned null, the stop rule
+    at 1.5x the noise, two rival replicates), one whose first record excluded the offset
+    (``"kept"``) and one whose did not (``"open"``). The real rival check runs, its ``shown``
+    flag forced false (the deferral rule's branch, not the HF, is under test). Shared by the
+    tests that read a follow-up's settlement and its exclusions (each such run costs seconds)."""
+    import eha.explain.final_check as final_check
     from eha.explain.from_file import explain_file
 
-    first = tmp_path / "first.json"
-    first.write_text(json.dumps(_prior()))
-    res = explain_file(record_path, prior=first, fit="BKL,FDJ", null=_null(),
-                       effects="orifice_law,flapper_dynamics,external_load,offset",
-                       pop=8, candidates=2, max_gen=10, stall=3, interval_replicates=0,
-                       rival_replicates=0)
-    assert res.settled["winner"] == "external_load"
-    assert "external_load" not in res.effects
-    assert res.after.params.FRC == pytest.approx(
-        res.settled["hypotheses"][0]["params"]["FRC"])
-    assert res.to_json()["settled"]["text"].startswith("settled: external_load")
-    assert res.verdict.startswith("explained") or res.verdict.startswith("partly")
-    assert "the first record's external load, settled here at" in res.verdict
+    folder = tmp_path_factory.mktemp("follow-ups")
+    real = final_check.check_rival
+    runs = {}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(final_check, "check_rival", lambda *a, **k: {**real(*a, **k), "shown": False})
+        for name, prior in (("kept", {**_prior(), "excluded": EXCLUDED}), ("open", _prior())):
+            first = folder / f"{name}.json"
+            first.write_text(json.dumps(prior))
+            runs[name] = explain_file(
+                record_path, prior=first, fit="BKL,FDJ", null=_null(),
+                effects="orifice_law,flapper_dynamics,external_load,offset", pop=8,
+                candidates=2, max_gen=10, stall=3, interval_replicates=0, rival_replicates=2,
+                noise_factor=1.5)
+    return runs
+
+
+#: The offset as a first record excluded it (the follow-ups' ``"kept"`` prior).
+EXCLUDED = {"offset": {"param": "Ofs", "beyond": 0.004, "unit": "mA"}}
+
+
+def test_explain_with_a_prior_that_lists_rivals_starts_from_the_one_that_stands(follow_ups):
+    """``explain_file(..., prior=FIRST)`` settles first: the result carries the settlement
+    (JSON key ``settled``) and the loop's base has the load at this record's reading, so the
+    loop does not add it again (both follow-ups: the first record's exclusions do not change
+    the settlement)."""
+    for res in follow_ups.values():
+        assert res.settled["winner"] == "external_load"
+        assert "external_load" not in res.effects
+        assert res.after.params.FRC == pytest.approx(
+            res.settled["hypotheses"][0]["params"]["FRC"])
+        assert res.to_json()["settled"]["text"].startswith("settled: external_load")
+        assert res.verdict.startswith("explained") or res.verdict.startswith("partly")
+        assert "the first record's external load, settled here at" in res.verdict
 
 
 def test_a_damaged_prior_is_one_line_and_exit_2(record_path, tmp_path):
@@ -230,29 +254,14 @@ def test_a_prior_s_exclusions_are_read_and_a_damaged_list_is_one_line():
 
 
 def test_a_follow_up_keeps_the_first_records_exclusion_of_a_rival_it_does_not_show(
-        record_path, tmp_path, monkeypatch):
-    """Through ``explain_file`` with a prior that lists rivals: the loop's exclusion check lists
-    an offset beside the settled load (a canned null, the stop rule at 1.5x the noise); the
-    real rival check runs, and where it finds the offset not shown here (its flag forced: the
-    rule's branch, not the HF, is under test) the first record's exclusion of it stands:
-    listed under ``rivals_ruled_out`` with the first record's figures and carried on in
-    ``excluded``; without the first record's exclusion it stays a rival."""
-    import eha.explain.final_check as final_check
-    from eha.explain.from_file import explain_file
-
-    real = final_check.check_rival
-    monkeypatch.setattr(final_check, "check_rival",
-                        lambda *a, **k: {**real(*a, **k), "shown": False})
-    excluded = {"offset": {"param": "Ofs", "beyond": 0.004, "unit": "mA"}}
-    runs = {}
-    for name, prior in (("kept", {**_prior(), "excluded": excluded}), ("open", _prior())):
-        first = tmp_path / f"{name}.json"
-        first.write_text(json.dumps(prior))
-        runs[name] = explain_file(
-            record_path, prior=first, fit="BKL,FDJ", null=_null(),
-            effects="orifice_law,flapper_dynamics,external_load,offset", pop=8,
-            candidates=2, max_gen=10, stall=3, interval_replicates=0, rival_replicates=2,
-            noise_factor=1.5)
+        follow_ups):
+    """Through ``explain_file`` with a prior that lists rivals (:func:`follow_ups`): the loop's
+    exclusion check lists an offset beside the settled load (a canned null, the stop rule at
+    1.5x the noise); the real rival check runs, and where it finds the offset not shown here
+    (its flag forced: the rule's branch, not the HF, is under test) the first record's
+    exclusion of it stands: listed under ``rivals_ruled_out`` with the first record's figures
+    and carried on in ``excluded``; without the first record's exclusion it stays a rival."""
+    excluded, runs = EXCLUDED, follow_ups
     open_, kept = runs["open"], runs["kept"]
     assert [e["effect"] for e in open_.not_excluded] == ["offset"]   # listed, not shown
     assert open_.verdict.startswith("explained, ambiguous")
@@ -275,19 +284,31 @@ def test_an_effect_the_exclusion_check_does_not_list_is_excluded_beyond_its_powe
         record_path):
     """A model at the noise whose exclusion check does not list a tested effect (an offset
     whose healthy readings scatter 20x wider) records it in ``excluded``: its parameter, and
-    the shift beyond which the check would have listed it with the null's power."""
+    the shift beyond which the check would have listed it with the null's power. The loop's
+    model is the rounds' on this record (the structure pinned, the load accepted as a round
+    accepts it, the final estimates), built by hand: which effect the rounds choose is not
+    under test here (an ``explain`` run's rounds cost three times the rest); the result and
+    its JSON carry what the check recorded."""
     from dataclasses import replace
 
-    from eha.explain.api import explain
+    from eha.explain import Candidate, Choice
     from eha.explain.rival_check import excluded_beyond
 
     canned = _null()
     wide = replace(canned, statistics={**canned.statistics,
                                        "offset": [20 * v for v in canned.statistics["offset"]]})
-    res = explain(load(record_path), fit="BKL,FDJ", null=wide,
-                  effects="orifice_law,flapper_dynamics,external_load,offset", pop=8,
-                  candidates=2, max_gen=10, stall=3, interval_replicates=0,
-                  rival_replicates=0, noise_factor=1.5)
+    loop = ResidualLoop.on(load(record_path), fit="BKL,FDJ", effects="orifice_law,"
+                           "flapper_dynamics,external_load,offset",
+                           settings=LoopSettings(pop=8, interval_replicates=0, rival_replicates=0,
+                                                 noise_factor=1.5),
+                           pin_structure=True, null=wide, max_gen=10, stall=3)
+    before = loop.baseline()
+    cand = loop.try_candidate(Candidate("external_load", float("nan"), float("nan")))
+    loop.accept(Choice(cand, set(), ["external_load"]))
+    loop.estimate()
+    assert loop.at_noise_level()
+    loop.rivals = loop.not_excluded()
+    res = loop.result(before, {}, "accepted by hand")
     assert "external_load" in res.effects and res.not_excluded == []
     t, d = wide.thresholds(0.05)["offset"], wide.detectable(0.05)["offset"]
     assert res.excluded == {"offset": {"param": "Ofs", "beyond": excluded_beyond(t, d),
