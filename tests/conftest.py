@@ -7,7 +7,8 @@
 
 Under pytest-xdist (``-n 2``) the tests of each module in :data:`ONE_WORKER` run on one worker,
 so that its module fixtures (results folders that commands wrote, calibrations) are built once,
-not once per worker that gets one of its tests (:func:`pytest_xdist_make_scheduler`).
+not once per worker that gets one of its tests (:func:`pytest_xdist_make_scheduler`); the
+``slow`` tests are sent first (:func:`pytest_collection_modifyitems`).
 
 Plain helper functions (``run_eha``, ``invoke_eha``, ``error_line``, ``write_campaign``,
 ``close``, ``files_under``) are in tests/helpers.py: tests import them from there, never
@@ -53,6 +54,17 @@ def pytest_xdist_make_scheduler(config, log):
             return module if module.rsplit("/", 1)[-1] in ONE_WORKER else nodeid
 
     return OneWorkerModules(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, each worker lists the ``slow`` tests first (in their order; the
+    rest after them, in theirs): the controller sends single tests in the workers' order, so
+    the long end-to-end tests start while the other worker runs short ones, and the run ends
+    on short tests, not on one worker finishing a long test alone while the other idles. (Both
+    workers sort alike, so their collections stay identical, as xdist requires.) A serial run
+    keeps the file order, so that a module's fixtures are built once."""
+    if hasattr(config, "workerinput"):
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 #: What compiles the model kernels (numba, ``cache=True``), in three processes: the HF kernels,
