@@ -29,6 +29,17 @@ from helpers import run_eha
 # workers have none), so that no check of printed text depends on where the tests run.
 os.environ["COLUMNS"] = "200"
 
+#: Under pytest-xdist the workers already fill the cores: each runs the parallel model kernels
+#: on one numba thread (and ``run_eha``'s commands too, helpers.py), as a campaign's pool
+#: workers do. Two threads per worker on two cores cost up to twice the CPU for the same work
+#: (measured: the quick explain_settle and explain_replicates tests, 45 s of CPU against 25 s).
+#: The pool keeps its size (``numba.config.NUMBA_NUM_THREADS``), so a test can still run the
+#: kernels on every thread (tests/test_models.py); a serial run keeps numba's default.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    import numba
+
+    numba.set_num_threads(1)
+
 
 #: Test modules whose module-scoped fixtures cost seconds: under pytest-xdist each runs on one
 #: worker. xdist's default distribution sent their tests to both workers, and each worker built

@@ -32,7 +32,9 @@ from eha.campaigns.executors import Executor
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
             timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:
     """``python -m eha ARGS`` in a subprocess (the installed package of this interpreter)."""
-    full_env = {**os.environ, "COLUMNS": "200", **(env or {})}
+    # under pytest-xdist one numba thread, as the worker running the test (conftest.py)
+    threads = {"NUMBA_NUM_THREADS": "1"} if os.environ.get("PYTEST_XDIST_WORKER") else {}
+    full_env = {**os.environ, "COLUMNS": "200", **threads, **(env or {})}
     return subprocess.run([sys.executable, "-m", "eha", *map(str, args)], capture_output=True,
                           text=True, cwd=cwd, env=full_env, timeout=timeout, **kwargs)
 
