@@ -47,7 +47,8 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 #: with pytest 9.2: pytest-xdist issue 1386).
 ONE_WORKER = ("test_results_matrix.py", "test_reports_html.py", "test_health_change.py",
               "test_prognostics_change.py", "test_exit_codes.py", "test_identification_cases.py",
-              "test_reliability_processes.py")
+              "test_reliability_processes.py", "test_explain_settle.py",
+              "test_explain_replicates.py")
 
 
 @pytest.hookimpl(optionalhook=True)

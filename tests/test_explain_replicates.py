@@ -43,23 +43,38 @@ def right_model(tmp_path_factory):
     return path, loop.fitter.refit(params, bounds, "right model", method="lm", whole=True), bounds
 
 
-def _fitted(right_model, replicates: int = 3):
+def _fitted(right_model, replicates: int = 3, refits: dict | None = None):
     """A fresh loop on the record of ``right_model`` whose model is that right model:
-    (loop, bounds)."""
+    (loop, bounds); ``refits``: HF re-simulations' refits it starts with (its
+    ``replicate_refits``, as :func:`seed0_refits`)."""
     path, params, bounds = right_model
     loop = ResidualLoop.on(load(path), fit="BKL,FDJ",
                         settings=LoopSettings(interval_replicates=replicates))
     loop.current = params
+    loop.replicate_refits.update(refits or {})
     return loop, dict(bounds)
 
 
-def test_the_replicate_spread_is_reproducible_and_finite(right_model):
-    """The same seed gives the same spread (the re-simulations' seeds are recorded), a
-    positive finite RMS for every fitted parameter; another seed, another spread."""
+@pytest.fixture(scope="module")
+def seed0_refits(right_model):
+    """The refits of the right model to its three HF re-simulations of seed 0 (the replicate
+    term's, kept on a loop as ``replicate_refits``), made once for the module: the tests that
+    read the term or the model's own level at seed 0 start from them, as a loop does after
+    its intervals (a refit is a pure function of its key: model, bounds and seeds)."""
     loop, bounds = _fitted(right_model)
+    replicate_spread(loop, loop.current, bounds, [*loop.bounds, "Kaer"], 3, seed=0)
+    return dict(loop.replicate_refits)
+
+
+def test_the_replicate_spread_is_reproducible_and_finite(right_model, seed0_refits):
+    """The same seed gives the same spread (the re-simulations' seeds are recorded; a loop
+    that simulated and refitted them again, none kept), a positive finite RMS for every
+    fitted parameter; another seed, another spread."""
+    loop, bounds = _fitted(right_model, refits=seed0_refits)
     names = [*loop.bounds, "Kaer"]
     first, seeds = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
-    again, seeds_again = replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
+    fresh, _ = _fitted(right_model)
+    again, seeds_again = replicate_spread(fresh, fresh.current, bounds, names, 3, seed=0)
     other, seeds_other = replicate_spread(loop, loop.current, bounds, names, 3, seed=1)
     assert set(first) == set(bounds)
     assert first == again and seeds == seeds_again and len(seeds) == 3
@@ -70,7 +85,8 @@ def test_the_replicate_spread_is_reproducible_and_finite(right_model):
     assert first["Kaer"] > 0.01 * loop.current.Kaer
 
 
-def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(right_model):
+def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(right_model,
+                                                                         seed0_refits):
     """model_level refits the final model to the same HF re-simulations as the replicate term
     (none simulated again: the refits are shared) and reads their residual-to-noise ratios:
     the right model at 1 µm of noise leaves 0.9-1.5x; the record is within the one-sided
@@ -79,7 +95,7 @@ def test_the_models_own_level_reuses_the_replicates_and_bounds_the_record(right_
 
     from eha.explain.replicates import model_level
 
-    loop, bounds = _fitted(right_model)
+    loop, bounds = _fitted(right_model, refits=seed0_refits)
     names = [*loop.bounds, "Kaer"]
     replicate_spread(loop, loop.current, bounds, names, 3, seed=0)
     cached = dict(loop.replicate_refits)
@@ -117,10 +133,10 @@ def test_the_record_is_refitted_from_the_re_simulations_spread_of_starts(right_m
     assert model_level(loop, bounds, names, off, restarts=False)["record"] == off
 
 
-def test_the_term_widens_the_floors_and_says_so(right_model):
+def test_the_term_widens_the_floors_and_says_so(right_model, seed0_refits):
     """with_replicates adds the spread in quadrature to each parameter's absolute floor and
     names the seeds; at 0 replicates the terms are unchanged and nothing is noted."""
-    loop, bounds = _fitted(right_model)
+    loop, bounds = _fitted(right_model, refits=seed0_refits)
     terms = {k: ModelForm(scale=1.0, rel=0.0075, abs=0.0) for k in bounds}
     widened, note = with_replicates(loop, terms, bounds, ["hinge_moment"])
     assert all(widened[k].abs > 0 and widened[k].rel == terms[k].rel for k in terms)
