@@ -1,7 +1,8 @@
 """Shared fixtures of the test suite.
 
 - ``eha``: the real command line in a subprocess (``helpers.run_eha``).
-- the residual loop's null cache, in a temporary folder for the session (autouse).
+- the residual loop's null cache, in a temporary folder for the session (autouse); each null
+  is calibrated once even when both xdist workers need it at once (a lock per cache key).
 - ``slow``: marker of the end-to-end tests that take more than a few seconds
   (``pytest -m "not slow"`` skips them; CI runs everything; markers are strict).
 
@@ -17,6 +18,7 @@ from this file (pytest imports conftest itself).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -135,11 +137,52 @@ def _explain_null_cache(tmp_path_factory):
         os.environ["EHA_CACHE_DIR"] = str(shared)
     else:
         os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))
-    yield
+    with _one_calibration_per_null():
+        yield
     if old is None:
         os.environ.pop("EHA_CACHE_DIR", None)
     else:
         os.environ["EHA_CACHE_DIR"] = old
+
+
+@contextlib.contextmanager
+def _one_calibration_per_null():
+    """While it is open, a null is calibrated once for the session even when both workers
+    need it at once: :func:`eha.explain.null.simulated_null` (as the loop calls it in this
+    process) holds a lock on its cache key (``KEY.lock`` beside the cache file) while it
+    reads or calibrates it, so the second worker waits for the first's file and reads it.
+    (Tests that share a null often run side by side: the slow ones are sent in file order, so
+    the four injected-effect tests on one record started two calibrations of their null, at
+    about 40 s of CPU each.)"""
+    import fcntl
+    import inspect
+
+    import eha.explain.api as api
+    import eha.explain.null as null
+
+    real = null.simulated_null
+    signature = inspect.signature(real)
+
+    def simulated_null(*args, **kwargs):
+        a = signature.bind(*args, **kwargs)
+        a.apply_defaults()
+        a = a.arguments
+        if not a["use_cache"]:
+            return real(*args, **kwargs)
+        key = null.null_key(a["data"], a["fit"], null.covered_effects(a["effects"]),
+                            a["settings"], a["actuators"], a["seed"], a["base"], a["fixed"],
+                            a["fdi_options"])
+        folder = null.cache_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(folder / f"{key}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes
+            return real(*args, **kwargs)
+
+    null.simulated_null = api.simulated_null = simulated_null
+    try:
+        yield
+    finally:
+        null.simulated_null, api.simulated_null = real, real
 
 
 @pytest.fixture
