@@ -99,6 +99,11 @@ def test_nominal_hf_record_adds_the_orifice_law_through_the_cli(record, tmp_path
     js, out, res = tmp_path / "r.json", tmp_path / "out", tmp_path / "results"
     result = CliRunner().invoke(app, ["explain", str(data), "--fit", "BKL,FDJ", "--pop", "12",
                                       "--candidates", "4", "--null-actuators", "5",
+                                      # a rival the exclusion check lists is re-checked on
+                                      # 2x2 HF re-simulations, not 2x6 (the check's figures
+                                      # are tests/test_explain_replicates.py's; either
+                                      # outcome is asserted below)
+                                      "--rival-replicates", "2",
                                       "--json", str(js),
                                       "--out",
                                       str(out), "--results", str(res), "--no-progress"])
