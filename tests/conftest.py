@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -137,12 +139,38 @@ def _explain_null_cache(tmp_path_factory):
         os.environ["EHA_CACHE_DIR"] = str(shared)
     else:
         os.environ["EHA_CACHE_DIR"] = str(tmp_path_factory.mktemp("eha-cache"))
+    _seed_nulls()
     with _one_calibration_per_null():
         yield
     if old is None:
         os.environ.pop("EHA_CACHE_DIR", None)
     else:
         os.environ["EHA_CACHE_DIR"] = old
+
+
+#: The healthy nulls of the suite's end-to-end records, as the suite calibrated them (one file
+#: per cache key; tests/data/explain-nulls/README.md says how to refresh them).
+SEEDED_NULLS = Path(__file__).parent / "data" / "explain-nulls"
+
+
+def _seed_nulls() -> None:
+    """The session's null cache starts with :data:`SEEDED_NULLS`, as a user's cache starts
+    with the nulls eha ships for its presets: an end-to-end test reads its record's null
+    instead of calibrating it (about 20 s of two processes each, 12 in the full suite). A file
+    is keyed by its record, fit, effects and settings, and read only when its format and model
+    version are the current ones (:func:`eha.explain.null.load_null`): a changed procedure
+    (a new ``NULL_FORMAT``) or model calibrates afresh. The calibration itself is tested with
+    an empty cache (tests/test_explain_null.py)."""
+    from eha.explain.null import cache_dir
+
+    folder = cache_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    for path in SEEDED_NULLS.glob("*.json"):
+        target = folder / path.name
+        if not target.exists():       # both xdist workers seed: each file lands whole once
+            tmp = folder / f".{path.name}.{os.getpid()}.tmp"
+            shutil.copyfile(path, tmp)
+            os.replace(tmp, target)
 
 
 @contextlib.contextmanager
