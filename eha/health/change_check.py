@@ -98,13 +98,7 @@ class ChangeCheckResult:
                 "isolated": name in self.isolated, "blind": v["blind"],
                 "not_told_apart_from": list(v.get("alike", []))}
             if name in self.second:
-                b = self.second[name]
-                faults[name]["beside"] = {"fault": b["beside"], "change": b["change"],
-                                          "interval": [_json_number(x) for x in b["interval"]],
-                                          "open_ended": bool(b["open_ended"]),
-                                          "statistic": b["statistic"],
-                                          "threshold": b["threshold"],
-                                          "degraded": b["degraded"]}
+                faults[name]["beside"] = beside_record(self.second[name])
         return {"check": "change", "status": self.status, "isolated": list(self.isolated),
                 "also_changed": list(self.also),
                 "finding": self.finding(), "record": self.record, "baseline": self.baseline,
@@ -297,16 +291,25 @@ def check_change(record, baseline, calibration, level: float | None = None,
     return out
 
 
+def beside_record(b: Mapping[str, Any], named: bool | None = None) -> dict[str, Any]:
+    """A fault's reading beside the first isolated one
+    (:func:`eha.health.change_second.judge_second`) as JSON: the first fault, the change with
+    its interval (an open end null), statistic, threshold, alarm and, where given, whether it
+    is the one named beside (``also_changed``). The same record in the check's JSON,
+    ``health_verdicts.beside`` and ``change_checks.beside``."""
+    out = {"fault": b["beside"], "change": float(b["change"]),
+           "interval": [_json_number(x) for x in b["interval"]],
+           "open_ended": bool(b["open_ended"]), "statistic": float(b["statistic"]),
+           "threshold": float(b["threshold"]), "degraded": bool(b["degraded"])}
+    if named is not None:
+        out["named"] = bool(named)
+    return out
+
+
 def _beside_cell(out: ChangeCheckResult, name: str) -> dict[str, Any] | None:
-    """``health_verdicts.beside`` of fault ``name``: its reading beside the first isolated
-    fault (None where it was not judged)."""
+    """``health_verdicts.beside`` of fault ``name`` (None where it was not judged)."""
     b = out.second.get(name)
-    if b is None:
-        return None
-    return {"fault": b["beside"], "change": b["change"],
-            "interval": [_json_number(x) for x in b["interval"]],
-            "statistic": b["statistic"], "threshold": b["threshold"],
-            "degraded": bool(b["degraded"]), "named": name in out.also}
+    return None if b is None else beside_record(b, name in out.also)
 
 
 def _store(out: ChangeCheckResult, results) -> None:
@@ -368,4 +371,4 @@ def calibrate_baseline(command: str = "chirp_1cm", actuators: int = 30, seed: in
 
 
 __all__ = ["ChangeCheckResult", "check_change", "calibrate_baseline", "screen_baseline",
-           "signatures_of"]
+           "beside_record", "signatures_of"]

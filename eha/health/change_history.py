@@ -116,6 +116,7 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
         A record that cannot be read or is not the calibration's command and length; a
         calibration that is not a change calibration (the job fails with that line).
     """
+    from eha.health.change_check import beside_record
     from eha.health.change_second import judge_change
     from eha.identification.measured import noise_level
 
@@ -141,11 +142,7 @@ def run_change_record(spec: Mapping[str, Any], run_key: str, campaign: str,
            "thresholds": {n: float(v["threshold"]) for n, v in judged.items()},
            "degraded": {n: bool(v["degraded"]) for n, v in judged.items()},
            "isolated": isolated, "also": also,
-           "beside": {g: {"fault": v["beside"], "change": float(v["change"]),
-                          "interval": [float(x) if math.isfinite(x) else None
-                                       for x in v["interval"]],
-                          "statistic": float(v["statistic"]),
-                          "threshold": float(v["threshold"])} for g, v in second.items()},
+           "beside": {g: beside_record(v, g in also) for g, v in second.items()},
            "screen": _screen(spec, cal, sig, earlier),
            "noise_rmse": float(n_b), "baseline_rmse": float(n_a)}
     row["seconds"] = time.perf_counter() - start

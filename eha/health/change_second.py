@@ -61,12 +61,11 @@ def judge_second(cal: ChangeCalibration, sig: Signatures, r: np.ndarray, noise2:
         spread = float(np.interp(size, np.r_[0.0, xs], np.r_[0.0, leak["std"]]))
         s = sign_of(g)
         d = s * float(cond[j] @ r) - f["mean"] - mean
-        two = bool(f["two_sided"])
+        two, n = bool(f["two_sided"]), int(f["n"])
         stat = abs(d) if two else d
         sd = math.sqrt(max(f["other_var"] + f["noise_factor"] * noise2 + spread ** 2, 1e-300))
-        thr = tolerance_factor(int(f["n"]), cal.alpha / m / (2.0 if two else 1.0)) * sd * \
+        thr = tolerance_factor(n, cal.alpha / m / (2.0 if two else 1.0)) * sd * \
             f.get("tail", 1.0)
-        n = int(f["n"])
         inter = f.get("interaction") or {}
         relative = float(np.interp(size, np.r_[0.0, inter["sizes"]], np.r_[0.0, inter["rel"]])) \
             if inter.get("sizes") else 0.0
