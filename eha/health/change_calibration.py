@@ -27,7 +27,7 @@ import numpy as np
 from eha.health.change import (NUISANCES, GainCurve, Signatures, check_nuisances,
                                draw_test_day, probe)
 from eha.health.change_runs import (GAIN_ACTUATORS, LATER_SEED_SHIFT, _faulted, _gains,
-                                    _record, later_seed, sign_of)
+                                    _positions, _record, later_seed, sign_of)
 from eha.identification.healthy import DetectionError, built_calibration, draw_actuator
 from eha.models.faults import FAULTS
 
@@ -37,6 +37,8 @@ CHANGE_FORMAT = 1
 MIN_PAIRS = 5
 #: Most healthy pairs of a calibration.
 MAX_PAIRS = 10000
+#: Healthy pairs simulated in one batch of parallel HF runs (progress is said after each).
+PAIRS_A_BATCH = 32
 
 @dataclass(frozen=True)
 class ChangeCalibration:
@@ -368,14 +370,15 @@ def calibrate_change(command: str = "chirp_1cm", actuators: int = 30, seed: int 
         raise DetectionError(f"`command`: {exc}") from None
     first = _record(cmd, {**draw_actuator(seed), **at}, t_end, noise, seed)
     pairs = []
-    for k in range(actuators):
-        s = seed + k
-        hf = {**draw_actuator(s), **at}
-        a = first if k == 0 else _record(cmd, hf, t_end, noise, s)
-        b = _record(cmd, draw_test_day(hf, widths, s), t_end, noise, later_seed(s))
-        pairs.append((a.xu, b.xu))
-        if on_progress and (k + 1) % 10 == 0:
-            on_progress(f"{k + 1} of {actuators} healthy pairs")
+    for k0 in range(0, actuators, PAIRS_A_BATCH):
+        runs = []
+        for s in range(seed + k0, seed + min(k0 + PAIRS_A_BATCH, actuators)):
+            hf = {**draw_actuator(s), **at}
+            runs += [(hf, s), (draw_test_day(hf, widths, s), later_seed(s))]
+        xs = _positions(cmd, runs, t_end, noise)
+        pairs += list(zip(xs[0::2], xs[1::2]))
+        if on_progress:
+            on_progress(f"{len(pairs)} of {actuators} healthy pairs")
     # the records' own command, as a reader of them rebuilds it (the check does the same)
     sig = Signatures(first.command, t_end, noise, widths, model=model, shapes=gains, at=at)
     names = sig.faults

@@ -10,7 +10,8 @@ seed: the noise cancels), so the figures are the faults' own responses.
 
 from __future__ import annotations
 
-from typing import Mapping
+from itertools import product
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -43,6 +44,18 @@ def _record(command, hf: Mapping[str, float], t_end: float, noise: float, seed: 
                        source="calibration")
 
 
+def _positions(command, runs: Sequence[tuple[Mapping[str, float], int]], t_end: float,
+               noise: float) -> np.ndarray:
+    """The recorded positions of many ``(hf, seed)`` runs (rows in order), each what
+    ``_record(command, hf, t_end, noise, seed).xu`` is, in parallel numba calls."""
+    from eha.identification.synthetic import synthetic_positions
+
+    if not runs:
+        return np.empty((0, int(round(t_end / 1e-3)) + 1))
+    return synthetic_positions(command, [hf for hf, _ in runs], t_end, noise,
+                               [s for _, s in runs])
+
+
 def _faulted(hf: Mapping[str, float], name: str, change: float) -> tuple[dict, float]:
     """``hf`` with fault ``name`` changed by ``change`` from its own value, within the
     parameter's range; the change applied."""
@@ -64,12 +77,16 @@ def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, se
     ``interaction`` (:func:`_interactions`)."""
     out, leaks = {}, {}
     k_max = min(actuators, GAIN_ACTUATORS)
-    later = []
-    for k in range(k_max):
-        s = seed + k
-        hf = draw_test_day({**draw_actuator(s), **at}, widths, s)
-        later.append((hf, later_seed(s), _record(cmd, hf, t_end, noise, later_seed(s)).xu))
+    runs = [(draw_test_day({**draw_actuator(seed + k), **at}, widths, seed + k),
+             later_seed(seed + k)) for k in range(k_max)]
+    later = [(hf, s, xb) for (hf, s), xb in zip(runs, _positions(cmd, runs, t_end, noise))]
     signs = np.array([sign_of(n) for n in sig.faults])
+    # every run first (one batch of parallel HF runs), then the readings
+    grown = {(name, mult, k): _faulted(hf, name, mult * probe(name))
+             for name in sig.faults for mult in GAIN_SIZES for k, (hf, _, _) in enumerate(later)}
+    keys = [key for key, (_, change) in grown.items() if change != 0]
+    xs = dict(zip(keys, _positions(cmd, [(grown[key][0], later[key[2]][1]) for key in keys],
+                                   t_end, noise)))
     for i, name in enumerate(sig.faults):
         sizes, gains, spread = [], [], []
         cond = sig.conditional(i)
@@ -77,11 +94,11 @@ def _gains(cmd, sig: Signatures, widths: Mapping[str, float], actuators: int, se
                                             for j, n in enumerate(sig.faults) if j != i}
         for mult in GAIN_SIZES:
             g, applied, other = [], [], []
-            for hf, s, xb in later:
-                faulty, change = _faulted(hf, name, mult * probe(name))
+            for k, (hf, s, xb) in enumerate(later):
+                change = grown[(name, mult, k)][1]
                 if change == 0:
                     continue
-                xf = _record(cmd, faulty, t_end, noise, s).xu
+                xf = xs[(name, mult, k)]
                 g.append(sig.estimate(xf - xb)[i] / change)
                 other.append(signs * (cond @ (xf - xb)))
                 applied.append(change)
@@ -125,10 +142,25 @@ def _interactions(cmd, sig: Signatures, later, curves: Mapping[str, dict],
     by ``f``'s size (:data:`INTERACTION_FIRST`). A fault's signature bends with the faults
     already there; this is what the single-fault gain curves and leaks leave out."""
     signs = np.array([sign_of(n) for n in sig.faults])
-    out: dict[str, dict[str, dict[str, list]]] = {}
+    # every run first (one batch of parallel HF runs), then the readings
+    grown: dict[tuple, tuple] = {}
+    for i, f in enumerate(sig.faults):
+        for j, g in enumerate(sig.faults):
+            leak = (leaks.get(f, {}).get(g) or {}).get("leak") or {}
+            if j == i or not leak.get("sizes"):
+                continue
+            top = abs(float(leak["sizes"][-1]))        # the largest size its leak was read at
+            for mult_f, (k, (hf, s, _)), mult_g in product(INTERACTION_FIRST, enumerate(later),
+                                                           INTERACTION_SECOND):
+                first, change_f = _faulted(hf, f, mult_f * probe(f))
+                both, change_g = _faulted(first, g, mult_g * probe(g))
+                if change_f != 0 and abs(change_f) <= top and change_g != 0:
+                    grown[(i, j, mult_f, k, mult_g)] = (both, s, change_f, change_g)
+    positions = dict(zip(grown, _positions(cmd, [v[:2] for v in grown.values()], t_end,
+                                           noise)))
+    out: dict[str, dict[str, dict[str, list]]] = {f: {} for f in sig.faults}
     for i, f in enumerate(sig.faults):
         cond = sig.conditional(i)
-        out[f] = {}
         for j, g in enumerate(sig.faults):
             leak = (leaks.get(f, {}).get(g) or {}).get("leak") or {}
             if j == i or not leak.get("sizes"):
@@ -138,26 +170,19 @@ def _interactions(cmd, sig: Signatures, later, curves: Mapping[str, dict],
             sizes, rel = [], []
             for mult_f in INTERACTION_FIRST:
                 errors, applied_f = [], []
-                for hf, s, xb in later:
-                    first, change_f = _faulted(hf, f, mult_f * probe(f))
-                    if change_f == 0 or abs(change_f) > xs[-1]:
+                for key, (_, _, change_f, change_g) in grown.items():
+                    if key[:3] != (i, j, mult_f):
                         continue
-                    for mult_g in INTERACTION_SECOND:
-                        both, change_g = _faulted(first, g, mult_g * probe(g))
-                        if change_g == 0:
-                            continue
-                        x = _record(cmd, both, t_end, noise, s).xu
-                        d = signs[j] * float(cond[j] @ (x - xb)) - float(
-                            np.interp(abs(change_f), np.r_[0.0, xs], np.r_[0.0, leak["mean"]]))
-                        read = curve.invert(signs[j] * d, signs[j])
-                        errors.append((read - change_g) / change_g)
-                        applied_f.append(abs(change_f))
+                    d = signs[j] * float(cond[j] @ (positions[key] - later[key[3]][2])) - \
+                        float(np.interp(abs(change_f), np.r_[0.0, xs], np.r_[0.0, leak["mean"]]))
+                    read = curve.invert(signs[j] * d, signs[j])
+                    errors.append((read - change_g) / change_g)
+                    applied_f.append(abs(change_f))
                 if len(errors) >= 2:
                     sizes.append(float(np.mean(applied_f)))
                     rel.append(float(np.sqrt(np.mean(np.square(errors)))))
             out[f][g] = {"sizes": sizes, "rel": rel}
     return out
-
 
 __all__ = ["GAIN_ACTUATORS", "LATER_SEED_SHIFT", "INTERACTION_FIRST", "INTERACTION_SECOND",
            "INTERACTION_ACTUATORS", "later_seed", "sign_of"]
