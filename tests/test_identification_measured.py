@@ -109,6 +109,24 @@ def test_synthetic_record_is_self_consistent(tmp_path):
     np.testing.assert_allclose(rec.xu, df.xu.to_numpy())
 
 
+
+def test_synthetic_positions_are_the_records_positions_in_one_batch(monkeypatch):
+    """The change calibration's batch of HF runs: each row is exactly what the record of the
+    same parameters and seed holds (bit for bit), across batches and on a held command."""
+    from eha.identification import synthetic
+    from eha.identification.synthetic import synthetic_positions
+
+    monkeypatch.setattr(synthetic, "BATCH_RUNS", 2)          # three batches for five runs
+    runs = [({}, 0), ({"BKL": 2e-5}, 7), ({"FDJ": 400.0}, 2**30 + 3), ({"GM": 0.01}, 4),
+            ({"Ofs": 0.01}, 5)]
+    for command in ("chirp_1cm", "step_1mm"):
+        xs = synthetic_positions(command, [hf for hf, _ in runs], 0.2, 1e-6,
+                                 [s for _, s in runs])
+        assert xs.shape == (5, 201)
+        for row, (hf, seed) in zip(xs, runs):
+            want = synthetic_record(command, hf, t_end=0.2, noise=1e-6, seed=seed)["xu"]
+            assert np.array_equal(row, want.to_numpy())
+
 def test_cli_rejects_bad_data_and_writes_nothing(tmp_path):
     df = _frame()
     df.loc[5, "t"] = df.loc[4, "t"]
