@@ -48,7 +48,7 @@ def _null(load_scale: float = 1.0) -> Null:
 @pytest.fixture(scope="module")
 def record_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("settle") / "load.csv"
-    synthetic_record("chirp_1cm", TRUTH, t_end=1.0, noise=1e-6, seed=4).to_csv(path,
+    synthetic_record("chirp_1cm", TRUTH, t_end=0.7, noise=1e-6, seed=4).to_csv(path,
                                                                              index=False)
     return path
 

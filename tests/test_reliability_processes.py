@@ -476,6 +476,7 @@ connect(sys.argv[1]).close()
 """
 
 
+@pytest.mark.slow   # 12 interpreters, each killed as the file appears (about 3 s)
 @pytest.mark.skipif(not POSIX, reason="POSIX signals")
 def test_a_kill_the_moment_the_database_appears_leaves_a_usable_store(tmp_path):
     # CI once killed a campaign right as eha.duckdb appeared: DuckDB had created the file but
