@@ -45,6 +45,28 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     numba.set_num_threads(1)
 
 
+def _build_each_cli_once() -> None:
+    """typer's test runner turns the app into its click command on every ``invoke`` (about
+    30 ms for eha's command tree, as a real command line pays once per process): the suite
+    invokes the CLI in-process some thousand times, so each app's command is built once per
+    process and built again only when a command or group was added to the app since."""
+    import typer.testing
+
+    real, built = typer.testing._get_command, {}
+
+    def get_command(app):
+        shape = (len(app.registered_commands), len(app.registered_groups))
+        hit = built.get(id(app))
+        if hit is None or hit[0] is not app or hit[1] != shape:
+            hit = built[id(app)] = (app, shape, real(app))
+        return hit[2]
+
+    typer.testing._get_command = get_command
+
+
+_build_each_cli_once()
+
+
 #: Test modules whose module-scoped fixtures cost seconds: under pytest-xdist each runs on one
 #: worker. xdist's default distribution sent their tests to both workers, and each worker built
 #: the fixtures again (``--dist loadgroup`` would do this with marks, but it stopped grouping

@@ -174,6 +174,7 @@ def follow_ups(record_path, tmp_path_factory):
 EXCLUDED = {"offset": {"param": "Ofs", "beyond": 0.004, "unit": "mA"}}
 
 
+@pytest.mark.slow   # explain runs end to end (seconds)
 def test_explain_with_a_prior_that_lists_rivals_starts_from_the_one_that_stands(follow_ups):
     """``explain_file(..., prior=FIRST)`` settles first: the result carries the settlement
     (JSON key ``settled``) and the loop's base has the load at this record's reading, so the
@@ -253,6 +254,7 @@ def test_a_prior_s_exclusions_are_read_and_a_damaged_list_is_one_line():
         excluded_of({"excluded": {"clogging": {"param": "Kintas"}}})
 
 
+@pytest.mark.slow   # explain runs end to end (seconds)
 def test_a_follow_up_keeps_the_first_records_exclusion_of_a_rival_it_does_not_show(
         follow_ups):
     """Through ``explain_file`` with a prior that lists rivals (:func:`follow_ups`): the loop's
@@ -280,6 +282,7 @@ def test_a_follow_up_keeps_the_first_records_exclusion_of_a_rival_it_does_not_sh
     assert "the first record excludes it beyond a change of 0.004 mA in Ofs" in shown.get()
 
 
+@pytest.mark.slow   # explain runs end to end (seconds)
 def test_an_effect_the_exclusion_check_does_not_list_is_excluded_beyond_its_power_size(
         record_path):
     """A model at the noise whose exclusion check does not list a tested effect (an offset

@@ -90,8 +90,9 @@ def test_calibration_is_reproducible_and_holds_its_false_alarms(calibrated):
     assert cal.faults["Ofs"]["two_sided"] and not cal.faults["FDJ"]["two_sided"]
     # the leave-one-out alarms of 20 healthy pairs at alpha 0.01: 0 expected, 2 would be rare
     assert cal.false_alarms["loo"]["alarms"] <= 1
-    again, _ = calibrate_change("chirp_1cm", actuators=20, seed=0, t_end=T_END)
-    assert again.faults == cal.faults and again.gains == cal.gains
+    # the same settings give the same calibration (a small one: the property, not the size)
+    small = [calibrate_change("chirp_1cm", actuators=5, seed=3, t_end=0.3)[0] for _ in "ab"]
+    assert small[0].faults == small[1].faults and small[0].gains == small[1].gains
 
 
 @pytest.mark.parametrize("fault, change", [("FDJ", 150.0), ("BKL", 2e-5), ("Ofs", -0.03),

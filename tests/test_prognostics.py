@@ -403,6 +403,7 @@ def test_long_histories_are_thinned_to_the_last_checks_and_spaced_earlier_ones()
 
 
 # ----------------------------------------------------------------------------- assessment
+@pytest.mark.slow   # two GA identifications of a 1-s HF record
 def test_tracking_the_motor_gain_removes_the_fdj_bias_of_a_dispersed_actuator(tmp_path):
     """Why ``eha rul`` fits GM by default (the registry's rul_faults): a unit whose motor gain is 3.5 % low has
     its FDJ identified far off with GM fixed at nominal, within 5 % with GM fitted (fleet-demo:
