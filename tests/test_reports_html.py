@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -479,3 +480,21 @@ def test_report_of_a_folder_with_only_change_check_rows(change_only):
             assert r["beside#text"].startswith(last["also"][0] + " "), r["beside#text"]
         else:
             assert r["beside#text"] == "-"
+
+
+def test_a_first_alarm_at_the_baseline_is_marked_in_the_fleets_change_table(change_only,
+                                                                           tmp_path):
+    """A first alarm that is the baseline's own cycle (the baseline unlike the healthy fleet,
+    ``change_alarms.at_baseline``) says so in its cell; the others show the cycle alone."""
+    import duckdb
+
+    results = tmp_path / "results"
+    shutil.copytree(change_only[0], results)
+    con = duckdb.connect(str(results / "eha.duckdb"))
+    con.execute("UPDATE change_alarms SET first_alarm = 0, at_baseline = TRUE "
+                "WHERE actuator = 'A1' AND fault = 'FDJ'")
+    con.close()
+    res = build_report(results, results / "report.html")
+    table = {r["actuator"]: r for r in parse(res.path).tables["changes rul-manifest-x-change"]}
+    assert table["A1"]["FDJ_alarm#text"] == "0 (baseline)" and num(table["A1"]["FDJ_alarm"]) == 0
+    assert table["A2"]["FDJ_alarm#text"] == "100"

@@ -89,6 +89,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
             row[f"{name}_text"] = "-" if ch is None else f"{f * ch:+.4g} [{ends[0]}, {ends[1]}]"
             first = (fleet.alarms.get(str(aid), {}).get(name) or {})
             row[f"{name}_alarm"] = _num_or_none(first.get("first_alarm"))
+            row[f"{name}_alarm_text"] = fmt_int(row[f"{name}_alarm"]) + (
+                " (baseline)" if row[f"{name}_alarm"] is not None and first.get("at_baseline")
+                else "")
         beside = _decoded(last.get("beside"), dict)
         row["beside"] = "; ".join(_beside_text(name, beside.get(name) or {})
                                   for name in _decoded(last.get("also"), list)) or "-"
@@ -100,7 +103,8 @@ def _changes(page: Page, fleet: Fleet) -> str:
         unit, _ = unit_of(name)
         cols += [Column(name, f"Δ{name} since baseline [{unit}] (90 % interval)",
                         show=f"{name}_text"),
-                 Column(f"{name}_alarm", f"{name} first alarm", fmt_int)]
+                 Column(f"{name}_alarm", f"{name} first alarm [cycle]",
+                        show=f"{name}_alarm_text")]
     cols.append(Column("isolated", "last check isolated to", text=True))
     cols.append(Column("beside", "changed beside it (90 % interval)", text=True))
     figs = {r["actuator"]: F.change_figure(fleet, r["actuator"]) for r in rows}
@@ -110,9 +114,9 @@ def _changes(page: Page, fleet: Fleet) -> str:
             "earlier, eha health check --baseline), with its 90 % interval (<i>open</i>: "
             "beyond the range where the fault's response grows, the change only bounded on "
             "that side); first alarm: the "
-            "first check at which the fault alarms and the change is isolated to it (the "
-            "baseline's own cycle where the baseline record itself is unlike the healthy "
-            "fleet, farthest in that fault); changed "
+            "first check at which the fault alarms and the change is isolated to it, or the "
+            "baseline's own cycle, marked <i>(baseline)</i>, where the baseline record itself "
+            "is unlike the healthy fleet, farthest in that fault; changed "
             "beside it: a second fault's change read jointly with the isolated one's (the "
             "two-fault reading). Click a row to show its actuator below.</p>"
             + page.table(cols, rows, f"changes {fleet.run_id}", choice=(pid, "actuator"))
