@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import run_eha
+from helpers import KERNELS_READY, run_eha, wait_for_kernels
 
 # Rich sizes tables to the terminal: a wide one in every process of the suite (pytest-xdist's
 # workers have none), so that no check of printed text depends on where the tests run.
@@ -105,46 +105,84 @@ def pytest_collection_modifyitems(config, items):
         items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
-#: What compiles the model kernels (numba, ``cache=True``), in three processes: the HF kernels,
-#: chirp phase and metrics (about 3 s), the LF kernel (about 10 s), the LF batch (about 7 s).
-WARM_UP = (
-    "from eha.models.simulate import simulate, simulate_hf_batch\n"
-    "from eha.models.run_metrics import trace_metrics\n"
-    "trace_metrics(simulate('hf', 'chirp_1cm', t_end=0.01))\n"
-    "simulate_hf_batch([{}, {}], 'chirp_1cm', 0.01, [0, 1])",
-    "from eha.models.simulate import simulate\nsimulate('lf', 'chirp_1cm', t_end=0.01)",
-    "from eha.models.simulate import simulate_lf_rows\n"
-    "simulate_lf_rows([{}, {}], 'chirp_1cm', t_end=0.01)",
-)
+#: What compiles the model kernels into numba's cache (``cache=True``), one process each: the
+#: HF kernels with the chirp phase and the metrics (about 2 s of CPU from an empty cache), the
+#: LF kernel (about 6 s), the LF batch kernel (about 11 s: four specializations).
+WARM_UP = {
+    "hf": "from eha.models.simulate import simulate, simulate_hf_batch\n"
+          "from eha.models.run_metrics import trace_metrics\n"
+          "trace_metrics(simulate('hf', 'chirp_1cm', t_end=0.01))\n"
+          "simulate_hf_batch([{}, {}], 'chirp_1cm', 0.01, [0, 1])",
+    "lf": "from eha.models.simulate import simulate\nsimulate('lf', 'chirp_1cm', t_end=0.01)",
+    "lf_batch": "from eha.models.simulate import simulate_lf_rows\n"
+                "simulate_lf_rows([{}, {}], 'chirp_1cm', t_end=0.01)",
+}
+#: The warm-ups no test is sent before (short, and nearly every test runs the HF); a worker
+#: waits for the others at its first call of their kernels (:func:`_wait_for_warm_kernels`).
+BLOCKING = ("hf",)
+#: The kernels of each warm-up, as :mod:`eha.models.simulate` calls them.
+KERNELS = {"lf": ("run_lf",), "lf_batch": ("run_lf_batch",)}
 
-
-_WARMING: list[subprocess.Popen] = []
+_WARMING: dict[str, subprocess.Popen] = {}
 
 
 def pytest_sessionstart(session):
     """Under pytest-xdist the kernels are compiled into numba's cache once, side by side
-    (:data:`WARM_UP`), while the workers start and collect; no test is sent to a worker before
-    they are (:func:`pytest_xdist_node_collection_finished`). From a fresh clone (CI) both
+    (:data:`WARM_UP`), while the workers start and collect. From a fresh clone (CI) both
     workers, and the command lines the first tests run, otherwise compiled the same kernels at
-    once, each for itself (about 20 s of CPU each); with a cache they load it in a second."""
+    once, each for itself (about 20 s of CPU each); with a cache they load it in a second.
+    Each warm-up leaves a done file in the folder named by ``helpers.KERNELS_READY`` (the
+    workers inherit it), also when it failed (the tests then show the failure)."""
+    import tempfile
+    import textwrap
+
     config = session.config
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
-    _WARMING.extend(subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL) for code in WARM_UP)
+    folder = Path(tempfile.mkdtemp(prefix="eha-kernels-"))
+    os.environ[KERNELS_READY] = str(folder)
+    for name, code in WARM_UP.items():
+        wrapped = (f"try:\n{textwrap.indent(code, '    ')}\nfinally:\n"
+                   f"    open({str(folder / name)!r}, 'w').close()\n")
+        _WARMING[name] = subprocess.Popen([sys.executable, "-c", wrapped],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_node_collection_finished(node, ids):
     """The controller schedules the tests once every worker has collected: until then, it
-    waits here for the kernels (a failure shows again, with its message, in the tests)."""
-    while _WARMING:
-        _WARMING.pop().wait(timeout=600)
+    waits here for the :data:`BLOCKING` kernels."""
+    for name in BLOCKING:
+        if name in _WARMING:
+            _WARMING[name].wait(timeout=600)
 
 
 def pytest_sessionfinish(session):
-    while _WARMING:   # a run that ended before any worker collected
-        _WARMING.pop().wait(timeout=600)
+    for proc in _WARMING.values():   # a run that ended before the kernels were compiled
+        proc.wait(timeout=600)
+    folder = os.environ.get(KERNELS_READY)
+    if folder and not hasattr(session.config, "workerinput"):
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _wait_for_warm_kernels() -> None:
+    """In a worker: the first call of a kernel the controller's warm-up is still compiling
+    waits for it (:func:`helpers.wait_for_kernels`) and then loads it from numba's cache,
+    instead of compiling it a second time; the tests that need other kernels run meanwhile."""
+    if not (os.environ.get(KERNELS_READY) and os.environ.get("PYTEST_XDIST_WORKER")):
+        return
+    import eha.models.simulate as simulate
+
+    for warm, names in KERNELS.items():
+        for name in names:
+            def first_call(*args, _real=getattr(simulate, name), _name=name, _warm=warm):
+                wait_for_kernels((_warm,))
+                setattr(simulate, _name, _real)
+                return _real(*args)
+            setattr(simulate, name, first_call)
+
+
+_wait_for_warm_kernels()
 
 
 @pytest.fixture(autouse=True, scope="session")

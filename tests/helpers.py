@@ -29,9 +29,30 @@ import numpy as np
 from eha.campaigns.executors import Executor
 
 
+#: Under pytest-xdist, the folder where each kernel warm-up of the controller leaves its done
+#: file (conftest.py).
+KERNELS_READY = "EHA_TEST_KERNELS_READY"
+
+
+def wait_for_kernels(names=None, timeout: float = 600.0) -> None:
+    """Wait until the controller's warm-ups ``names`` (all by default) have compiled their
+    kernels into numba's cache; at once outside pytest-xdist or when they are done."""
+    import time
+
+    folder = os.environ.get(KERNELS_READY)
+    if not folder:
+        return
+    done = [Path(folder) / n for n in (names or ("hf", "lf", "lf_batch"))]
+    deadline = time.monotonic() + timeout
+    while not all(d.exists() for d in done) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
             timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:
-    """``python -m eha ARGS`` in a subprocess (the installed package of this interpreter)."""
+    """``python -m eha ARGS`` in a subprocess (the installed package of this interpreter),
+    started once the suite's kernels are in numba's cache (:func:`wait_for_kernels`)."""
+    wait_for_kernels()
     # under pytest-xdist one numba thread, as the worker running the test (conftest.py)
     threads = {"NUMBA_NUM_THREADS": "1"} if os.environ.get("PYTEST_XDIST_WORKER") else {}
     full_env = {**os.environ, "COLUMNS": "200", **threads, **(env or {})}
