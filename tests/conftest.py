@@ -102,7 +102,31 @@ def pytest_collection_modifyitems(config, items):
     workers sort alike, so their collections stay identical, as xdist requires.) A serial run
     keeps the file order, so that a module's fixtures are built once."""
     if hasattr(config, "workerinput"):
-        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+        cold = bool(os.environ.get(COLD_KERNELS))
+        items.sort(key=lambda item: (cold and item.path.name not in NO_KERNELS,
+                                     item.get_closest_marker("slow") is None))
+
+
+#: Test modules that run no model kernel (measured with a probe on the kernels' entry points):
+#: from an empty numba cache they are sent first, while the kernels compile.
+NO_KERNELS = ("test_code_size.py", "test_docs.py", "test_estimate.py", "test_explain_decide.py",
+              "test_explain_leads.py", "test_explain_report.py",
+              "test_explain_unexplained.py", "test_explain_verdict.py", "test_job_plugin.py",
+              "test_keywords.py", "test_layering.py", "test_null_match.py",
+              "test_progress_phases.py", "test_schema_migrations.py", "test_runner.py")
+#: Set by the controller for its workers when numba's cache lacks the LF batch kernel.
+COLD_KERNELS = "EHA_TEST_COLD_KERNELS"
+
+
+def _kernels_cached() -> bool:
+    """Whether numba's cache holds the LF batch kernel (its index file; a stale one counts:
+    numba then compiles as before)."""
+    cache = os.environ.get("NUMBA_CACHE_DIR")
+    if cache:
+        return any(Path(cache).rglob("lf._run_groups-*.nbi"))
+    import eha.models.lf as lf
+
+    return any((Path(lf.__file__).parent / "__pycache__").glob("lf._run_groups-*.nbi"))
 
 
 #: What compiles the model kernels into numba's cache (``cache=True``), one process each: the
@@ -141,6 +165,11 @@ def pytest_sessionstart(session):
         return
     folder = Path(tempfile.mkdtemp(prefix="eha-kernels-"))
     os.environ[KERNELS_READY] = str(folder)
+    if not _kernels_cached():
+        # the workers send the tests without kernels first (pytest_collection_modifyitems) and
+        # the controller keeps that order (xdist sorts its units by size otherwise)
+        os.environ[COLD_KERNELS] = "1"
+        config.option.loadscopereorder = False
     for name, code in WARM_UP.items():
         wrapped = (f"try:\n{textwrap.indent(code, '    ')}\nfinally:\n"
                    f"    open({str(folder / name)!r}, 'w').close()\n")
