@@ -141,22 +141,22 @@ WARM_UP = {
     "lf_batch": "from eha.models.simulate import simulate_lf_rows\n"
                 "simulate_lf_rows([{}, {}], 'chirp_1cm', t_end=0.01)",
 }
-#: The warm-ups no test is sent before (short, and nearly every test runs the HF); a worker
-#: waits for the others at its first call of their kernels (:func:`_wait_for_warm_kernels`).
-BLOCKING = ("hf",)
-#: The kernels of each warm-up, as :mod:`eha.models.simulate` calls them.
-KERNELS = {"lf": ("run_lf",), "lf_batch": ("run_lf_batch",)}
+#: The kernels of each warm-up, as :mod:`eha.models.simulate` calls them: a worker's first
+#: call of one waits for its warm-up (:func:`_wait_for_warm_kernels`); no test waits for a
+#: kernel it does not run.
+KERNELS = {"hf": ("run_hf", "run_hf_batch"), "lf": ("run_lf",), "lf_batch": ("run_lf_batch",)}
 
 _WARMING: dict[str, subprocess.Popen] = {}
 
 
 def pytest_sessionstart(session):
     """Under pytest-xdist the kernels are compiled into numba's cache once, side by side
-    (:data:`WARM_UP`), while the workers start and collect. From a fresh clone (CI) both
-    workers, and the command lines the first tests run, otherwise compiled the same kernels at
-    once, each for itself (about 20 s of CPU each); with a cache they load it in a second.
-    Each warm-up leaves a done file in the folder named by ``helpers.KERNELS_READY`` (the
-    workers inherit it), also when it failed (the tests then show the failure)."""
+    (:data:`WARM_UP`), while the workers start, collect and run the first tests. From a fresh
+    clone (CI) both workers, and the command lines the first tests run, otherwise compiled the
+    same kernels at once, each for itself (about 20 s of CPU each); with a cache they load it
+    in a second. Each warm-up leaves a done file in the folder named by
+    ``helpers.KERNELS_READY`` (the workers inherit it), also when it failed (the tests then
+    show the failure). From an empty cache the modules of :data:`NO_KERNELS` go first."""
     import tempfile
     import textwrap
 
@@ -177,15 +177,6 @@ def pytest_sessionstart(session):
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-@pytest.hookimpl(optionalhook=True)
-def pytest_xdist_node_collection_finished(node, ids):
-    """The controller schedules the tests once every worker has collected: until then, it
-    waits here for the :data:`BLOCKING` kernels."""
-    for name in BLOCKING:
-        if name in _WARMING:
-            _WARMING[name].wait(timeout=600)
-
-
 def pytest_sessionfinish(session):
     for proc in _WARMING.values():   # a run that ended before the kernels were compiled
         proc.wait(timeout=600)
@@ -195,9 +186,9 @@ def pytest_sessionfinish(session):
 
 
 def _wait_for_warm_kernels() -> None:
-    """In a worker: the first call of a kernel the controller's warm-up is still compiling
-    waits for it (:func:`helpers.wait_for_kernels`) and then loads it from numba's cache,
-    instead of compiling it a second time; the tests that need other kernels run meanwhile."""
+    """In a worker: the first call of a kernel (:data:`KERNELS`) waits for its warm-up
+    (:func:`helpers.wait_for_kernels`) and then loads it from numba's cache, instead of
+    compiling it a second time; the tests that need no kernel run meanwhile."""
     if not (os.environ.get(KERNELS_READY) and os.environ.get("PYTEST_XDIST_WORKER")):
         return
     import eha.models.simulate as simulate
