@@ -3,7 +3,7 @@
 - ``eha``: the real command line in a subprocess (``helpers.run_eha``).
 - the residual loop's null cache, in a temporary folder for the session (autouse); each null
   is calibrated once even when both xdist workers need it at once (a lock per cache key).
-- ``slow``: marker of the end-to-end tests that take more than a few seconds
+- ``slow``: marker of the end-to-end tests that take more than a second or two
   (``pytest -m "not slow"`` skips them; CI runs everything; markers are strict).
 
 Under pytest-xdist (``-n 2``) the tests of each module in :data:`ONE_WORKER` run on one worker,
