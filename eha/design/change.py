@@ -95,6 +95,7 @@ def measure(command, t_end: float = 1.0, faults: Sequence[str] | None = None,
     from eha.health.change import draw_test_day
     from eha.health.change_calibration import (_faulted, _record, calibrate_change,
                                                isolate_group, judge, later_seed, sign_of)
+    from eha.health.change_runs import _positions
     from eha.identification.healthy import draw_actuator, upper_bound
     from eha.identification.measured import noise_level
     from eha.models.commands import as_command
@@ -107,21 +108,23 @@ def measure(command, t_end: float = 1.0, faults: Sequence[str] | None = None,
     first = _record(cmd, draw_actuator(seed), t_end, noise, seed)
     sig = Signatures(first.command, t_end, noise, cal.nuisances, model=cal.signatures)
 
-    def pair(s: int, fault: str | None = None, change: float = 0.0):
-        hf = draw_actuator(s)
-        a = _record(cmd, hf, t_end, noise, s)
-        later = draw_test_day(hf, cal.nuisances, s)
-        applied = 0.0
-        if fault:
-            later, applied = _faulted(later, fault, change)
-        b = _record(cmd, later, t_end, noise, later_seed(s))
-        j = judge(cal, sig, b.xu - a.xu, noise_level(a.xu) ** 2 + noise_level(b.xu) ** 2)
-        return j, applied
+    def pairs(specs):
+        """``(judged, applied change)`` of each ``(actuator seed, fault, change)``: the two
+        records of each pair simulated in one batch of parallel HF runs."""
+        runs, applied = [], []
+        for s, fault, change in specs:
+            hf = draw_actuator(s)
+            later, grown = draw_test_day(hf, cal.nuisances, s), 0.0
+            if fault:
+                later, grown = _faulted(later, fault, change)
+            runs += [(hf, s), (later, later_seed(s))]
+            applied.append(grown)
+        xs = _positions(cmd, runs, t_end, noise)
+        return [(judge(cal, sig, b - a, noise_level(a) ** 2 + noise_level(b) ** 2), grown)
+                for a, b, grown in zip(xs[0::2], xs[1::2], applied)]
 
-    alarms = 0
-    for k in range(held_out):
-        j, _ = pair(seed + 300_000 + k)
-        alarms += any(v["degraded"] for v in j.values())
+    alarms = sum(any(v["degraded"] for v in j.values())
+                 for j, _ in pairs([(seed + 300_000 + k, None, 0.0) for k in range(held_out)]))
     say(f"{command if isinstance(command, str) else 'design'}: {alarms} of {held_out} "
         "held-out healthy pairs alarmed")
     if sizes is None:
@@ -138,8 +141,7 @@ def measure(command, t_end: float = 1.0, faults: Sequence[str] | None = None,
         def level(size: float, base: int) -> dict[str, Any]:
             det = iso = cov = group = 0
             applied_all = []
-            for j in range(per_level):
-                judged, applied = pair(base + j, n, s * size)
+            for judged, applied in pairs([(base + j, n, s * size) for j in range(per_level)]):
                 applied_all.append(applied)
                 det += judged[n]["degraded"]
                 g = isolate_group(judged)
