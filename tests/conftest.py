@@ -175,6 +175,7 @@ def pytest_sessionstart(session):
                    f"    open({str(folder / name)!r}, 'w').close()\n")
         _WARMING[name] = subprocess.Popen([sys.executable, "-c", wrapped],
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        (folder / f"{name}.pid").write_text(str(_WARMING[name].pid))
 
 
 def pytest_sessionfinish(session):

@@ -42,10 +42,33 @@ def wait_for_kernels(names=None, timeout: float = 600.0) -> None:
     folder = os.environ.get(KERNELS_READY)
     if not folder:
         return
-    done = [Path(folder) / n for n in (names or ("hf", "lf", "lf_batch"))]
+    waiting = list(names or ("hf", "lf", "lf_batch"))
     deadline = time.monotonic() + timeout
-    while not all(d.exists() for d in done) and time.monotonic() < deadline:
-        time.sleep(0.05)
+    while waiting and time.monotonic() < deadline:
+        # done, or its process gone without a word (killed): the kernel compiles on first use
+        waiting = [n for n in waiting if not (Path(folder) / n).exists()
+                   and _alive(Path(folder) / f"{n}.pid")]
+        if waiting:
+            time.sleep(0.05)
+
+
+def _alive(pid_file: Path) -> bool:
+    """Whether the process whose PID the file holds runs (a zombie does not); True while the
+    file is not written yet."""
+    try:
+        pid = int(pid_file.read_text())
+    except (OSError, ValueError):
+        return True
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except OSError:
+        pass
+    try:
+        os.kill(pid, 0)
+    except OSError:
+        return False
+    return True
 
 
 def run_eha(*args: str, cwd: str | Path | None = None, env: dict | None = None,
