@@ -9,6 +9,10 @@ apart, the detectable change the smallest size from which every larger one is de
 day. Where a fault's floor falls far below its floor with the nuisances, the test-day
 differences, not the noise, set it.
 
+Beside it, which difference costs what: the healthy pairs' spread of each fault's estimate (its
+std, read back through the fault's gain curve into the fault's unit) in calibrations with no
+test-day difference, with each one alone at its default half-width, and with all of them.
+
 Usage::
 
     python validation/nuisance_floor.py            # prints the table
@@ -67,13 +71,41 @@ def main(argv=None) -> int:
                         "with_to_fleet": with_ / fl if with_ and fl else None}
         print(f"  {name}: {without if without else '-'} / {with_ if with_ else '-'} "
               f"({fl if fl else 'not detected'})", flush=True)
+    spread = spread_by_nuisance(args.command, args.calibration, args.seed)
     out = {"settings": vars(args), "command": args.command, "faults": faults,
+           "spread_by_nuisance": spread,
            "false_alarms_without_nuisances": m["false_alarms"],
            "with_nuisances_from": "validation/results/baseline.json",
            "seconds": time.perf_counter() - start}
     if args.json:
         write_result("nuisance_floor", out)
     return 0
+
+
+def spread_by_nuisance(command: str, pairs: int, seed: int) -> dict[str, dict[str, float]]:
+    """``{calibration: {fault: std in SI}}``: the healthy pairs' spread of each fault's
+    estimate in a change calibration of ``pairs`` pairs with no test-day difference
+    (``none``), each one alone (its name) and all of them (``all``); printed in display
+    units."""
+    from eha.health.change import NUISANCES
+    from eha.health.change_calibration import calibrate_change
+    from eha.health.change_runs import sign_of
+    from eha.models.units import show
+
+    zero = {n: 0.0 for n in NUISANCES}
+    cases = {"none": zero, **{n: {**zero, n: v.width} for n, v in NUISANCES.items()},
+             "all": None}
+    out: dict[str, dict[str, float]] = {}
+    for label, widths in cases.items():
+        cal, _ = calibrate_change(command, actuators=pairs, seed=seed, t_end=1.0,
+                                  nuisances=widths)
+        out[label] = {}
+        for name, f in cal.faults.items():
+            sign, curve = sign_of(name), cal.gain(name)
+            out[label][name] = float(abs(curve.invert(sign * f["std"], sign)))
+        print(f"  spread, {label}: " + ", ".join(show(n, v) for n, v in out[label].items()),
+              flush=True)
+    return out
 
 
 if __name__ == "__main__":
