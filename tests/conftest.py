@@ -107,13 +107,14 @@ def pytest_collection_modifyitems(config, items):
                                      item.get_closest_marker("slow") is None))
 
 
-#: Test modules that run no model kernel (measured with a probe on the kernels' entry points):
-#: from an empty numba cache they are sent first, while the kernels compile.
-NO_KERNELS = ("test_code_size.py", "test_docs.py", "test_estimate.py", "test_explain_decide.py",
+#: Test modules that run no model kernel, in their process or in one they start (found with a
+#: probe on the kernels' entry points, less the modules that start commands, pools or
+#: scripts): they do not wait for the kernels' warm-up (:func:`_kernels_compiled`), and from
+#: an empty numba cache they are sent first, while the kernels compile.
+NO_KERNELS = ("test_code_size.py", "test_estimate.py", "test_explain_decide.py",
               "test_explain_leads.py", "test_explain_report.py",
-              "test_explain_unexplained.py", "test_explain_verdict.py", "test_job_plugin.py",
-              "test_keywords.py", "test_layering.py", "test_null_match.py",
-              "test_progress_phases.py", "test_schema_migrations.py", "test_runner.py")
+              "test_explain_unexplained.py", "test_explain_verdict.py", "test_keywords.py",
+              "test_layering.py", "test_null_match.py", "test_progress_phases.py")
 #: Set by the controller for its workers when numba's cache lacks the LF batch kernel.
 COLD_KERNELS = "EHA_TEST_COLD_KERNELS"
 
@@ -141,11 +142,6 @@ WARM_UP = {
     "lf_batch": "from eha.models.simulate import simulate_lf_rows\n"
                 "simulate_lf_rows([{}, {}], 'chirp_1cm', t_end=0.01)",
 }
-#: The kernels of each warm-up, as :mod:`eha.models.simulate` calls them: a worker's first
-#: call of one waits for its warm-up (:func:`_wait_for_warm_kernels`); no test waits for a
-#: kernel it does not run.
-KERNELS = {"hf": ("run_hf", "run_hf_batch"), "lf": ("run_lf",), "lf_batch": ("run_lf_batch",)}
-
 _WARMING: dict[str, subprocess.Popen] = {}
 
 
@@ -179,31 +175,24 @@ def pytest_sessionstart(session):
 
 
 def pytest_sessionfinish(session):
+    if not _WARMING:          # a worker, or a run that started no warm-up
+        return
     for proc in _WARMING.values():   # a run that ended before the kernels were compiled
         proc.wait(timeout=600)
-    folder = os.environ.get(KERNELS_READY)
-    if folder and not hasattr(session.config, "workerinput"):
+    _WARMING.clear()
+    folder = os.environ.pop(KERNELS_READY, None)
+    os.environ.pop(COLD_KERNELS, None)
+    if folder:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _wait_for_warm_kernels() -> None:
-    """In a worker: the first call of a kernel (:data:`KERNELS`) waits for its warm-up
-    (:func:`helpers.wait_for_kernels`) and then loads it from numba's cache, instead of
-    compiling it a second time; the tests that need no kernel run meanwhile."""
-    if not (os.environ.get(KERNELS_READY) and os.environ.get("PYTEST_XDIST_WORKER")):
-        return
-    import eha.models.simulate as simulate
-
-    for warm, names in KERNELS.items():
-        for name in names:
-            def first_call(*args, _real=getattr(simulate, name), _name=name, _warm=warm):
-                wait_for_kernels((_warm,))
-                setattr(simulate, _name, _real)
-                return _real(*args)
-            setattr(simulate, name, first_call)
-
-
-_wait_for_warm_kernels()
+@pytest.fixture(autouse=True)
+def _kernels_compiled(request):
+    """Under pytest-xdist a test of a module not in :data:`NO_KERNELS` starts once the
+    controller's warm-ups have compiled every kernel into numba's cache (at once when they
+    have), so that neither it nor a process it starts compiles them a second time."""
+    if request.path.name not in NO_KERNELS:
+        wait_for_kernels()
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -34,13 +34,18 @@ from eha.campaigns.executors import Executor
 KERNELS_READY = "EHA_TEST_KERNELS_READY"
 
 
+#: Set once every warm-up is done: later waits return at once.
+_KERNELS_DONE = False
+
+
 def wait_for_kernels(names=None, timeout: float = 600.0) -> None:
     """Wait until the controller's warm-ups ``names`` (all by default) have compiled their
     kernels into numba's cache; at once outside pytest-xdist or when they are done."""
     import time
 
+    global _KERNELS_DONE
     folder = os.environ.get(KERNELS_READY)
-    if not folder:
+    if _KERNELS_DONE or not folder or not os.path.isdir(folder):
         return
     waiting = list(names or ("hf", "lf", "lf_batch"))
     deadline = time.monotonic() + timeout
@@ -50,6 +55,7 @@ def wait_for_kernels(names=None, timeout: float = 600.0) -> None:
                    and _alive(Path(folder) / f"{n}.pid")]
         if waiting:
             time.sleep(0.05)
+    _KERNELS_DONE = not names and not waiting
 
 
 def _alive(pid_file: Path) -> bool:

@@ -388,3 +388,22 @@ def test_calibration_folder_and_command_file_length(tmp_path):
                       "5", "--out", out, "--results", tmp_path / "res", "--no-progress")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(out.read_text())["t_end"] == pytest.approx(0.4)
+
+
+def test_a_diverged_hf_run_stops_the_calibration_with_one_line(monkeypatch):
+    """A calibration whose HF run is not finite (a diverged integration) says so, naming the
+    run's fault levels, instead of carrying NaN into its thresholds."""
+    from eha.health import change_runs
+    from eha.identification import synthetic
+    from eha.identification.healthy import DetectionError
+
+    real = synthetic.synthetic_positions
+
+    def diverged(*args, **kwargs):
+        xs = real(*args, **kwargs)
+        xs[-1, 50:] = np.nan
+        return xs
+    monkeypatch.setattr(synthetic, "synthetic_positions", diverged)
+    with pytest.raises(DetectionError, match=r"^`command`: an HF run of the calibration "
+                                             r"diverged \(parameters .*BKL"):
+        change_runs._positions("chirp_1cm", [({}, 1), ({"BKL": 2e-5}, 2)], 0.1, 1e-6)

@@ -50,10 +50,19 @@ def _positions(command, runs: Sequence[tuple[Mapping[str, float], int]], t_end: 
     ``_record(command, hf, t_end, noise, seed).xu`` is, in parallel numba calls."""
     from eha.identification.synthetic import synthetic_positions
 
+    from eha.identification.healthy import DetectionError
+
     if not runs:
         return np.empty((0, int(round(t_end / 1e-3)) + 1))
-    return synthetic_positions(command, [hf for hf, _ in runs], t_end, noise,
-                               [s for _, s in runs])
+    xs = synthetic_positions(command, [hf for hf, _ in runs], t_end, noise,
+                             [s for _, s in runs])
+    bad = ~np.isfinite(xs).all(axis=1)
+    if bad.any():   # as a record that is not finite numbers is refused
+        hf = runs[int(np.argmax(bad))][0]
+        raise DetectionError(f"`command`: an HF run of the calibration diverged (parameters "
+                             f"{ {k: v for k, v in hf.items() if k in FAULTS} }); its "
+                             "positions are not finite")
+    return xs
 
 
 def _faulted(hf: Mapping[str, float], name: str, change: float) -> tuple[dict, float]:

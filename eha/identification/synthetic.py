@@ -103,13 +103,12 @@ def synthetic_positions(command: Command | str, overrides: Sequence[Mapping[str,
     from eha.models.simulate import OUTPUTS, simulate_hf_batch
 
     sampled = _sampled(command, t_end, "auto")
-    rows = []
+    xs = np.empty((len(overrides), int(round(t_end / OUTPUT_DT)) + 1))
     for k in range(0, len(overrides), BATCH_RUNS):
         part = slice(k, k + BATCH_RUNS)
         out = simulate_hf_batch([dict(o) for o in overrides[part]], sampled, t_end,
                                 [int(s) for s in seeds[part]])
-        rows.extend(out[:, :, OUTPUTS.index("xu")])
-    xs = np.array(rows)
+        xs[part] = out[:, :, OUTPUTS.index("xu")]    # one batch's outputs held at a time
     if noise > 0:
         for j, seed in enumerate(seeds):
             xs[j] += np.random.default_rng(seed).normal(0.0, noise, xs.shape[1])
