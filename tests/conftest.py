@@ -103,15 +103,16 @@ def pytest_collection_modifyitems(config, items):
     keeps the file order, so that a module's fixtures are built once."""
     if hasattr(config, "workerinput"):
         cold = bool(os.environ.get(COLD_KERNELS))
-        items.sort(key=lambda item: (cold and item.path.name not in NO_KERNELS,
+        items.sort(key=lambda item: (cold and not _kernel_free(item),
                                      item.get_closest_marker("slow") is None))
 
 
-#: Test modules that run no model kernel, in their process or in one they start (found with a
-#: probe on the kernels' entry points, less the modules that start commands, pools or
-#: scripts): they do not wait for the kernels' warm-up (:func:`_kernels_compiled`), and from
-#: an empty numba cache they are sent first, while the kernels compile.
-NO_KERNELS = ("test_code_size.py", "test_estimate.py", "test_explain_decide.py",
+#: Test modules whose quick tests run no model kernel, in their process or in one they start
+#: (found with a probe on the kernels' entry points, less the modules that start commands,
+#: pools or kernels in scripts): they do not wait for the kernels' warm-up
+#: (:func:`_kernels_compiled`; their ``slow`` tests do), and from an empty numba cache they are
+#: sent first, while the kernels compile.
+NO_KERNELS = ("test_code_size.py", "test_docs.py", "test_estimate.py", "test_explain_decide.py",
               "test_explain_leads.py", "test_explain_report.py",
               "test_explain_unexplained.py", "test_explain_verdict.py", "test_keywords.py",
               "test_layering.py", "test_null_match.py", "test_progress_phases.py")
@@ -191,8 +192,13 @@ def _kernels_compiled(request):
     """Under pytest-xdist a test of a module not in :data:`NO_KERNELS` starts once the
     controller's warm-ups have compiled every kernel into numba's cache (at once when they
     have), so that neither it nor a process it starts compiles them a second time."""
-    if request.path.name not in NO_KERNELS:
+    if not _kernel_free(request.node):
         wait_for_kernels()
+
+
+def _kernel_free(item) -> bool:
+    """A quick test of a module of :data:`NO_KERNELS`."""
+    return item.path.name in NO_KERNELS and item.get_closest_marker("slow") is None
 
 
 @pytest.fixture(autouse=True, scope="session")
