@@ -190,31 +190,10 @@ def pytest_sessionfinish(session):
 @pytest.fixture(autouse=True)
 def _kernels_compiled(request):
     """Under pytest-xdist a test of a module not in :data:`NO_KERNELS` starts once the
-    controller's warm-ups have compiled the HF and LF kernels into numba's cache (at once when
-    they have), so that neither it nor a process it starts compiles them a second time; the LF
-    batch kernel, the longest to compile, is waited for at its first call in the worker
-    (:func:`_lf_batch_when_compiled`) and by a command line's process (``run_eha``)."""
+    controller's warm-ups have compiled every kernel into numba's cache (at once when they
+    have), so that neither it nor a process it starts compiles them a second time."""
     if not _kernel_free(request.node):
-        wait_for_kernels(("hf", "lf"))
-
-
-def _lf_batch_when_compiled() -> None:
-    """In a worker: the first call of the LF batch kernel (the GA's) waits for its warm-up and
-    then loads it from numba's cache instead of compiling it a second time."""
-    if not (os.environ.get(KERNELS_READY) and os.environ.get("PYTEST_XDIST_WORKER")):
-        return
-    import eha.models.simulate as simulate
-
-    real = simulate.run_lf_batch
-
-    def first_call(*args, **kwargs):
-        wait_for_kernels(("lf_batch",))
-        simulate.run_lf_batch = real
-        return real(*args, **kwargs)
-    simulate.run_lf_batch = first_call
-
-
-_lf_batch_when_compiled()
+        wait_for_kernels()
 
 
 def _kernel_free(item) -> bool:
