@@ -33,6 +33,7 @@ def _env_without_columns() -> dict:
 
 
 # ----------------------------------------------------------------------- off a terminal
+@pytest.mark.slow   # a command line in its own process, piped
 def test_output_to_a_pipe_is_not_cut_at_80_columns():
     """Without COLUMNS, to a pipe: rich took 80 columns and wrapped or cut every wider line
     ("(lm, \\nseed 0)", "estima…")."""

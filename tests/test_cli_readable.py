@@ -138,6 +138,7 @@ def test_no_help_text_loses_a_bracketed_unit_to_markup():
         out.replace("│", " ").split())
 
 
+@pytest.mark.slow   # eha fdi in its own process
 def test_fdi_table_has_units_and_states_the_sign_of_its_error():
     proc = run_eha("fdi", "--command", "chirp_1cm", "--set", "BKL=1e-4", "--set", "FDJ=800",
                    "--t-end", "0.3", env={"COLUMNS": "80"})

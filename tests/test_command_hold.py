@@ -81,6 +81,7 @@ def test_a_bad_command_hold_is_one_line_and_exit_2(tmp_path, args):
     assert not (tmp_path / "res").exists()
 
 
+@pytest.mark.slow   # two GA identifications
 def test_fdi_on_a_held_record_fits_better_read_held_and_says_so(tmp_path):
     cmd = array_command(GRID, step_sequence(3), name="steps")
     rec = tmp_path / "r.csv"

@@ -110,6 +110,7 @@ def test_a_found_size_the_record_contradicts_settles_nothing(record_path):
     assert "FRC reads" in s.hypotheses[0]["why"]
 
 
+@pytest.mark.slow   # a record of its own, settled by GA fits
 def test_a_record_that_does_not_show_the_effect_settles_nothing(tmp_path):
     """A healthy actuator (no load, no offset) against a prior of 30 N of load or 0.002 mA
     of offset, readings loose enough to match: neither effect is beyond what healthy
