@@ -48,12 +48,9 @@ def _positions(command, runs: Sequence[tuple[Mapping[str, float], int]], t_end: 
                noise: float) -> np.ndarray:
     """The recorded positions of many ``(hf, seed)`` runs (rows in order), each what
     ``_record(command, hf, t_end, noise, seed).xu`` is, in parallel numba calls."""
+    from eha.identification.healthy import DetectionError
     from eha.identification.synthetic import synthetic_positions
 
-    from eha.identification.healthy import DetectionError
-
-    if not runs:
-        return np.empty((0, int(round(t_end / 1e-3)) + 1))
     xs = synthetic_positions(command, [hf for hf, _ in runs], t_end, noise,
                              [s for _, s in runs])
     bad = ~np.isfinite(xs).all(axis=1)
@@ -167,6 +164,9 @@ def _interactions(cmd, sig: Signatures, later, curves: Mapping[str, dict],
                     grown[(i, j, mult_f, k, mult_g)] = (both, s, change_f, change_g)
     positions = dict(zip(grown, _positions(cmd, [v[:2] for v in grown.values()], t_end,
                                            noise)))
+    by_first: dict[tuple, list] = {}     # the runs of each (f, g, f's size), in their order
+    for key, (_, _, change_f, change_g) in grown.items():
+        by_first.setdefault(key[:3], []).append((key, change_f, change_g))
     out: dict[str, dict[str, dict[str, list]]] = {f: {} for f in sig.faults}
     for i, f in enumerate(sig.faults):
         cond = sig.conditional(i)
@@ -179,9 +179,7 @@ def _interactions(cmd, sig: Signatures, later, curves: Mapping[str, dict],
             sizes, rel = [], []
             for mult_f in INTERACTION_FIRST:
                 errors, applied_f = [], []
-                for key, (_, _, change_f, change_g) in grown.items():
-                    if key[:3] != (i, j, mult_f):
-                        continue
+                for key, change_f, change_g in by_first.get((i, j, mult_f), []):
                     d = signs[j] * float(cond[j] @ (positions[key] - later[key[3]][2])) - \
                         float(np.interp(abs(change_f), np.r_[0.0, xs], np.r_[0.0, leak["mean"]]))
                     read = curve.invert(signs[j] * d, signs[j])
@@ -192,6 +190,7 @@ def _interactions(cmd, sig: Signatures, later, curves: Mapping[str, dict],
                     rel.append(float(np.sqrt(np.mean(np.square(errors)))))
             out[f][g] = {"sizes": sizes, "rel": rel}
     return out
+
 
 __all__ = ["GAIN_ACTUATORS", "LATER_SEED_SHIFT", "INTERACTION_FIRST", "INTERACTION_SECOND",
            "INTERACTION_ACTUATORS", "later_seed", "sign_of"]
